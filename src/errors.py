@@ -1,0 +1,17 @@
+"""Exceptions with one-line messages meant for the user, not a traceback reader."""
+
+
+class NrbenchError(Exception):
+    """Base class: the message names the file or config key, what was found and what was expected."""
+
+
+class DataError(NrbenchError):
+    """Input data (an EXR, a scene file, a shard) is missing, malformed or out of range."""
+
+
+class ConfigError(NrbenchError):
+    """A config value is unknown or inconsistent."""
+
+
+class EnvironmentSetupError(NrbenchError):
+    """A system dependency (LLVM, CUDA, a package) needed by the chosen backend is missing."""

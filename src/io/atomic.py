@@ -1,0 +1,69 @@
+"""Atomic file writes: write to a temporary sibling, then rename it over the target.
+
+Stages communicate through files and later stages (and cached reruns) trust whatever file exists at a
+path. A crash, a kill or a full disk in the middle of a write must therefore never leave a half-written
+file under the final name: either the old file stays intact or the complete new one replaces it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from collections.abc import Iterator
+from pathlib import Path
+
+
+def _fsync_file(path: Path) -> None:
+    """Flush a written file to disk so the rename never exposes a name whose data is still in cache."""
+    with contextlib.suppress(OSError), open(path, "rb") as f:
+        os.fsync(f.fileno())
+
+
+def _fsync_dir(path: Path) -> None:
+    """Persist the rename itself (a directory entry); best effort, not supported on every platform."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path next to `path`; on clean exit move it onto `path`, on error delete it.
+
+    The temporary name is `.<name>.tmp-<pid>-<random><suffix>`: hidden, unique per process and call, in
+    the same directory (so `os.replace` is an atomic rename on the same filesystem) and with the same
+    suffix (so libraries that pick the format from the extension still work). Parent directories are
+    created. The caller writes the file at the yielded path by any means (a library, `open`, ...);
+    writing nothing there is an error, not a silent no-op.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}{path.suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise FileNotFoundError(f"{path}: nothing was written to the temporary file {tmp.name}")
+        _fsync_file(tmp)
+        os.replace(tmp, path)
+        _fsync_dir(path.parent)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write `data` to `path` atomically (see `atomic_path`); returns the final path."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
+    """Write `text` to `path` atomically (see `atomic_path`); returns the final path."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding=encoding)
+    return Path(path)

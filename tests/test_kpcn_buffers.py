@@ -1,0 +1,234 @@
+"""KPCN buffer convention: exact round trip, one-line errors for each bad input, counted repairs."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from src.data.kpcn_buffers import (
+    KPCN_BUFFERS,
+    RepairPolicy,
+    buffers_to_channels,
+    load_kpcn_exr,
+    write_kpcn_exr,
+)
+from src.errors import ConfigError, DataError
+from src.io.exr import read_exr, write_exr
+
+H, W = 7, 5  # non-square on purpose
+
+
+def make_buffers(seed=0, h=H, w=W):
+    rng = np.random.default_rng(seed)
+    out = {name: rng.random((h, w, len(chans)), dtype=np.float32) for name, chans in KPCN_BUFFERS.items()}
+    out["normal"] = out["normal"] * 2 - 1  # normals may legitimately be negative
+    return out
+
+
+def write_channels(path, **overrides):
+    """Write a valid KPCN file with some channels replaced (value) or dropped (None)."""
+    channels = buffers_to_channels(make_buffers())
+    for name, value in overrides.items():
+        name = name.replace("__", ".")
+        if value is None:
+            del channels[name]
+        else:
+            channels[name] = value
+    write_exr(path, channels)
+    return path
+
+
+def one_line(excinfo, *needles):
+    msg = str(excinfo.value)
+    assert "\n" not in msg
+    for needle in needles:
+        assert needle in msg, (needle, msg)
+    return msg
+
+
+def test_spec_names_exactly_the_tungsten_convention():
+    assert KPCN_BUFFERS["color"] == ("R", "G", "B")
+    for b in ("diffuse", "specular", "albedo", "normal"):
+        assert KPCN_BUFFERS[b] == (f"{b}.R", f"{b}.G", f"{b}.B")
+    assert KPCN_BUFFERS["depth"] == ("depth.Z",) and KPCN_BUFFERS["visibility"] == ("visibility.Z",)
+    for b in ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility"):
+        assert KPCN_BUFFERS[f"{b}Variance"] == (f"{b}Variance.Z",)
+    assert len(KPCN_BUFFERS) == 14 and sum(map(len, KPCN_BUFFERS.values())) == 24
+
+
+def test_round_trip(tmp_path):
+    buffers = make_buffers()
+    path = write_kpcn_exr(tmp_path / "scene-00004spp.exr", buffers)
+    assert sorted(read_exr(path)) == sorted(ch for chans in KPCN_BUFFERS.values() for ch in chans)
+    loaded, report = load_kpcn_exr(path, expected_size=(H, W))
+    assert list(loaded) == list(KPCN_BUFFERS)
+    for name, arr in buffers.items():
+        assert loaded[name].dtype == np.float32
+        assert loaded[name].shape == (H, W, len(KPCN_BUFFERS[name]))
+        np.testing.assert_array_equal(loaded[name], arr)
+    assert report.total == 0 and report.summary() == "no repairs"
+
+
+def test_single_channel_buffers_accept_2d_and_subset_load(tmp_path):
+    buffers = {"color": make_buffers()["color"], "depth": np.full((H, W), 2.5, np.float64)}
+    path = write_kpcn_exr(tmp_path / "ref.exr", buffers)
+    loaded, _ = load_kpcn_exr(path, buffers=["depth", "color"])
+    assert list(loaded) == ["depth", "color"]
+    assert loaded["depth"].shape == (H, W, 1) and loaded["depth"].dtype == np.float32
+    np.testing.assert_array_equal(loaded["depth"], 2.5)
+
+
+def test_buffers_to_channels_rejects_bad_input():
+    with pytest.raises(DataError) as excinfo:
+        buffers_to_channels({"colour": np.zeros((H, W, 3))})
+    one_line(excinfo, "'colour'")
+    with pytest.raises(DataError) as excinfo:
+        buffers_to_channels({"normal": np.zeros((H, W, 1))})
+    one_line(excinfo, "'normal'", "(H, W, 3)")
+
+
+def test_missing_channel(tmp_path):
+    path = write_channels(tmp_path / "nodiffG.exr", diffuse__G=None)
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "nodiffG.exr", "missing EXR channel 'diffuse.G' (buffer 'diffuse'); found: B, G, R,")
+
+
+def test_many_missing_channels_stay_one_line(tmp_path):
+    path = write_exr(tmp_path / "rgb_only.exr", {c: np.ones((H, W), np.float32) for c in "RGB"})
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "rgb_only.exr", "'diffuse.R' (buffer 'diffuse')", "more", "found: B, G, R")
+
+
+def test_wrong_expected_size(tmp_path):
+    path = write_kpcn_exr(tmp_path / "small.exr", make_buffers())
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path, expected_size=(W, H))
+    one_line(excinfo, "small.exr", "7x5", "expected 5x7")
+
+
+def test_non_float_channel_rejected(tmp_path):
+    path = write_channels(tmp_path / "uint.exr", depth__Z=np.ones((H, W), np.uint32))
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "uint.exr", "'depth.Z'", "uint32")
+
+
+def _with(channel, index, value, dtype=np.float32):
+    arr = np.asarray(buffers_to_channels(make_buffers())[channel], dtype=dtype).copy()
+    for i in np.atleast_1d(index):
+        arr.flat[i] = value
+    return arr
+
+
+@pytest.mark.parametrize(
+    ("channel", "value", "needles"),
+    [
+        ("R", np.nan, ["'R' (buffer 'color')", "2 non-finite", "2 NaN"]),
+        ("depth.Z", np.inf, ["'depth.Z' (buffer 'depth')", "2 non-finite", "2 Inf"]),
+        ("albedoVariance.Z", -np.inf, ["'albedoVariance.Z'", "2 non-finite"]),
+        ("diffuse.B", -0.5, ["'diffuse.B' (buffer 'diffuse')", "2 negative radiance"]),
+        ("specular.R", -1e-3, ["'specular.R'", "2 negative radiance"]),
+        ("specularVariance.Z", -2.0, ["'specularVariance.Z'", "2 negative variance"]),
+    ],
+)
+def test_bad_values_error_then_repair(tmp_path, caplog, channel, value, needles):
+    path = write_channels(
+        tmp_path / "bad.exr", **{channel.replace(".", "__"): _with(channel, [3, 11], value)}
+    )
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "bad.exr", *needles)
+
+    kind = "negative" if np.isfinite(value) else "nonfinite"
+    policy = RepairPolicy(negative="clamp") if kind == "negative" else RepairPolicy(nonfinite="zero")
+    with caplog.at_level(logging.WARNING, logger="src.data.kpcn_buffers"):
+        loaded, report = load_kpcn_exr(path, repair=policy)
+    assert report.counts == {kind: {channel: 2}} and report.total == 2
+    assert report.summary() == f"{kind}: {channel}=2"
+    buf = next(b for b, chans in KPCN_BUFFERS.items() if channel in chans)
+    flat = loaded[buf][..., KPCN_BUFFERS[buf].index(channel)].ravel()
+    assert flat[3] == 0 and flat[11] == 0
+    records = [r for r in caplog.records if "bad.exr" in r.getMessage()]
+    assert len(records) == 1 and "\n" not in records[0].getMessage() and channel in records[0].getMessage()
+
+
+def test_negative_normals_are_not_errors(tmp_path):
+    path = write_channels(tmp_path / "n.exr", normal__R=np.full((H, W), -1.0, np.float32))
+    loaded, report = load_kpcn_exr(path)
+    assert loaded["normal"].min() == -1.0 and report.total == 0
+
+
+def test_firefly_clamp_only_touches_radiance_and_counts(tmp_path):
+    buffers = make_buffers()
+    buffers["color"][0, 0] = [50.0, 0.5, 80.0]
+    buffers["diffuse"][1, 1, 0] = 30.0
+    buffers["albedo"][2, 2, 0] = 40.0  # not radiance: untouched
+    buffers["colorVariance"][0, 0, 0] = 1e4  # variances are never clamped
+    path = write_kpcn_exr(tmp_path / "fire.exr", buffers)
+    loaded, report = load_kpcn_exr(path, repair=RepairPolicy(firefly_clamp=10.0))
+    assert report.counts == {"firefly": {"R": 1, "B": 1, "diffuse.R": 1}}
+    np.testing.assert_array_equal(loaded["color"][0, 0], [10.0, 0.5, 10.0])
+    assert loaded["diffuse"][1, 1, 0] == 10.0
+    assert loaded["albedo"][2, 2, 0] == 40.0 and loaded["colorVariance"][0, 0, 0] == 1e4
+    assert loaded["specular"].max() <= 10.0
+
+
+def test_combined_repairs_counted_per_channel(tmp_path):
+    path = write_channels(
+        tmp_path / "combo.exr",
+        R=_with("R", [0, 1, 2], np.nan),
+        diffuse__G=_with("diffuse.G", [4], -1.0),
+        specular__B=_with("specular.B", [5, 6], 1e6),
+    )
+    policy = RepairPolicy(nonfinite="zero", negative="clamp", firefly_clamp=100.0)
+    _, report = load_kpcn_exr(path, repair=policy)
+    assert report.counts == {
+        "nonfinite": {"R": 3},
+        "negative": {"diffuse.G": 1},
+        "firefly": {"specular.B": 2},
+    }
+    assert report.total == 6
+    assert report.summary() == "nonfinite: R=3; negative: diffuse.G=1; firefly: specular.B=2"
+
+
+def test_aliases_map_differently_named_files(tmp_path):
+    channels = buffers_to_channels(make_buffers())
+    for c, alias in zip("RGB", "XYZ", strict=True):
+        channels[f"normal.{alias}"] = channels.pop(f"normal.{c}")
+    path = write_exr(tmp_path / "xyz.exr", channels)
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "xyz.exr", "'normal.R' (buffer 'normal')", "normal.X")
+    aliases = {"normal.R": "normal.X", "normal.G": "normal.Y", "normal.B": "normal.Z"}
+    loaded, _ = load_kpcn_exr(path, aliases=aliases)
+    np.testing.assert_array_equal(loaded["normal"], make_buffers()["normal"])
+
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path, aliases={"normal.R": "N.x"})
+    one_line(excinfo, "xyz.exr", "'N.x' (alias of 'normal.R', buffer 'normal')")
+    with pytest.raises(ConfigError):
+        load_kpcn_exr(path, aliases={"normal.W": "normal.X"})
+
+
+def test_repair_policy_validates_and_is_frozen():
+    assert RepairPolicy() == RepairPolicy(nonfinite="error", negative="error", firefly_clamp=None)
+    for kwargs in (
+        {"nonfinite": "zeros"},
+        {"negative": "abs"},
+        {"firefly_clamp": 0.0},
+        {"firefly_clamp": np.inf},
+    ):
+        with pytest.raises(ConfigError):
+            RepairPolicy(**kwargs)
+    with pytest.raises(AttributeError):
+        RepairPolicy().negative = "clamp"
+
+
+def test_unreadable_file_is_data_error(tmp_path):
+    path = tmp_path / "junk.exr"
+    path.write_bytes(b"\x76\x2f\x31\x01" + b"\x00" * 64)  # EXR magic, then nonsense
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path)
+    one_line(excinfo, "junk.exr")
