@@ -1,0 +1,20 @@
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
+
+
+@pytest.fixture(scope="session")
+def mitsuba_variant():
+    """Activates the Mitsuba variant this machine supports (llvm_ad_rgb on CI) once per session."""
+    from src.render.backend import set_mitsuba_variant
+
+    return set_mitsuba_variant("auto")
+
+
+def compose_config(overrides=()):
+    """The resolved-at-access root config, composed in-process as ``python -m src.run`` would."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides), return_hydra_config=False)

@@ -1,0 +1,143 @@
+"""The AOV integrator, the sample statistics and the dataset renderer, on tiny renders."""
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from src.errors import ConfigError, DataError
+from src.render.denoise_dataset import (
+    SceneSource,
+    load_scene,
+    pass_seed,
+    render_buffers,
+    render_denoise_dataset,
+    scene_sources,
+    split_passes,
+)
+from src.render.moments import MomentAccumulator, variance_of_mean
+from tests.conftest import compose_config
+
+
+@pytest.fixture(scope="module")
+def ds():
+    cfg = compose_config(["profile=smoke", "dataset.width=24", "dataset.height=16"])
+    return OmegaConf.to_container(cfg.dataset, resolve=True)
+
+
+def render(ds, source, spp, role="noisy", max_pass=1 << 24):
+    import mitsuba as mi
+
+    scene, sensor = load_scene(source, ds)
+    integrator = mi.load_dict({"type": "kpcn_aov", **ds["integrator"]})
+    passes = split_passes(spp, ds["width"] * ds["height"], max_pass)
+    seeds = [pass_seed(ds["seed"], source.name, spp, role, i) for i in range(len(passes))]
+    return render_buffers(scene, sensor, integrator, spp, seeds, passes)
+
+
+def test_variance_of_mean_matches_brute_force():
+    rng = np.random.default_rng(0)
+    samples = rng.gamma(2.0, 1.5, size=(64, 5, 7, 3))  # n samples of a (5, 7, 3) image
+    n = samples.shape[0]
+    mean, second = samples.mean(0), np.square(samples).mean(0)
+    expected = (samples.var(0, ddof=1) / n).mean(-1, keepdims=True)
+    np.testing.assert_allclose(variance_of_mean(mean, second, n), expected, rtol=1e-10)
+    with pytest.raises(ValueError):
+        variance_of_mean(mean, second, 1)
+
+
+def test_moment_accumulator_merges_passes_of_different_sizes():
+    rng = np.random.default_rng(1)
+    samples = rng.normal(size=(10, 3, 4, 2))
+    acc = MomentAccumulator()
+    acc.add(samples[:7].mean(0), 7)
+    acc.add(samples[7:].mean(0), 3)
+    np.testing.assert_allclose(acc.mean(), samples.mean(0), rtol=1e-12)
+
+
+def test_passes_respect_the_wavefront_budget():
+    passes = split_passes(8192, 1280 * 720, 1 << 24)
+    assert sum(passes) == 8192 and max(passes) * 1280 * 720 <= 1 << 24
+    assert split_passes(5, 10, 1000) == [5]
+
+
+def test_reference_seeds_are_independent_of_noisy_seeds():
+    noisy = {pass_seed(0, "cornell-0000", spp, "noisy", i) for spp in (4, 8, 16) for i in range(4)}
+    reference = {pass_seed(0, "cornell-0000", 4096, "reference", i) for i in range(64)}
+    assert len(noisy) == 12 and len(reference) == 64 and not noisy & reference
+    assert pass_seed(0, "a", 4, "noisy", 0) != pass_seed(0, "a", 4, "reference", 0)
+
+
+def test_color_is_diffuse_plus_specular_and_lobes_split(mitsuba_variant, ds):
+    # Seeded outdoor scenes have glossy and diffuse materials; both buffers must receive light.
+    b = render(ds, SceneSource("outdoor-0000", base="outdoor", seed=11), 16)
+    np.testing.assert_allclose(b["color"], b["diffuse"] + b["specular"], rtol=1e-5, atol=1e-6)
+    assert b["diffuse"].sum() > 0 and b["specular"].sum() > 0
+    assert set(b) >= {"albedo", "normal", "depth", "visibility", "colorVariance", "visibilityVariance"}
+    assert b["color"].shape == (16, 24, 3) and b["depth"].shape == (16, 24, 1)
+    norms = np.linalg.norm(b["normal"], axis=-1)
+    hit = b["depth"][..., 0] > 0
+    assert np.all(norms[hit] <= 1.0 + 1e-4) and np.all((b["visibility"] >= 0) & (b["visibility"] <= 1))
+
+
+def test_variance_of_mean_shrinks_as_one_over_spp(mitsuba_variant, ds):
+    source = SceneSource("cornell-0000", base="cornell", seed=3)
+    low, high = render(ds, source, 16), render(ds, source, 128)
+    noisy = (low["colorVariance"] > 0) & (high["colorVariance"] > 0)
+    ratio = low["colorVariance"][noisy].sum() / high["colorVariance"][noisy].sum()
+    assert 5.0 < ratio < 12.0  # expected 128 / 16 = 8
+
+
+def test_reference_is_closer_to_high_spp_truth_than_noisy_inputs(mitsuba_variant, ds):
+    source = SceneSource("tabletop-0000", base="tabletop", seed=5)
+    truth = render(ds, source, 1024, role="reference")["color"]
+    reference = render(ds, source, 256, role="reference", max_pass=24 * 16 * 64)["color"]
+    noisy = render(ds, source, 8)["color"]
+    assert np.mean((reference - truth) ** 2) < 0.25 * np.mean((noisy - truth) ** 2)
+
+
+def test_dataset_render_writes_kpcn_exrs_and_caches(mitsuba_variant, ds, tmp_path):
+    from src.data.kpcn_buffers import KPCN_BUFFERS, load_kpcn_exr
+    from src.io.exr import exr_channel_names
+
+    small = {**ds, "bases": ["cornell"], "noisy_spp": [2, 4], "reference_spp": 8}
+    first = render_denoise_dataset(small, tmp_path)
+    assert first["files_rendered"] == 3 and first["samples_per_second"] > 0
+    path = tmp_path / "cornell-0000-00004spp.exr"
+    expected = {ch for chans in KPCN_BUFFERS.values() for ch in chans}
+    assert expected <= set(exr_channel_names(path))
+    buffers, _ = load_kpcn_exr(path)
+    assert buffers["color"].shape == (16, 24, 3)
+    again = render_denoise_dataset(small, tmp_path)
+    assert again["files_rendered"] == 0 and again["files_cached"] == 3
+    changed = render_denoise_dataset({**small, "reference_spp": 16}, tmp_path)
+    assert changed["files_rendered"] == 1  # only the new reference
+
+
+def test_user_scene_file_goes_through_the_same_integrator(mitsuba_variant, ds, tmp_path):
+    xml = tmp_path / "my_scene.xml"
+    xml.write_text(
+        """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+  </sensor>
+  <emitter type="constant"><rgb name="radiance" value="1.0"/></emitter>
+  <shape type="sphere"><bsdf type="roughplastic"><float name="alpha" value="0.1"/></bsdf></shape>
+</scene>"""
+    )
+    (source,) = scene_sources({**ds, "bases": [], "scene_files": [str(xml)]})
+    b = render(ds, source, 8)
+    hit = b["depth"][..., 0] > 0
+    assert 0 < hit.mean() < 1 and b["specular"][hit].sum() > 0 and b["diffuse"][hit].sum() > 0
+
+
+def test_bad_scene_inputs_give_one_line_errors(mitsuba_variant, ds, tmp_path):
+    bad = tmp_path / "broken.xml"
+    bad.write_text("<scene version='3.0.0'><shape type='no_such_plugin'/></scene>")
+    (source,) = scene_sources({**ds, "bases": [], "scene_files": [str(bad)]})
+    with pytest.raises(DataError, match="broken.xml") as err:
+        load_scene(source, ds)
+    assert "\n" not in str(err.value)
+    with pytest.raises(DataError, match="not found"):
+        scene_sources({**ds, "scene_files": [str(tmp_path / "missing.xml")]})
+    with pytest.raises(ConfigError, match="reference_spp"):
+        render_denoise_dataset({**ds, "noisy_spp": [4, 64], "reference_spp": 32}, tmp_path)
