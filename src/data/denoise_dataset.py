@@ -1,0 +1,116 @@
+"""Torch datasets over what `src.data.shards.preprocess_dataset` wrote.
+
+- `PatchShardDataset`: training/validation patches, streamed one shard at a time (memory is bounded by
+  the largest shard, not the dataset), shuffled per epoch, shards divided among DataLoader workers.
+- `FullImageDataset`: whole val/test images, one file per (scene, spp), map-style.
+
+Both yield dicts of float32 tensors, channel first, under `SHARD_KEYS`, plus `diffuse_t` / `specular_t`
+(the transformed noisy colours, channels 0:3 of the inputs before any whitening: what a KPCN filters and
+what `rebuild_color` needs alongside `albedo`).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset, IterableDataset, get_worker_info
+
+from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
+from src.data.shards import SHARD_KEYS, load_tensors, read_index
+
+Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
+
+
+def _prepare(
+    data: dict[str, torch.Tensor], whitening: Mapping[str, WhiteningStats] | None, channel_axis: int
+):
+    """Select SHARD_KEYS, add the raw transformed colours, whiten the inputs if asked."""
+    out = {k: data[k] for k in SHARD_KEYS}
+    for branch in ("diffuse", "specular"):
+        out[f"{branch}_t"] = out[f"{branch}_in"].narrow(channel_axis, 0, 3)
+        if whitening is not None:
+            key = f"{branch}_in"
+            out[key] = whiten(out[key], whitening[key], channel_axis=channel_axis)
+    return out
+
+
+def _load_whitening(whitening: Whitening) -> Mapping[str, WhiteningStats] | None:
+    return load_whitening_stats(whitening) if isinstance(whitening, str | os.PathLike) else whitening
+
+
+class PatchShardDataset(IterableDataset):
+    """Patches of one split from `<shard_dir>/patches/<split>/` (`shard_dir` = preprocess output dir).
+
+    Each epoch: the shard order is permuted with a generator seeded by (seed, epoch); worker k of n
+    takes shards k, k + n, ... of that order (all workers compute the same permutation), and the
+    patches of each shard are permuted with (seed, epoch, shard). So every patch comes exactly once per
+    epoch, whatever the number of workers. Call `set_epoch` before iterating a DataLoader each epoch
+    (with `persistent_workers=False`, the default, workers get a fresh copy of the dataset per epoch).
+    `whitening`: stats dict or path to whitening.json, applied to diffuse_in / specular_in.
+    """
+
+    def __init__(
+        self,
+        shard_dir: str | os.PathLike[str],
+        split: str,
+        *,
+        seed: int = 0,
+        shuffle: bool = True,
+        whitening: Whitening = None,
+    ) -> None:
+        super().__init__()
+        self.root = Path(shard_dir) / "patches" / split
+        self.index = read_index(self.root)
+        self.shards = self.index["shards"]
+        self.patch_size = self.index["patch_size"]
+        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+        self.whitening = _load_whitening(whitening)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return sum(s["n_patches"] for s in self.shards)
+
+    def _my_shards(self) -> np.ndarray:
+        n = len(self.shards)
+        order = (
+            np.random.default_rng([self.seed, self.epoch]).permutation(n) if self.shuffle else np.arange(n)
+        )
+        info = get_worker_info()
+        return order if info is None else order[info.id :: info.num_workers]
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        for i in self._my_shards():
+            data = _prepare(load_tensors(self.root / self.shards[i]["file"]), self.whitening, channel_axis=1)
+            n = data["color"].shape[0]
+            rng = np.random.default_rng([self.seed, self.epoch, int(i)])
+            for j in rng.permutation(n) if self.shuffle else range(n):
+                yield {k: v[j] for k, v in data.items()}
+            del data
+
+
+class FullImageDataset(Dataset):
+    """Full images of one split from `<shard_dir>/full/<split>/` (val, test), one file per item.
+
+    Items are dicts of (C, H, W) tensors plus `scene` (str), `spp` and `reference_spp` (int).
+    """
+
+    def __init__(self, shard_dir: str | os.PathLike[str], split: str, *, whitening: Whitening = None) -> None:
+        self.root = Path(shard_dir) / "full" / split
+        self.index = read_index(self.root)
+        self.images = self.index["shards"]
+        self.whitening = _load_whitening(whitening)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        meta = self.images[i]
+        data = _prepare(load_tensors(self.root / meta["file"]), self.whitening, channel_axis=0)
+        return {**data, "scene": meta["scene"], "spp": meta["spp"], "reference_spp": meta["reference_spp"]}

@@ -1,0 +1,320 @@
+"""KPCN input/target preprocessing (Bako et al. 2017, "Kernel-Predicting Convolutional Networks for
+Denoising Monte Carlo Renderings", Sec. 4.1; same transforms in the seed thesis).
+
+The image is split into a diffuse and a specular component, each denoised by its own branch:
+
+- diffuse:  d' = d / (albedo + eps)   (untextured irradiance: smoother, easier to denoise)
+- specular: s' = log(1 + s)           (compresses the high dynamic range of highlights)
+
+and put back together by `rebuild_color`: c = (albedo + eps) * d' + exp(s') - 1.
+
+All functions are pure, take float arrays of shape (H, W, C) and keep that layout (channel last). The
+variance buffers are one-channel variances *of the pixel mean* (mean over RGB of the per-channel ones),
+so they are propagated through the transforms to first order (delta method), using channel means of the
+colour-valued quantities; see the individual docstrings.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from src.errors import DataError
+from src.io.atomic import atomic_write_text
+
+#: The value of eps used by Bako et al. 2017 (configs pass it in; functions never assume it).
+BAKO_ALBEDO_EPS = 0.00316
+
+#: Buffers `make_network_inputs` needs, with their channel counts.
+REQUIRED_BUFFERS = {
+    "diffuse": 3,
+    "specular": 3,
+    "albedo": 3,
+    "normal": 3,
+    "depth": 1,
+    "diffuseVariance": 1,
+    "specularVariance": 1,
+    "albedoVariance": 1,
+    "normalVariance": 1,
+    "depthVariance": 1,
+}
+
+
+def _grad_names(prefix: str, channels: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(f"{prefix}_d{axis}_{c}" for axis in "xy" for c in channels)
+
+
+_RGB = ("r", "g", "b")
+_XYZ = ("x", "y", "z")
+
+#: Channel order of `diffuse_in` / `specular_in` (28 channels). "color" is the branch's transformed
+#: colour (diffuse / (albedo + eps), or log(1 + specular)); gradients are `image_gradients` (all x
+#: channels, then all y channels). 28 inputs match the seed thesis's DPCN: a first 5x5 conv 28->100 and
+#: 9 layers of 100 channels give 1,828,303 parameters per branch.
+INPUT_CHANNELS: tuple[str, ...] = (
+    *(f"color_{c}" for c in _RGB),
+    "color_var",
+    *_grad_names("color", _RGB),
+    "normal_var",
+    *_grad_names("normal", _XYZ),
+    "depth",
+    "depth_var",
+    *_grad_names("depth", ("z",)),
+    "albedo_var",
+    *_grad_names("albedo", _RGB),
+)
+assert len(INPUT_CHANNELS) == 28
+
+
+def _exp_minus_one(x):
+    """exp(x) - 1 for numpy arrays and torch tensors alike (expm1: exact inverse of log1p)."""
+    return np.expm1(x) if isinstance(x, np.ndarray | np.generic | float) else x.expm1()
+
+
+def transform_diffuse(diffuse: np.ndarray, albedo: np.ndarray, eps: float) -> np.ndarray:
+    """Bako et al. 2017 Eq. (3): d' = d / (albedo + eps), per RGB channel.
+
+    Dividing out the (texture) albedo leaves the smooth irradiance; eps (0.00316 in the paper) avoids
+    dividing by zero on black surfaces.
+    """
+    return diffuse / (albedo + eps)
+
+
+def transform_diffuse_variance(var: np.ndarray, albedo: np.ndarray, eps: float) -> np.ndarray:
+    """Variance of d / (albedo + eps): var / (mean_c(albedo) + eps)^2.
+
+    Exact for a fixed albedo (Var(aX) = a^2 Var(X)) per channel. Since `var` is one channel (the mean over
+    RGB of per-channel variances), the per-channel factors 1/(albedo_c + eps)^2 are replaced by one factor
+    using the channel-mean albedo: an approximation, exact for grey albedo.
+    """
+    return var / (albedo.mean(axis=-1, keepdims=True) + eps) ** 2
+
+
+def transform_specular(specular: np.ndarray) -> np.ndarray:
+    """Bako et al. 2017 Eq. (4): s' = log(1 + s) (log1p, accurate for small s)."""
+    return np.log1p(specular)
+
+
+def transform_specular_variance(var: np.ndarray, specular: np.ndarray) -> np.ndarray:
+    """Variance of log(1 + s) to first order (delta method): var / (1 + mean_c(s))^2.
+
+    d/ds log(1 + s) = 1 / (1 + s), evaluated at the RAW (untransformed) specular s. Public repos that use
+    the already log-transformed value, or (s + 1e-5)^2, get the wrong scale (tested against Monte Carlo).
+    `var` is one channel, so s is replaced by its channel mean (exact for grey specular).
+    """
+    return var / (1.0 + specular.mean(axis=-1, keepdims=True)) ** 2
+
+
+def normalize_depth(depth: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scale depth into [0, 1] by its per-image maximum (Bako et al. 2017 Sec. 4.1); variance / max^2.
+
+    Makes the feature independent of the scene's units. An all-zero depth (max 0) stays zero.
+    """
+    m = float(depth.max()) if depth.size else 0.0
+    if m <= 0.0:
+        return np.zeros_like(depth), np.zeros_like(var)
+    return depth / m, var / (m * m)
+
+
+def image_gradients(x: np.ndarray) -> np.ndarray:
+    """Backward differences: dx[:, j] = x[:, j] - x[:, j-1], dy[i] = x[i] - x[i-1], zero at the first
+    column / row. Returns concat(dx, dy) along channels: (H, W, 2C).
+
+    Bako et al. feed the x/y gradients of every feature so the network sees edges directly.
+    """
+    dx = np.zeros_like(x)
+    dy = np.zeros_like(x)
+    dx[:, 1:] = x[:, 1:] - x[:, :-1]
+    dy[1:] = x[1:] - x[:-1]
+    return np.concatenate([dx, dy], axis=-1)
+
+
+def _check_buffers(buffers: Mapping[str, np.ndarray], names: Iterable[str], what: str) -> tuple[int, int]:
+    """Every needed buffer present, (H, W, C) with the right C, one shared H x W, finite."""
+    shape = None
+    for name in names:
+        if name not in buffers:
+            raise DataError(f"{what}: buffer '{name}' is missing (have {sorted(buffers)})")
+        b = buffers[name]
+        if b.ndim != 3 or b.shape[2] != REQUIRED_BUFFERS[name]:
+            raise DataError(
+                f"{what}: buffer '{name}' has shape {b.shape}, expected (H, W, {REQUIRED_BUFFERS[name]})"
+            )
+        if shape is None:
+            shape = b.shape[:2]
+        elif b.shape[:2] != shape:
+            raise DataError(f"{what}: buffer '{name}' is {b.shape[:2]}, other buffers are {shape}")
+        if not np.isfinite(b).all():
+            raise DataError(f"{what}: buffer '{name}' contains NaN or Inf")
+    return shape
+
+
+def _branch_input(color_t, color_var_t, normal, normal_var, depth, depth_var, albedo, albedo_var):
+    return np.concatenate(
+        [
+            color_t,
+            color_var_t,
+            image_gradients(color_t),
+            normal_var,
+            image_gradients(normal),
+            depth,
+            depth_var,
+            image_gradients(depth),
+            albedo_var,
+            image_gradients(albedo),
+        ],
+        axis=-1,
+    )
+
+
+def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[str, np.ndarray]:
+    """Build both branches' 28-channel inputs (order: `INPUT_CHANNELS`) from one noisy image.
+
+    Returns float32 arrays: `diffuse_in`, `specular_in` (H, W, 28), `diffuse_t`, `specular_t` (H, W, 3:
+    the transformed noisy colours, = channels 0:3 of the inputs, what a KPCN kernel filters) and
+    `albedo` (H, W, 3, needed by `rebuild_color`). The auxiliary features (normal, depth, albedo) are
+    shared by both branches.
+    """
+    _check_buffers(buffers, REQUIRED_BUFFERS, "noisy image")
+    b = {k: np.asarray(buffers[k], dtype=np.float32) for k in REQUIRED_BUFFERS}
+    albedo = b["albedo"]
+    diffuse_t = transform_diffuse(b["diffuse"], albedo, eps)
+    specular_t = transform_specular(b["specular"])
+    depth, depth_var = normalize_depth(b["depth"], b["depthVariance"])
+    aux = (b["normal"], b["normalVariance"], depth, depth_var, albedo, b["albedoVariance"])
+    diffuse_in = _branch_input(diffuse_t, transform_diffuse_variance(b["diffuseVariance"], albedo, eps), *aux)
+    specular_in = _branch_input(
+        specular_t, transform_specular_variance(b["specularVariance"], b["specular"]), *aux
+    )
+    out = {
+        "diffuse_in": diffuse_in,
+        "specular_in": specular_in,
+        "diffuse_t": diffuse_t,
+        "specular_t": specular_t,
+        "albedo": albedo,
+    }
+    return {k: v.astype(np.float32, copy=False) for k, v in out.items()}
+
+
+def make_targets(
+    reference_buffers: Mapping[str, np.ndarray], noisy_albedo: np.ndarray, eps: float
+) -> dict[str, np.ndarray]:
+    """Transformed reference: `diffuse_target` = ref diffuse / (noisy albedo + eps), `specular_target` =
+    log(1 + ref specular), float32 (H, W, 3).
+
+    Uses the reference's OWN diffuse and specular (one public notebook overwrote the reference specular
+    with the noisy one, training the network to reproduce noise). The division uses the NOISY input's
+    albedo because that is the albedo `rebuild_color` multiplies back at inference (the reference albedo
+    is unknown then): with the same albedo, rebuild_color(targets) gives back the reference colour
+    exactly, so a loss on the targets is a loss on the final image. (Albedo converges fast, so the two
+    albedos are nearly equal anyway.)
+    """
+    _check_buffers(reference_buffers, ("diffuse", "specular"), "reference image")
+    ref = {k: np.asarray(reference_buffers[k], dtype=np.float32) for k in ("diffuse", "specular")}
+    if ref["diffuse"].shape != noisy_albedo.shape:
+        raise DataError(f"reference is {ref['diffuse'].shape}, noisy albedo is {noisy_albedo.shape}")
+    return {
+        "diffuse_target": transform_diffuse(ref["diffuse"], noisy_albedo, eps).astype(np.float32),
+        "specular_target": transform_specular(ref["specular"]).astype(np.float32),
+    }
+
+
+def rebuild_color(diffuse_t, specular_t, albedo, eps: float):
+    """Inverse of the two transforms: c = (albedo + eps) * d' + exp(s') - 1.
+
+    Works on numpy arrays and torch tensors (training calls it on network outputs).
+    """
+    return (albedo + eps) * diffuse_t + _exp_minus_one(specular_t)
+
+
+@dataclass(frozen=True)
+class WhiteningStats:
+    """Per-channel mean and std (float64, shape (C,)) of one branch's network input."""
+
+    mean: np.ndarray
+    std: np.ndarray
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {"mean": self.mean.tolist(), "std": self.std.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, list[float]]) -> WhiteningStats:
+        return cls(np.asarray(d["mean"], dtype=np.float64), np.asarray(d["std"], dtype=np.float64))
+
+
+class RunningMoments:
+    """Streaming per-channel mean/variance (Chan et al. parallel update, float64).
+
+    Merging batch moments avoids the catastrophic cancellation of sum(x^2)/n - mean^2 on HDR data.
+    """
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.mean: np.ndarray | None = None
+        self.m2: np.ndarray | None = None
+
+    def update(self, x: np.ndarray, channel_axis: int = -1) -> None:
+        x = np.moveaxis(np.asarray(x, dtype=np.float64), channel_axis, -1)
+        x = x.reshape(-1, x.shape[-1])
+        if x.shape[0] == 0:
+            return
+        n_b, mean_b = x.shape[0], x.mean(axis=0)
+        m2_b = ((x - mean_b) ** 2).sum(axis=0)
+        if self.mean is None:
+            self.n, self.mean, self.m2 = n_b, mean_b, m2_b
+            return
+        if mean_b.shape != self.mean.shape:
+            raise DataError(f"whitening: {mean_b.shape[0]} channels after {self.mean.shape[0]}")
+        n = self.n + n_b
+        delta = mean_b - self.mean
+        self.mean = self.mean + delta * (n_b / n)
+        self.m2 = self.m2 + m2_b + delta**2 * (self.n * n_b / n)
+        self.n = n
+
+    def finalize(self, std_eps: float) -> WhiteningStats:
+        """Population std, floored at `std_eps` so constant channels do not blow up."""
+        if self.mean is None:
+            raise DataError("whitening: no training data to compute statistics from")
+        std = np.sqrt(self.m2 / self.n)
+        return WhiteningStats(self.mean.copy(), np.maximum(std, std_eps))
+
+
+def compute_whitening_stats(arrays: Iterable[np.ndarray], std_eps: float) -> WhiteningStats:
+    """Mean/std per channel over an iterable of (..., C) arrays, streamed (one array in memory at a time).
+
+    Pass TRAINING-split data only: statistics from val/test would leak held-out data into the model.
+    """
+    acc = RunningMoments()
+    for a in arrays:
+        acc.update(a)
+    return acc.finalize(std_eps)
+
+
+def whiten(x, stats: WhiteningStats, channel_axis: int = -1):
+    """(x - mean) / std per channel; numpy arrays or torch tensors (kept on their device/dtype)."""
+    shape = [1] * x.ndim
+    shape[channel_axis] = -1
+    mean, std = stats.mean.reshape(shape), stats.std.reshape(shape)
+    if isinstance(x, np.ndarray):
+        return ((x - mean) / std).astype(x.dtype, copy=False)
+    return (x - x.new_tensor(mean)) / x.new_tensor(std)
+
+
+def save_whitening_stats(path: str | os.PathLike[str], stats: Mapping[str, WhiteningStats]) -> None:
+    """Write {branch: {"mean": [...], "std": [...]}} as JSON (atomically)."""
+    payload = {k: v.to_dict() for k, v in stats.items()}
+    atomic_write_text(path, json.dumps(payload, indent=1) + "\n")
+
+
+def load_whitening_stats(path: str | os.PathLike[str]) -> dict[str, WhiteningStats]:
+    """Read what `save_whitening_stats` wrote."""
+    try:
+        payload = json.loads(Path(path).read_text())
+        return {k: WhiteningStats.from_dict(v) for k, v in payload.items()}
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise DataError(f"{path}: cannot read whitening statistics ({e})") from e

@@ -1,0 +1,229 @@
+"""Preprocessed KPCN data on disk: patch shards, full images, and the `preprocess_dataset` stage.
+
+Layout under `out_dir`:
+
+    splits.json                 {"train": [scenes], "val": [...], "test": [...]}
+    whitening.json              per-channel mean/std of diffuse_in / specular_in, TRAIN patches only
+    summary.json                what `preprocess_dataset` returns
+    patches/<split>/index.json  (train, val) one shard per (scene, noisy spp)
+    patches/<split>/<scene>-<NNNNN>spp.pt
+    full/<split>/index.json     (val, test) full images for validation / evaluation
+    full/<split>/<scene>-<NNNNN>spp.pt
+
+A shard is a `torch.save`d dict of float32 tensors, channel first: (N, C, P, P) for patches, (C, H, W) for
+full images, under `SHARD_KEYS` (plus int64 `corners` (N, 2) for patches). float32 rather than float16:
+the inputs hold HDR radiance and variances spanning many decades, which float16 (max 65504, smallest
+normal 6e-5) would clip or flush to zero; shards are small at KPCN patch sizes anyway. Every file is
+written atomically; an index is written after all its shards, so an index only lists complete files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zlib
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from src.data.kpcn_preprocess import (
+    INPUT_CHANNELS,
+    RunningMoments,
+    make_network_inputs,
+    make_targets,
+    save_whitening_stats,
+)
+from src.data.patch_sampling import extract_patches, importance_map, sample_patches
+from src.data.splits import SPLITS, group_dataset, split_scenes
+from src.errors import DataError
+from src.io.atomic import atomic_path, atomic_write_text
+
+_RGB = ("r", "g", "b")
+#: Tensors in every shard / full image, with their channel names.
+SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
+    "diffuse_in": INPUT_CHANNELS,
+    "specular_in": INPUT_CHANNELS,
+    "diffuse_target": _RGB,  # reference diffuse / (noisy albedo + eps)
+    "specular_target": _RGB,  # log(1 + reference specular)
+    "albedo": _RGB,  # noisy albedo, for rebuild_color
+    "color": _RGB,  # noisy colour (baselines, metrics)
+    "reference": _RGB,  # reference colour
+}
+SHARD_KEYS = tuple(SHARD_CHANNELS)
+INDEX_NAME = "index.json"
+
+
+def shard_name(scene: str, spp: int) -> str:
+    return f"{scene}-{spp:05d}spp.pt"
+
+
+def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=1) + "\n")
+
+
+def save_tensors(path: str | os.PathLike[str], tensors: Mapping[str, torch.Tensor]) -> None:
+    """`torch.save` a dict of tensors atomically."""
+    with atomic_path(path) as tmp:
+        torch.save(dict(tensors), tmp)
+
+
+def load_tensors(path: str | os.PathLike[str]) -> dict[str, torch.Tensor]:
+    """Load a shard (tensors only: `weights_only=True`, no pickled code)."""
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError) as e:
+        raise DataError(f"{path}: cannot read shard ({e})") from e
+
+
+def read_index(directory: str | os.PathLike[str]) -> dict[str, Any]:
+    path = Path(directory) / INDEX_NAME
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as e:
+        raise DataError(f"{path}: no index; run the preprocess stage first") from e
+    except ValueError as e:
+        raise DataError(f"{path}: malformed index ({e})") from e
+
+
+def _channels_first(a: np.ndarray) -> torch.Tensor:
+    """(..., H, W, C) numpy -> (..., C, H, W) contiguous float32 tensor."""
+    return torch.from_numpy(np.ascontiguousarray(np.moveaxis(a, -1, -3), dtype=np.float32))
+
+
+def _image_rng(seed: int, scene: str, spp: int) -> np.random.Generator:
+    """A generator per image, from the seed and a stable hash of its name: independent of the order
+    (and the subset) in which images are processed."""
+    return np.random.default_rng([seed, zlib.crc32(scene.encode()), spp])
+
+
+def _color(buffers: Mapping[str, np.ndarray], path: Path) -> np.ndarray:
+    if "color" not in buffers:
+        raise DataError(f"{path}: no 'color' buffer (have {sorted(buffers)})")
+    return np.asarray(buffers["color"], dtype=np.float32)
+
+
+def _default_load_fn(path: Path) -> Mapping[str, np.ndarray]:
+    from src.data.kpcn_buffers import load_kpcn_exr  # lazy: the EXR loader is an optional dependency here
+
+    return load_kpcn_exr(path)[0]
+
+
+def preprocess_dataset(
+    raw_dir: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    eps: float,
+    patch_size: int,
+    patches_per_image: int,
+    split_fractions: Mapping[str, float],
+    split_seed: int,
+    sample_seed: int,
+    candidates_factor: float,
+    min_keep_prob: float,
+    min_distance: float | None,
+    whiten_eps: float,
+    load_fn: Callable[[Path], Mapping[str, np.ndarray]] | None = None,
+    importance_percentile: float = 99.0,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Raw `<scene>-<NNNNN>spp.exr` files -> splits, patch shards, full images, whitening stats.
+
+    Scenes are split (by scene) with `split_fractions` / `split_seed`. For every scene the highest spp is
+    the reference and each lower spp a noisy input: train and val images give importance-sampled patch
+    shards (`patches_per_image` each); val and test images are also stored whole, for full-image
+    validation and evaluation. Whitening statistics come from the train patches only. `load_fn` maps a
+    path to a buffer dict (default: `load_kpcn_exr(path)[0]`, imported lazily). Deterministic given the
+    seeds. Returns (and writes to summary.json) the counts and settings.
+    """
+    load_fn = load_fn or _default_load_fn
+    out_dir = Path(out_dir)
+    groups = group_dataset(raw_dir)
+    splits = split_scenes(groups, split_fractions, split_seed)
+    moments = {"diffuse_in": RunningMoments(), "specular_in": RunningMoments()}
+    indices: dict[tuple[str, str], list[dict[str, Any]]] = {
+        (kind, s): [] for kind, ss in (("patches", ("train", "val")), ("full", ("val", "test"))) for s in ss
+    }
+    n_images = sum(len(groups[sc]) - 1 for sc in groups)
+    bar = tqdm(total=n_images, desc="preprocess", unit="img", disable=not progress)
+    for split in SPLITS:
+        for scene in splits[split]:
+            ref_spp = max(groups[scene])
+            ref = load_fn(groups[scene][ref_spp])
+            for spp in sorted(groups[scene])[:-1]:
+                noisy = load_fn(groups[scene][spp])
+                color, ref_color = _color(noisy, groups[scene][spp]), _color(ref, groups[scene][ref_spp])
+                if color.shape != ref_color.shape:
+                    raise DataError(f"{groups[scene][spp]}: {color.shape} vs reference {ref_color.shape}")
+                inputs = make_network_inputs(noisy, eps)
+                image = {
+                    "diffuse_in": inputs["diffuse_in"],
+                    "specular_in": inputs["specular_in"],
+                    **make_targets(ref, inputs["albedo"], eps),
+                    "albedo": inputs["albedo"],
+                    "color": color,
+                    "reference": ref_color,
+                }
+                entry = {"file": shard_name(scene, spp), "scene": scene, "spp": spp, "reference_spp": ref_spp}
+                if split in ("train", "val"):
+                    imp = importance_map(
+                        noisy["colorVariance"], noisy["normalVariance"], percentile=importance_percentile
+                    )
+                    corners = sample_patches(
+                        imp,
+                        patch_size,
+                        patches_per_image,
+                        _image_rng(sample_seed, scene, spp),
+                        candidates_factor=candidates_factor,
+                        min_keep_prob=min_keep_prob,
+                        min_distance=min_distance,
+                    )
+                    patches = {k: extract_patches(v, corners, patch_size) for k, v in image.items()}
+                    if split == "train":
+                        for k, m in moments.items():
+                            m.update(patches[k])
+                    shard = {k: _channels_first(v) for k, v in patches.items()}
+                    shard["corners"] = torch.from_numpy(corners)
+                    save_tensors(out_dir / "patches" / split / entry["file"], shard)
+                    indices["patches", split].append({**entry, "n_patches": len(corners)})
+                if split in ("val", "test"):
+                    full = {k: _channels_first(v) for k, v in image.items()}
+                    save_tensors(out_dir / "full" / split / entry["file"], full)
+                    h, w = image["color"].shape[:2]
+                    indices["full", split].append({**entry, "height": h, "width": w})
+                bar.update(1)
+    bar.close()
+
+    channels = {k: list(v) for k, v in SHARD_CHANNELS.items()}
+    for (kind, split), entries in indices.items():
+        index = {"kind": kind, "split": split, "dtype": "float32", "channels": channels, "shards": entries}
+        if kind == "patches":
+            index["patch_size"] = patch_size
+        write_json(out_dir / kind / split / INDEX_NAME, index)
+    save_whitening_stats(out_dir / "whitening.json", {k: m.finalize(whiten_eps) for k, m in moments.items()})
+    write_json(out_dir / "splits.json", splits)
+    summary = {
+        "raw_dir": str(raw_dir),
+        "splits": {s: len(splits[s]) for s in SPLITS},
+        "noisy_images": n_images,
+        "patches": {s: sum(e["n_patches"] for e in indices["patches", s]) for s in ("train", "val")},
+        "full_images": {s: len(indices["full", s]) for s in ("val", "test")},
+        "settings": {
+            "eps": eps,
+            "patch_size": patch_size,
+            "patches_per_image": patches_per_image,
+            "split_fractions": dict(split_fractions),
+            "split_seed": split_seed,
+            "sample_seed": sample_seed,
+            "candidates_factor": candidates_factor,
+            "min_keep_prob": min_keep_prob,
+            "min_distance": min_distance,
+            "whiten_eps": whiten_eps,
+            "importance_percentile": importance_percentile,
+        },
+    }
+    write_json(out_dir / "summary.json", summary)
+    return summary

@@ -1,0 +1,82 @@
+"""Dataset file naming and train/val/test splits by SCENE.
+
+Splitting patches (or images of one scene at several sample counts) across splits leaks: validation
+would measure memorisation of the same geometry and textures. So every image of a scene lands in one split.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from src.errors import ConfigError, DataError
+
+SPLITS = ("train", "val", "test")
+
+_EXR_NAME = re.compile(r"^(?P<scene>.+)-(?P<spp>\d+)spp\.exr$")
+
+
+def parse_exr_name(path: str | os.PathLike[str]) -> tuple[str, int]:
+    """`<scene>-<NNNNN>spp.exr` -> (scene, spp); the scene may contain dashes (the last one splits)."""
+    name = Path(path).name
+    m = _EXR_NAME.match(name)
+    if m is None or int(m["spp"]) < 1:
+        raise DataError(f"{path}: expected a file name like '<scene>-00016spp.exr'")
+    return m["scene"], int(m["spp"])
+
+
+def group_dataset(raw_dir: str | os.PathLike[str]) -> dict[str, dict[int, Path]]:
+    """{scene: {spp: path}} for every `*.exr` in `raw_dir` (sorted by scene, then spp).
+
+    Each scene needs at least two sample counts: noisy inputs plus a reference (its highest spp).
+    """
+    raw_dir = Path(raw_dir)
+    if not raw_dir.is_dir():
+        raise DataError(f"{raw_dir}: raw data directory does not exist")
+    groups: dict[str, dict[int, Path]] = {}
+    for path in sorted(raw_dir.glob("*.exr")):
+        scene, spp = parse_exr_name(path)
+        groups.setdefault(scene, {})[spp] = path
+    if not groups:
+        raise DataError(f"{raw_dir}: no '<scene>-<NNNNN>spp.exr' files found")
+    single = sorted(s for s, g in groups.items() if len(g) < 2)
+    if single:
+        raise DataError(
+            f"{raw_dir}: scene(s) {single} have a single sample count; each needs noisy image(s) "
+            "and a higher-spp reference"
+        )
+    return {s: dict(sorted(groups[s].items())) for s in sorted(groups)}
+
+
+def split_scenes(
+    scene_names: Iterable[str], fractions: Mapping[str, float], seed: int
+) -> dict[str, list[str]]:
+    """Partition scenes into train/val/test with the given fractions (normalised to sum 1).
+
+    Deterministic: the names are sorted, then shuffled by a seeded generator. Counts are rounded, with
+    at least one scene per split (so >= 3 scenes are needed); train gets the remainder. Each list is
+    returned sorted.
+    """
+    names = sorted(set(scene_names))
+    if set(fractions) != set(SPLITS):
+        raise ConfigError(f"split fractions must have keys {list(SPLITS)}, got {sorted(fractions)}")
+    f = np.array([float(fractions[s]) for s in SPLITS])
+    if (f <= 0).any() or not np.isfinite(f).all():
+        raise ConfigError(f"split fractions must all be > 0, got {dict(fractions)}")
+    if len(names) < 3:
+        raise ConfigError(f"need at least 3 scenes to split into train/val/test, got {len(names)}: {names}")
+    f = f / f.sum()
+    n = len(names)
+    n_val, n_test = (max(1, round(x * n)) for x in f[1:])
+    while n - n_val - n_test < 1:  # give train its one scene back from the larger held-out split
+        if n_val >= n_test:
+            n_val -= 1
+        else:
+            n_test -= 1
+    order = [names[i] for i in np.random.default_rng(seed).permutation(n)]
+    parts = {"val": order[:n_val], "test": order[n_val : n_val + n_test], "train": order[n_val + n_test :]}
+    return {s: sorted(parts[s]) for s in SPLITS}

@@ -1,0 +1,174 @@
+"""KPCN transforms: inverse, variance propagation vs Monte Carlo, gradients, 28 inputs, targets, whitening."""
+
+import numpy as np
+import pytest
+import torch
+
+from src.data.kpcn_preprocess import (
+    INPUT_CHANNELS,
+    compute_whitening_stats,
+    image_gradients,
+    load_whitening_stats,
+    make_network_inputs,
+    make_targets,
+    normalize_depth,
+    rebuild_color,
+    save_whitening_stats,
+    transform_diffuse,
+    transform_diffuse_variance,
+    transform_specular,
+    transform_specular_variance,
+    whiten,
+)
+from src.errors import DataError
+
+EPS = 0.00316
+
+
+def synthetic_buffers(h=13, w=21, seed=0, noise=0.1):
+    """A random KPCN buffer dict (float32, channel last), color = diffuse + specular."""
+    rng = np.random.default_rng(seed)
+    f = lambda *s: rng.random((h, w, *s), dtype=np.float32)  # noqa: E731
+    albedo = 0.05 + 0.9 * f(3)
+    diffuse = albedo * (0.2 + 3 * f(3)) * (1 + noise * f(3))
+    specular = 5 * f(3) ** 4
+    normal = f(3) * 2 - 1
+    b = {
+        "diffuse": diffuse,
+        "specular": specular,
+        "color": diffuse + specular,
+        "albedo": albedo,
+        "normal": normal / np.linalg.norm(normal, axis=-1, keepdims=True),
+        "depth": 1 + 10 * f(1),
+        "visibility": f(1),
+    }
+    for k in ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility"):
+        b[f"{k}Variance"] = noise * f(1)
+    return b
+
+
+def test_inverse_gives_back_color_numpy_and_torch():
+    b = synthetic_buffers()
+    x = make_network_inputs(b, EPS)
+    c = rebuild_color(x["diffuse_t"], x["specular_t"], x["albedo"], EPS)
+    np.testing.assert_allclose(c, b["color"], rtol=1e-5, atol=1e-6)
+    t = {k: torch.from_numpy(x[k]) for k in ("diffuse_t", "specular_t", "albedo")}
+    ct = rebuild_color(t["diffuse_t"], t["specular_t"], t["albedo"], EPS)
+    assert isinstance(ct, torch.Tensor)
+    np.testing.assert_allclose(ct.numpy(), b["color"], rtol=1e-5, atol=1e-6)
+
+
+def test_transforms_match_bako():
+    b = synthetic_buffers()
+    np.testing.assert_allclose(
+        transform_diffuse(b["diffuse"], b["albedo"], EPS), b["diffuse"] / (b["albedo"] + EPS)
+    )
+    np.testing.assert_allclose(
+        transform_specular(b["specular"]), np.log(1 + b["specular"].astype(float)), rtol=1e-6
+    )
+
+
+def _mc_var(fn, mu, sigma, n=400_000, seed=1):
+    """Variance of fn(s) for s ~ N(mu, sigma^2), per value of mu (brute force)."""
+    s = np.random.default_rng(seed).normal(mu[:, None], sigma, size=(len(mu), n))
+    return fn(s).var(axis=1)
+
+
+def test_specular_variance_matches_monte_carlo_and_catches_known_bugs():
+    mu, sigma = np.array([0.05, 0.5, 2.0, 10.0]), 0.01
+    var = np.full((4, 1, 1), sigma**2)  # (H=4, W=1, C=1) variance of the pixel mean
+    spec = np.repeat(mu[:, None, None], 3, axis=2)  # grey: channel mean = mu
+    mc = _mc_var(np.log1p, mu, sigma)
+    ours = transform_specular_variance(var, spec)[:, 0, 0]
+    np.testing.assert_allclose(ours, mc, rtol=0.02)
+    wrong_log = (var / (1 + np.log1p(spec).mean(-1, keepdims=True)) ** 2)[:, 0, 0]
+    wrong_eps = (var / (spec.mean(-1, keepdims=True) + 1e-5) ** 2)[:, 0, 0]
+    for wrong in (wrong_log, wrong_eps):
+        assert not np.allclose(wrong, mc, rtol=0.02)
+
+
+def test_diffuse_variance_matches_monte_carlo():
+    mu, sigma = np.array([0.1, 1.0, 4.0]), 0.02
+    albedo = np.array([0.02, 0.3, 0.8])
+    a = np.repeat(albedo[:, None, None], 3, axis=2)
+    ours = transform_diffuse_variance(np.full((3, 1, 1), sigma**2), a, EPS)[:, 0, 0]
+    mc = np.array(
+        [_mc_var(lambda s, al=al: s / (al + EPS), mu[i : i + 1], sigma)[0] for i, al in enumerate(albedo)]
+    )
+    np.testing.assert_allclose(ours, mc, rtol=0.02)
+
+
+def test_normalize_depth():
+    d = np.arange(6, dtype=np.float32).reshape(2, 3, 1)
+    nd, nv = normalize_depth(d, np.ones_like(d))
+    np.testing.assert_allclose(nd, d / 5)
+    np.testing.assert_allclose(nv, 1 / 25)
+    zd, zv = normalize_depth(np.zeros_like(d), np.ones_like(d))
+    assert not zd.any() and not zv.any()
+
+
+def test_gradients_non_square_against_slow_reference():
+    x = np.random.default_rng(0).random((13, 21, 2))
+    g = image_gradients(x)
+    assert g.shape == (13, 21, 4)
+    ref = np.zeros_like(g)
+    for i in range(13):
+        for j in range(21):
+            if j > 0:
+                ref[i, j, :2] = x[i, j] - x[i, j - 1]
+            if i > 0:
+                ref[i, j, 2:] = x[i, j] - x[i - 1, j]
+    np.testing.assert_array_equal(g, ref)
+
+
+def test_network_inputs_have_28_documented_channels():
+    b = synthetic_buffers()
+    x = make_network_inputs(b, EPS)
+    assert len(INPUT_CHANNELS) == 28 and len(set(INPUT_CHANNELS)) == 28
+    for branch in ("diffuse", "specular"):
+        a = x[f"{branch}_in"]
+        assert a.shape == (13, 21, 28) and a.dtype == np.float32
+        np.testing.assert_array_equal(a[..., :3], x[f"{branch}_t"])
+    ch = {n: i for i, n in enumerate(INPUT_CHANNELS)}
+    np.testing.assert_allclose(
+        x["diffuse_in"][..., ch["depth"]], b["depth"][..., 0] / b["depth"].max(), rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        x["specular_in"][..., ch["color_var"]],
+        (b["specularVariance"] / (1 + b["specular"].mean(-1, keepdims=True)) ** 2)[..., 0],
+        rtol=1e-6,
+    )
+    np.testing.assert_array_equal(x["diffuse_in"][..., 10:], x["specular_in"][..., 10:])  # shared features
+    bad = dict(b)
+    bad["normal"] = b["normal"][:, :-1]
+    with pytest.raises(DataError, match="normal"):
+        make_network_inputs(bad, EPS)
+
+
+def test_targets_use_reference_specular_and_noisy_albedo():
+    noisy, ref = synthetic_buffers(seed=1), synthetic_buffers(seed=2)
+    assert not np.allclose(noisy["specular"], ref["specular"])
+    x = make_network_inputs(noisy, EPS)
+    t = make_targets(ref, x["albedo"], EPS)
+    np.testing.assert_allclose(t["specular_target"], np.log1p(ref["specular"]), rtol=1e-6)
+    np.testing.assert_allclose(t["diffuse_target"], ref["diffuse"] / (noisy["albedo"] + EPS), rtol=1e-6)
+    back = rebuild_color(t["diffuse_target"], t["specular_target"], x["albedo"], EPS)
+    np.testing.assert_allclose(back, ref["color"], rtol=1e-5, atol=1e-6)
+
+
+def test_whitening_stats_streaming_and_json(tmp_path):
+    rng = np.random.default_rng(0)
+    parts = [1e3 + rng.normal(size=(n, 5, 7, 4)) * [1, 2, 3, 0] for n in (1, 3, 2)]
+    stats = compute_whitening_stats(iter(parts), std_eps=1e-3)
+    flat = np.concatenate(parts).reshape(-1, 4)
+    np.testing.assert_allclose(stats.mean, flat.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(stats.std[:3], flat.std(0)[:3], rtol=1e-9)
+    assert stats.std[3] == 1e-3  # constant channel: floored
+    w = whiten(parts[0].astype(np.float32), stats)
+    assert w.dtype == np.float32 and np.abs(w[..., :3].mean()) < 1
+    wt = whiten(torch.from_numpy(parts[0]).permute(0, 3, 1, 2), stats, channel_axis=1)
+    np.testing.assert_allclose(wt.permute(0, 2, 3, 1).numpy(), whiten(parts[0], stats), rtol=1e-12)
+    save_whitening_stats(tmp_path / "w.json", {"diffuse_in": stats})
+    back = load_whitening_stats(tmp_path / "w.json")["diffuse_in"]
+    np.testing.assert_array_equal(back.mean, stats.mean)
+    np.testing.assert_array_equal(back.std, stats.std)

@@ -1,0 +1,155 @@
+"""Scene splits, file naming, shard streaming across workers and the preprocess stage end to end."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
+from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
+from src.data.shards import SHARD_KEYS, preprocess_dataset, save_tensors, write_json
+from src.data.splits import group_dataset, parse_exr_name, split_scenes
+from src.errors import ConfigError, DataError
+
+FRACTIONS = {"train": 0.5, "val": 0.25, "test": 0.25}
+
+
+def test_parse_exr_name():
+    assert parse_exr_name("/x/cornell-0003-00016spp.exr") == ("cornell-0003", 16)
+    assert parse_exr_name("a-04096spp.exr") == ("a", 4096)
+    for bad in ("cornell.exr", "cornell-16.exr", "-00016spp.exr", "c-00016spp.png", "c-00000spp.exr"):
+        with pytest.raises(DataError):
+            parse_exr_name(bad)
+
+
+def test_split_scenes_disjoint_covering_deterministic():
+    names = [f"scene-{i:02d}" for i in range(11)]
+    s = split_scenes(reversed(names), FRACTIONS, seed=3)
+    assert s == split_scenes(names, FRACTIONS, seed=3)
+    assert s != split_scenes(names, FRACTIONS, seed=4)
+    assert sorted(sum(s.values(), [])) == names and all(s[k] for k in s)
+    assert len(s["train"]) > len(s["val"])
+    three = split_scenes(["a", "b", "c"], {"train": 0.9, "val": 0.05, "test": 0.05}, 0)
+    assert all(len(v) == 1 for v in three.values())
+    with pytest.raises(ConfigError, match="at least 3"):
+        split_scenes(["a", "b"], FRACTIONS, 0)
+    with pytest.raises(ConfigError):
+        split_scenes(names, {"train": 1.0, "val": 0.0, "test": 0.0}, 0)
+
+
+def test_group_dataset(tmp_path):
+    with pytest.raises(DataError, match="no"):
+        group_dataset(tmp_path)
+    for name in ("a-b-00004spp.exr", "a-b-00064spp.exr", "c-00008spp.exr", "notes.txt"):
+        (tmp_path / name).touch()
+    with pytest.raises(DataError, match="single sample count"):
+        group_dataset(tmp_path)
+    (tmp_path / "c-01024spp.exr").touch()
+    g = group_dataset(tmp_path)
+    assert list(g) == ["a-b", "c"] and list(g["c"]) == [8, 1024]
+    assert g["a-b"][64].name == "a-b-00064spp.exr"
+
+
+def test_shards_stream_every_patch_once_per_epoch_with_two_workers(tmp_path):
+    root, sizes, entries, pid = tmp_path / "patches" / "train", [5, 3, 7, 1, 4], [], 0
+    for i, n in enumerate(sizes):
+        shard = {k: torch.zeros(n, 3, 4, 4) for k in SHARD_KEYS}
+        shard["diffuse_in"] = (
+            torch.arange(pid, pid + n, dtype=torch.float32).view(n, 1, 1, 1).expand(n, 28, 4, 4)
+        )
+        save_tensors(root / f"s{i}.pt", shard)
+        entries.append({"file": f"s{i}.pt", "scene": f"s{i}", "spp": 4, "n_patches": n})
+        pid += n
+    write_json(root / "index.json", {"patch_size": 4, "shards": entries})
+    ds = PatchShardDataset(tmp_path, "train", seed=1)
+    assert len(ds) == sum(sizes)
+    orders = []
+    for epoch in (0, 1):
+        ds.set_epoch(epoch)
+        ids = torch.cat([b["diffuse_in"][:, 0, 0, 0] for b in DataLoader(ds, batch_size=3, num_workers=2)])
+        assert sorted(ids.long().tolist()) == list(range(sum(sizes)))
+        assert next(iter(DataLoader(ds, batch_size=4)))["diffuse_t"].shape == (4, 3, 4, 4)
+        orders.append(ids.tolist())
+    assert orders[0] != orders[1]
+
+
+def synthetic_image(scene, spp, h=24, w=40):
+    """Buffers for a scene (fixed per scene) with noise shrinking with spp; deterministic."""
+    base = np.random.default_rng(sum(map(ord, scene)))
+    noise = np.random.default_rng([sum(map(ord, scene)), spp])
+    f = lambda rng, c: rng.random((h, w, c), dtype=np.float32)  # noqa: E731
+    albedo, irr, spec = 0.1 + 0.8 * f(base, 3), 0.5 + f(base, 3), 2 * f(base, 3) ** 3
+    n = 1 / np.sqrt(spp)
+    diffuse = albedo * irr * (1 + n * (f(noise, 3) - 0.5))
+    specular = spec * (1 + n * (f(noise, 3) - 0.5))
+    b = {"diffuse": diffuse, "specular": specular, "color": diffuse + specular, "albedo": albedo}
+    b.update(normal=f(base, 3), depth=1 + f(base, 1), visibility=f(base, 1))
+    for k in ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility"):
+        b[f"{k}Variance"] = n * f(noise, 1)
+    return b
+
+
+def _preprocess(raw, out, load_fn):
+    return preprocess_dataset(
+        raw, out, eps=0.00316, patch_size=8, patches_per_image=6, split_fractions=FRACTIONS, split_seed=0,
+        sample_seed=1, candidates_factor=4, min_keep_prob=0.1, min_distance=None, whiten_eps=1e-4,
+        load_fn=load_fn, progress=False,
+    )  # fmt: skip
+
+
+def test_preprocess_dataset_end_to_end(tmp_path):
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    scenes = ["box-a", "box-b", "room", "glossy-1"]
+    for s in scenes:
+        for spp in (4, 16, 1024):
+            (raw / f"{s}-{spp:05d}spp.exr").touch()
+
+    def load_fn(path):
+        scene, spp = parse_exr_name(path)
+        return synthetic_image(scene, spp)
+
+    summary = _preprocess(raw, tmp_path / "out", load_fn)
+    out = tmp_path / "out"
+    splits = json.loads((out / "splits.json").read_text())
+    assert sorted(sum(splits.values(), [])) == sorted(scenes)
+    assert {k: len(v) for k, v in splits.items()} == {"train": 2, "val": 1, "test": 1}
+    assert summary["patches"] == {"train": 2 * 2 * 6, "val": 1 * 2 * 6}
+    assert summary == json.loads((out / "summary.json").read_text())
+
+    train = PatchShardDataset(out, "train")
+    batch = next(iter(DataLoader(train, batch_size=24)))
+    assert batch["diffuse_in"].shape == (24, 28, 8, 8) and batch["diffuse_in"].dtype == torch.float32
+    assert {e["scene"] for e in train.shards} == set(splits["train"])
+    assert {e["scene"] for e in PatchShardDataset(out, "val").shards} == set(splits["val"])
+    back = rebuild_color(batch["diffuse_target"], batch["specular_target"], batch["albedo"], 0.00316)
+    torch.testing.assert_close(back, batch["reference"], rtol=1e-5, atol=1e-5)
+
+    test = FullImageDataset(out, "test")
+    assert len(test) == 2 and test[0]["scene"] == splits["test"][0] and test[0]["color"].shape == (3, 24, 40)
+    assert len(FullImageDataset(out, "val")) == 2
+    with pytest.raises(DataError, match="index"):
+        PatchShardDataset(out, "test")
+
+    # whitening: train patches only; held-out scenes scaled wildly change nothing
+    stats = load_whitening_stats(out / "whitening.json")
+    shards = [torch.load(out / "patches/train" / e["file"]) for e in train.shards]
+    direct = compute_whitening_stats((s["specular_in"].permute(0, 2, 3, 1).numpy() for s in shards), 1e-4)
+    np.testing.assert_allclose(stats["specular_in"].mean, direct.mean, rtol=1e-6)
+
+    def wild_load_fn(path):
+        scene, spp = parse_exr_name(path)
+        b = synthetic_image(scene, spp)
+        return b if scene in splits["train"] else {k: v * 1e3 for k, v in b.items()}
+
+    _preprocess(raw, tmp_path / "out2", wild_load_fn)
+    assert (out / "whitening.json").read_text() == (tmp_path / "out2/whitening.json").read_text()
+    again = torch.load(tmp_path / "out2/patches/train" / train.shards[0]["file"])
+    torch.testing.assert_close(again["diffuse_in"], shards[0]["diffuse_in"], rtol=0, atol=0)
+
+    whitened = next(
+        iter(DataLoader(PatchShardDataset(out, "train", whitening=out / "whitening.json"), batch_size=24))
+    )
+    assert whitened["diffuse_in"][:, 3:].mean().abs() < 1
