@@ -1,0 +1,54 @@
+"""What every result carries: the resolved config, the git commit and a fingerprint of the data."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+
+def git_commit(repo: Path | None = None) -> str:
+    """HEAD's commit hash, with ``+dirty`` when tracked files differ from it; ``unknown`` outside git."""
+    cwd = repo or Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=cwd, capture_output=True, text=True, check=True
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=cwd,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def data_fingerprint(directory: Path) -> str:
+    """Hash of every file's relative path and size, plus the render manifest's content if present.
+
+    Cheap on paper-scale data (hundreds of GB): contents are not read, except the manifest, whose
+    render keys already hash what produced each file.
+    """
+    h = hashlib.sha256()
+    for path in sorted(p for p in directory.rglob("*") if p.is_file()):
+        h.update(f"{path.relative_to(directory)}:{path.stat().st_size}\n".encode())
+        if path.name == "manifest.json":
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def provenance(cfg: DictConfig, data_dir: Path | None = None) -> dict:
+    record = {"git_commit": git_commit(), "config": OmegaConf.to_container(cfg, resolve=True)}
+    if data_dir is not None and data_dir.exists():
+        record["data_fingerprint"] = data_fingerprint(data_dir)
+    return record
+
+
+def to_json(obj) -> str:
+    return json.dumps(obj, indent=1, sort_keys=True, default=str)

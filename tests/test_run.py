@@ -1,0 +1,96 @@
+"""The Hydra entry point: config composition per profile, and the main job end to end (smoke)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import compose_config
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(args, data_dir, cwd=ROOT):
+    env = {**os.environ, "NRBENCH_DATA_DIR": str(data_dir)}
+    cmd = [sys.executable, "-m", "src.run", f"hydra.run.dir={data_dir}/hydra", *args]
+    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize(
+    ("profile", "size", "reference_spp", "patch"),
+    [("smoke", (48, 32), 128, 8), ("cpu", (128, 128), 1024, 32), ("paper", (1280, 720), 8192, 65)],
+)
+def test_profiles_compose(profile, size, reference_spp, patch):
+    cfg = compose_config([f"profile={profile}"])
+    assert (cfg.dataset.width, cfg.dataset.height) == size
+    assert cfg.dataset.reference_spp == reference_spp and cfg.task.preprocess.patch_size == patch
+    assert max(cfg.dataset.noisy_spp) < cfg.dataset.reference_spp
+
+
+def test_default_profile_is_cpu_and_paper_matches_the_kpcn_set():
+    assert compose_config().profile_name == "cpu"
+    paper = compose_config(["profile=paper"]).dataset
+    assert list(paper.noisy_spp) == [128, 256, 512, 1024] and paper.scenes_per_base * len(paper.bases) == 1500
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    data = tmp_path_factory.mktemp("data")
+    result = run(["profile=smoke"], data)
+    assert result.returncode == 0, result.stdout + result.stderr
+    return data, result
+
+
+def test_main_job_renders_and_preprocesses(smoke_run):
+    data, result = smoke_run
+    assert "samples/s" in result.stdout
+    raw = data / "procedural" / "raw"
+    assert len(list(raw.glob("*.exr"))) == 9  # 3 scenes x (2 noisy + 1 reference)
+    render = json.loads((data / "procedural" / "render_summary.json").read_text())
+    assert render["summary"]["samples_per_second"] > 0
+    assert render["config"]["dataset"]["width"] == 48 and render["git_commit"]
+    assert len(render["data_fingerprint"]) == 16
+    prepared = data / "procedural" / "prepared"
+    splits = json.loads((prepared / "splits.json").read_text())
+    scenes = [s for names in splits.values() for s in names]
+    assert len(scenes) == len(set(scenes)) == 3
+    assert (prepared / "preprocess_provenance.json").exists()
+
+
+def test_rerun_renders_nothing(smoke_run):
+    data, _ = smoke_run
+    result = run(["profile=smoke", "stage=render"], data)
+    assert result.returncode == 0 and "up to date" in result.stdout
+
+
+def test_unknown_stage_is_one_clear_line(tmp_path):
+    result = run(["profile=smoke", "stage=train_everything"], tmp_path)
+    assert result.returncode == 2
+    errors = [line for line in (result.stdout + result.stderr).splitlines() if "ERROR" in line]
+    assert len(errors) == 1 and "stage" in errors[0] and "train_everything" in errors[0]
+
+
+def test_bad_exr_stops_preprocess_naming_the_file(smoke_run, tmp_path):
+    from src.data.kpcn_buffers import load_kpcn_exr, write_kpcn_exr
+
+    data, _ = smoke_run
+    raw = tmp_path / "procedural" / "raw"
+    raw.mkdir(parents=True)
+    for exr in (data / "procedural" / "raw").glob("*.exr"):
+        (raw / exr.name).write_bytes(exr.read_bytes())
+    victim = raw / "cornell-0000-00004spp.exr"
+    buffers, _ = load_kpcn_exr(victim)
+    buffers["specular"][3, 5, 1] = np.nan
+    write_kpcn_exr(victim, buffers)
+    result = run(["profile=smoke", "stage=preprocess"], tmp_path)
+    assert result.returncode == 2
+    assert "cornell-0000-00004spp.exr" in result.stdout + result.stderr
+    assert "specular.G" in result.stdout + result.stderr
+    repaired = run(["profile=smoke", "stage=preprocess", "task.preprocess.repair.nonfinite=zero"], tmp_path)
+    assert repaired.returncode == 0, repaired.stderr
+    record = json.loads((tmp_path / "procedural" / "prepared" / "preprocess_provenance.json").read_text())
+    assert "specular.G" in record["summary"]["repairs"]["cornell-0000-00004spp.exr"]
