@@ -141,3 +141,40 @@ def test_bad_scene_inputs_give_one_line_errors(mitsuba_variant, ds, tmp_path):
         scene_sources({**ds, "scene_files": [str(tmp_path / "missing.xml")]})
     with pytest.raises(ConfigError, match="reference_spp"):
         render_denoise_dataset({**ds, "noisy_spp": [4, 64], "reference_spp": 32}, tmp_path)
+
+
+def test_same_config_and_seed_give_the_same_numbers(mitsuba_variant, ds):
+    source = SceneSource("outdoor-0001", base="outdoor", seed=21)
+    a, b = render(ds, source, 8), render(ds, source, 8)
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    other = render(ds, source, 8, role="reference")
+    assert not np.array_equal(a["color"], other["color"])
+
+
+@pytest.mark.parametrize(
+    ("bsdf", "lobe", "empty"), [("diffuse", "diffuse", "specular"), ("roughconductor", "specular", "diffuse")]
+)
+def test_first_bounce_lobe_decides_the_buffer(mitsuba_variant, ds, tmp_path, bsdf, lobe, empty):
+    xml = tmp_path / f"{bsdf}.xml"
+    xml.write_text(
+        f"""<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="30"/>
+    <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+  </sensor>
+  <emitter type="constant"><rgb name="radiance" value="1.0"/></emitter>
+  <shape type="sphere"><bsdf type="{bsdf}"/></shape>
+</scene>"""
+    )
+    (source,) = scene_sources({**ds, "bases": [], "scene_files": [str(xml)]})
+    b = render(ds, source, 8)
+    # Pixels well inside the silhouette (3x3 erosion): edge pixels also average in directly seen sky.
+    hit = np.pad(b["depth"][..., 0] > 0, 1)
+    h, w = b["depth"].shape[:2]
+    inside = np.all(
+        [hit[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], 0
+    )
+    assert inside.sum() > 10
+    assert b[lobe][inside].min() > 0 and np.all(b[empty][inside] == 0)
+    # Albedo is a reflectance: never above 1 (a BRDF value at its glossy peak would be).
+    assert 0 < b["albedo"][inside].min() and b["albedo"][inside].max() <= 1.0 + 1e-3

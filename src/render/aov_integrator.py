@@ -9,8 +9,9 @@ variants) produces, per camera sample:
   the first vertex) goes to ``diffuse``, everything through glossy/delta lobes to ``specular``.
   Emission seen directly by the camera goes to ``diffuse``. ``color`` is computed as their sum, so
   color == diffuse + specular per sample and therefore per pixel mean;
-* ``albedo`` (diffuse reflectance at the first hit; 1 where the camera ray escapes, so that
-  diffuse / (albedo + eps) stays finite on background pixels), ``normal`` (world-space shading
+* ``albedo`` (diffuse reflectance at the first hit; for BSDFs without a diffuse lobe the sampled
+  BSDF weight, i.e. a one-sample estimate of the directional albedo; 1 where the camera ray escapes,
+  so that diffuse / (albedo + eps) stays finite on background pixels), ``normal`` (world-space shading
   normal), ``depth`` (distance to the first hit, 0 on escape) and ``visibility`` (1 when the
   next-event light sample at the first hit is unoccluded, 0 otherwise and on escape).
 
@@ -119,7 +120,8 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
 
             bsdf = si.bsdf(ray)
             hit_first = first & si.is_valid()
-            surface_albedo = bsdf.eval_diffuse_reflectance(si, hit_first)
+            has_diffuse_lobe = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
+            surface_albedo = bsdf.eval_diffuse_reflectance(si, hit_first & has_diffuse_lobe)
             albedo = dr.select(first, dr.select(hit_first, surface_albedo, 1.0), albedo)
             normal = dr.select(hit_first, mi.Vector3f(si.sh_frame.n), normal)
             hit_depth = dr.select(hit_first, si.t, hit_depth)
@@ -146,6 +148,10 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
             sampled_diffuse = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Diffuse)
             on_diffuse_path = dr.select(first, sampled_diffuse, on_diffuse_path)
+            # Purely glossy/specular surfaces have no diffuse reflectance; their albedo is the sampled
+            # BSDF weight, a one-sample estimate of the directional albedo (Fresnel tint of a mirror).
+            glossy_first = hit_first & ~has_diffuse_lobe
+            albedo = dr.select(glossy_first, bsdf_weight, albedo)
             beta *= bsdf_weight
             eta *= bs.eta
             ray = si.spawn_ray(si.to_world(bs.wo))
