@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 def render(cfg: DictConfig) -> dict:
     """Render the denoising dataset's noisy inputs and references into ``paths.raw``."""
-    from src.render.denoise_dataset import render_denoise_dataset
+    from src.render.render_dataset import render_denoise_dataset
 
     raw = Path(cfg.paths.raw)
     summary = render_denoise_dataset(

@@ -18,3 +18,12 @@ def compose_config(overrides=()):
     """The resolved-at-access root config, composed in-process as ``python -m src.run`` would."""
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return compose(config_name="config", overrides=list(overrides), return_hydra_config=False)
+
+
+def one_line_error(excinfo, *needles):
+    """The raised message is one line and names every needle (file, channel, key...); returns it."""
+    msg = str(excinfo.value)
+    assert "\n" not in msg
+    for needle in needles:
+        assert needle in msg, (needle, msg)
+    return msg

@@ -9,6 +9,7 @@ from src.errors import DataError
 from src.io import exr
 from src.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
 from src.io.exr import exr_channel_names, exr_size, read_exr, write_exr
+from tests.conftest import one_line_error
 
 H, W = 7, 5  # non-square on purpose
 SPEC_CHANNELS = [ch for chans in KPCN_BUFFERS.values() for ch in chans]
@@ -20,14 +21,6 @@ def _values(rng, dtype, shape=(H, W)):
     arr = (rng.standard_normal(shape) * 100).astype(dtype)
     arr.flat[:4] = [0.0, -0.0, np.finfo(dtype).max, np.finfo(dtype).tiny]
     return arr
-
-
-def _one_line_error(excinfo, *needles):
-    msg = str(excinfo.value)
-    assert "\n" not in msg
-    for needle in needles:
-        assert needle in msg, (needle, msg)
-    return msg
 
 
 def _tmp_leftovers(directory):
@@ -93,14 +86,14 @@ def test_write_rejects_bad_arrays(tmp_path, channels, needle):
     path = tmp_path / "bad.exr"
     with pytest.raises(DataError) as excinfo:
         write_exr(path, channels)
-    _one_line_error(excinfo, "bad.exr", needle)
+    one_line_error(excinfo, "bad.exr", needle)
     assert list(tmp_path.iterdir()) == []
 
 
 def test_write_rejects_lossy_compression(tmp_path):
     with pytest.raises(DataError) as excinfo:
         write_exr(tmp_path / "x.exr", {"R": np.zeros((H, W), np.float32)}, compression="pxr24")
-    _one_line_error(excinfo, "x.exr", "pxr24")
+    one_line_error(excinfo, "x.exr", "pxr24")
 
 
 def test_failed_write_keeps_previous_file_and_leaves_no_temp(tmp_path, monkeypatch):
@@ -123,7 +116,7 @@ def test_failed_write_keeps_previous_file_and_leaves_no_temp(tmp_path, monkeypat
     monkeypatch.setattr(exr.OpenEXR, "File", HalfWriter)
     with pytest.raises(DataError) as excinfo:
         write_exr(path, {"R": np.zeros((H, W), np.float32)})
-    _one_line_error(excinfo, "img.exr", "No space left")
+    one_line_error(excinfo, "img.exr", "No space left")
     monkeypatch.undo()
     assert path.read_bytes() == before
     assert _tmp_leftovers(tmp_path) == []
@@ -156,7 +149,7 @@ def test_read_missing_file(tmp_path):
     for call in (read_exr, exr_channel_names, exr_size):
         with pytest.raises(DataError) as excinfo:
             call(path)
-        _one_line_error(excinfo, "nothere.exr", "not found")
+        one_line_error(excinfo, "nothere.exr", "not found")
 
 
 def test_read_missing_channels_names_them_and_what_was_found(tmp_path):
@@ -164,7 +157,7 @@ def test_read_missing_channels_names_them_and_what_was_found(tmp_path):
     write_exr(path, {c: np.zeros((H, W), np.float32) for c in "RGB"})
     with pytest.raises(DataError) as excinfo:
         read_exr(path, ["R", "diffuse.G", "depth.Z"])
-    msg = _one_line_error(excinfo, "rgb.exr", "'diffuse.G'", "'depth.Z'", "found: B, G, R")
+    msg = one_line_error(excinfo, "rgb.exr", "'diffuse.G'", "'depth.Z'", "found: B, G, R")
     assert "'R'" not in msg.split("found")[0]
 
 
@@ -173,7 +166,7 @@ def test_missing_channel_message_stays_one_line_with_many_channels(tmp_path):
     write_exr(path, {f"aov{i:03d}.Z": np.zeros((H, W), np.float32) for i in range(200)})
     with pytest.raises(DataError) as excinfo:
         read_exr(path, ["R"])
-    msg = _one_line_error(excinfo, "many.exr", "'R'", "more")
+    msg = one_line_error(excinfo, "many.exr", "'R'", "more")
     assert len(msg) < 2000
 
 
@@ -187,10 +180,10 @@ def test_read_corrupt_and_truncated_files(tmp_path):
     for path in (garbage, truncated):
         with pytest.raises(DataError) as excinfo:
             read_exr(path)
-        _one_line_error(excinfo, path.name)
+        one_line_error(excinfo, path.name)
     with pytest.raises(DataError) as excinfo:
         exr_channel_names(garbage)
-    _one_line_error(excinfo, "garbage.exr")
+    one_line_error(excinfo, "garbage.exr")
 
 
 def test_openexr_groups_rgb_unless_separated(tmp_path):

@@ -14,6 +14,7 @@ from src.data.kpcn_buffers import (
 )
 from src.errors import ConfigError, DataError
 from src.io.exr import read_exr, write_exr
+from tests.conftest import one_line_error
 
 H, W = 7, 5  # non-square on purpose
 
@@ -36,14 +37,6 @@ def write_channels(path, **overrides):
             channels[name] = value
     write_exr(path, channels)
     return path
-
-
-def one_line(excinfo, *needles):
-    msg = str(excinfo.value)
-    assert "\n" not in msg
-    for needle in needles:
-        assert needle in msg, (needle, msg)
-    return msg
 
 
 def test_spec_names_exactly_the_tungsten_convention():
@@ -81,38 +74,40 @@ def test_single_channel_buffers_accept_2d_and_subset_load(tmp_path):
 def test_buffers_to_channels_rejects_bad_input():
     with pytest.raises(DataError) as excinfo:
         buffers_to_channels({"colour": np.zeros((H, W, 3))})
-    one_line(excinfo, "'colour'")
+    one_line_error(excinfo, "'colour'")
     with pytest.raises(DataError) as excinfo:
         buffers_to_channels({"normal": np.zeros((H, W, 1))})
-    one_line(excinfo, "'normal'", "(H, W, 3)")
+    one_line_error(excinfo, "'normal'", "(H, W, 3)")
 
 
 def test_missing_channel(tmp_path):
     path = write_channels(tmp_path / "nodiffG.exr", diffuse__G=None)
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "nodiffG.exr", "missing EXR channel 'diffuse.G' (buffer 'diffuse'); found: B, G, R,")
+    one_line_error(
+        excinfo, "nodiffG.exr", "missing EXR channel 'diffuse.G' (buffer 'diffuse'); found: B, G, R,"
+    )
 
 
 def test_many_missing_channels_stay_one_line(tmp_path):
     path = write_exr(tmp_path / "rgb_only.exr", {c: np.ones((H, W), np.float32) for c in "RGB"})
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "rgb_only.exr", "'diffuse.R' (buffer 'diffuse')", "more", "found: B, G, R")
+    one_line_error(excinfo, "rgb_only.exr", "'diffuse.R' (buffer 'diffuse')", "more", "found: B, G, R")
 
 
 def test_wrong_expected_size(tmp_path):
     path = write_kpcn_exr(tmp_path / "small.exr", make_buffers())
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path, expected_size=(W, H))
-    one_line(excinfo, "small.exr", "7x5", "expected 5x7")
+    one_line_error(excinfo, "small.exr", "7x5", "expected 5x7")
 
 
 def test_non_float_channel_rejected(tmp_path):
     path = write_channels(tmp_path / "uint.exr", depth__Z=np.ones((H, W), np.uint32))
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "uint.exr", "'depth.Z'", "uint32")
+    one_line_error(excinfo, "uint.exr", "'depth.Z'", "uint32")
 
 
 def _with(channel, index, value, dtype=np.float32):
@@ -139,7 +134,7 @@ def test_bad_values_error_then_repair(tmp_path, caplog, channel, value, needles)
     )
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "bad.exr", *needles)
+    one_line_error(excinfo, "bad.exr", *needles)
 
     kind = "negative" if np.isfinite(value) else "nonfinite"
     policy = RepairPolicy(negative="clamp") if kind == "negative" else RepairPolicy(nonfinite="zero")
@@ -200,14 +195,14 @@ def test_aliases_map_differently_named_files(tmp_path):
     path = write_exr(tmp_path / "xyz.exr", channels)
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "xyz.exr", "'normal.R' (buffer 'normal')", "normal.X")
+    one_line_error(excinfo, "xyz.exr", "'normal.R' (buffer 'normal')", "normal.X")
     aliases = {"normal.R": "normal.X", "normal.G": "normal.Y", "normal.B": "normal.Z"}
     loaded, _ = load_kpcn_exr(path, aliases=aliases)
     np.testing.assert_array_equal(loaded["normal"], make_buffers()["normal"])
 
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path, aliases={"normal.R": "N.x"})
-    one_line(excinfo, "xyz.exr", "'N.x' (alias of 'normal.R', buffer 'normal')")
+    one_line_error(excinfo, "xyz.exr", "'N.x' (alias of 'normal.R', buffer 'normal')")
     with pytest.raises(ConfigError):
         load_kpcn_exr(path, aliases={"normal.W": "normal.X"})
 
@@ -231,4 +226,4 @@ def test_unreadable_file_is_data_error(tmp_path):
     path.write_bytes(b"\x76\x2f\x31\x01" + b"\x00" * 64)  # EXR magic, then nonsense
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line(excinfo, "junk.exr")
+    one_line_error(excinfo, "junk.exr")

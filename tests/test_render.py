@@ -5,7 +5,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError, DataError
-from src.render.denoise_dataset import (
+from src.render.moments import MomentAccumulator, variance_of_mean
+from src.render.render_dataset import (
     SceneSource,
     load_scene,
     pass_seed,
@@ -14,7 +15,6 @@ from src.render.denoise_dataset import (
     scene_sources,
     split_passes,
 )
-from src.render.moments import MomentAccumulator, variance_of_mean
 from tests.conftest import compose_config
 
 
@@ -177,4 +177,4 @@ def test_first_bounce_lobe_decides_the_buffer(mitsuba_variant, ds, tmp_path, bsd
     assert inside.sum() > 10
     assert b[lobe][inside].min() > 0 and np.all(b[empty][inside] == 0)
     # Albedo is a reflectance: never above 1 (a BRDF value at its glossy peak would be).
-    assert 0 < b["albedo"][inside].min() and b["albedo"][inside].max() <= 1.0 + 1e-3
+    assert b["albedo"][inside].min() > 0 and b["albedo"][inside].max() <= 1.0 + 1e-3
