@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import subprocess
 from pathlib import Path
 
@@ -48,7 +47,3 @@ def provenance(cfg: DictConfig, data_dir: Path | None = None) -> dict:
     if data_dir is not None and data_dir.exists():
         record["data_fingerprint"] = data_fingerprint(data_dir)
     return record
-
-
-def to_json(obj) -> str:
-    return json.dumps(obj, indent=1, sort_keys=True, default=str)

@@ -13,8 +13,8 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.errors import ConfigError
-from src.io.atomic import atomic_directory, atomic_write_text
-from src.provenance import provenance, to_json
+from src.io.atomic import atomic_directory, atomic_write_json
+from src.provenance import provenance
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ def preprocess(cfg: DictConfig) -> dict:
 
 
 def _write_summary(path: Path, summary: dict, cfg: DictConfig, data_dir: Path) -> None:
-    atomic_write_text(path, to_json({"summary": summary, **provenance(cfg, data_dir)}))
+    atomic_write_json(path, {"summary": summary, **provenance(cfg, data_dir)})
 
 
 STAGES: dict[str, Callable[[DictConfig], dict]] = {"render": render, "preprocess": preprocess}

@@ -9,9 +9,10 @@ from torch.utils.data import DataLoader
 
 from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
 from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
-from src.data.shards import SHARD_KEYS, preprocess_dataset, save_tensors, write_json
+from src.data.shards import SHARD_KEYS, preprocess_dataset, save_tensors
 from src.data.splits import group_dataset, parse_exr_name, split_scenes
 from src.errors import ConfigError, DataError
+from src.io.atomic import atomic_write_json
 
 FRACTIONS = {"train": 0.5, "val": 0.25, "test": 0.25}
 
@@ -62,7 +63,7 @@ def test_shards_stream_every_patch_once_per_epoch_with_two_workers(tmp_path):
         save_tensors(root / f"s{i}.pt", shard)
         entries.append({"file": f"s{i}.pt", "scene": f"s{i}", "spp": 4, "n_patches": n})
         pid += n
-    write_json(root / "index.json", {"patch_size": 4, "shards": entries})
+    atomic_write_json(root / "index.json", {"patch_size": 4, "shards": entries})
     ds = PatchShardDataset(tmp_path, "train", seed=1)
     assert len(ds) == sum(sizes)
     orders = []

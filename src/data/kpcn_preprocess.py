@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from src.errors import DataError
-from src.io.atomic import atomic_write_text
+from src.io.atomic import atomic_write_json
 
 #: The value of eps used by Bako et al. 2017 (configs pass it in; functions never assume it).
 BAKO_ALBEDO_EPS = 0.00316
@@ -307,8 +307,7 @@ def whiten(x, stats: WhiteningStats, channel_axis: int = -1):
 
 def save_whitening_stats(path: str | os.PathLike[str], stats: Mapping[str, WhiteningStats]) -> None:
     """Write {branch: {"mean": [...], "std": [...]}} as JSON (atomically)."""
-    payload = {k: v.to_dict() for k, v in stats.items()}
-    atomic_write_text(path, json.dumps(payload, indent=1) + "\n")
+    atomic_write_json(path, {k: v.to_dict() for k, v in stats.items()})
 
 
 def load_whitening_stats(path: str | os.PathLike[str]) -> dict[str, WhiteningStats]:

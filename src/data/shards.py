@@ -40,7 +40,7 @@ from src.data.kpcn_preprocess import (
 from src.data.patch_sampling import extract_patches, importance_map, sample_patches
 from src.data.splits import SPLITS, group_dataset, split_scenes
 from src.errors import DataError
-from src.io.atomic import atomic_path, atomic_write_text
+from src.io.atomic import atomic_path, atomic_write_json
 
 _RGB = ("r", "g", "b")
 #: Tensors in every shard / full image, with their channel names.
@@ -59,10 +59,6 @@ INDEX_NAME = "index.json"
 
 def shard_name(scene: str, spp: int) -> str:
     return f"{scene}-{spp:05d}spp.pt"
-
-
-def write_json(path: str | os.PathLike[str], obj: Any) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1) + "\n")
 
 
 def save_tensors(path: str | os.PathLike[str], tensors: Mapping[str, torch.Tensor]) -> None:
@@ -202,9 +198,9 @@ def preprocess_dataset(
         index = {"kind": kind, "split": split, "dtype": "float32", "channels": channels, "shards": entries}
         if kind == "patches":
             index["patch_size"] = patch_size
-        write_json(out_dir / kind / split / INDEX_NAME, index)
+        atomic_write_json(out_dir / kind / split / INDEX_NAME, index)
     save_whitening_stats(out_dir / "whitening.json", {k: m.finalize(whiten_eps) for k, m in moments.items()})
-    write_json(out_dir / "splits.json", splits)
+    atomic_write_json(out_dir / "splits.json", splits)
     summary = {
         "raw_dir": str(raw_dir),
         "splits": {s: len(splits[s]) for s in SPLITS},
@@ -225,5 +221,5 @@ def preprocess_dataset(
             "importance_percentile": importance_percentile,
         },
     }
-    write_json(out_dir / "summary.json", summary)
+    atomic_write_json(out_dir / "summary.json", summary)
     return summary

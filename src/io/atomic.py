@@ -8,6 +8,7 @@ file under the final name: either the old file stays intact or the complete new 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import secrets
 import shutil
@@ -91,3 +92,8 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(old, ignore_errors=True)
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj) -> Path:
+    """Write `obj` as indented JSON atomically (non-JSON leaves such as paths become strings)."""
+    return atomic_write_text(path, json.dumps(obj, indent=1, default=str) + "\n")

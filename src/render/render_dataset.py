@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from src.errors import ConfigError, DataError
-from src.io.atomic import atomic_write_text
+from src.io.atomic import atomic_write_json
 from src.render.moments import MomentAccumulator, variance_of_mean
 
 log = logging.getLogger(__name__)
@@ -206,7 +206,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
             samples += pixels * spp
             write_kpcn_exr(raw_dir / name, buffers)
             manifest[name] = key
-            atomic_write_text(manifest_path, json.dumps(manifest, indent=1, sort_keys=True))
+            atomic_write_json(manifest_path, manifest)
             rendered += 1
     summary = {
         "variant": variant,
