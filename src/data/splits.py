@@ -20,6 +20,11 @@ SPLITS = ("train", "val", "test")
 _EXR_NAME = re.compile(r"^(?P<scene>.+)-(?P<spp>\d+)spp\.exr$")
 
 
+def exr_name(scene: str, spp: int) -> str:
+    """The file name of one render: `<scene>-<NNNNN>spp.exr` (the inverse of `parse_exr_name`)."""
+    return f"{scene}-{spp:05d}spp.exr"
+
+
 def parse_exr_name(path: str | os.PathLike[str]) -> tuple[str, int]:
     """`<scene>-<NNNNN>spp.exr` -> (scene, spp); the scene may contain dashes (the last one splits)."""
     name = Path(path).name

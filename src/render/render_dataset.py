@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import logging
 import time
 import zlib
 from collections.abc import Mapping
@@ -27,8 +26,6 @@ from tqdm import tqdm
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from src.render.moments import MomentAccumulator, variance_of_mean
-
-log = logging.getLogger(__name__)
 
 ROLE_IDS = {"noisy": 1, "reference": 2}
 
@@ -147,17 +144,16 @@ def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes
     return buffers
 
 
-def render_key(source: SceneSource, ds: Mapping, spp: int, role: str) -> str:
-    """Hash of everything that determines one output file, to skip renders whose output is current."""
+def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str) -> str:
+    """Hash of everything that determines one output file, to skip renders whose output is current.
+
+    ``scene_identity`` is ``SceneSource.identity()``; procedural scenes also depend on ``randomize``.
+    """
     keyed = {k: ds[k] for k in ("width", "height", "seed", "integrator", "max_pass_samples")}
-    payload = {"scene": source.identity(), "spp": spp, "role": role, **keyed}
-    if source.path is None:
+    payload = {"scene": scene_identity, "spp": spp, "role": role, **keyed}
+    if "base" in scene_identity:
         payload["randomize"] = ds["randomize"]
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
-
-
-def exr_name(scene: str, spp: int) -> str:
-    return f"{scene}-{spp:05d}spp.exr"
 
 
 def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") -> dict:
@@ -169,6 +165,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     import mitsuba as mi
 
     from src.data.kpcn_buffers import write_kpcn_exr
+    from src.data.splits import exr_name
     from src.render.backend import set_mitsuba_variant
 
     noisy = sorted(int(s) for s in ds["noisy_spp"])
@@ -190,9 +187,10 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     sources = scene_sources(ds)
     for source in tqdm(sources, desc=f"render [{variant}]", unit="scene"):
         scene = sensor = None
+        identity = source.identity()
         for spp, role in jobs:
             name = exr_name(source.name, spp)
-            key = render_key(source, ds, spp, role)
+            key = render_key(identity, ds, spp, role)
             if manifest.get(name) == key and (raw_dir / name).exists():
                 skipped += 1
                 continue
@@ -208,7 +206,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
             manifest[name] = key
             atomic_write_json(manifest_path, manifest)
             rendered += 1
-    summary = {
+    return {
         "variant": variant,
         "scenes": len(sources),
         "files_rendered": rendered,
@@ -217,15 +215,3 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
         "render_seconds": round(seconds, 3),
         "samples_per_second": samples / seconds if seconds > 0 else None,
     }
-    if seconds > 0:
-        log.info(
-            "rendered %d files (%d cached) in %.1f s: %.3g samples/s on %s",
-            rendered,
-            skipped,
-            seconds,
-            samples / seconds,
-            variant,
-        )
-    else:
-        log.info("all %d files up to date in %s", skipped, raw_dir)
-    return summary
