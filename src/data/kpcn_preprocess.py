@@ -24,24 +24,18 @@ from pathlib import Path
 
 import numpy as np
 
+from src.data.kpcn_buffers import KPCN_BUFFERS
 from src.errors import DataError
 from src.io.atomic import atomic_write_json
 
 #: The value of eps used by Bako et al. 2017 (configs pass it in; functions never assume it).
 BAKO_ALBEDO_EPS = 0.00316
 
-#: Buffers `make_network_inputs` needs, with their channel counts.
+#: Buffers `make_network_inputs` needs, with their channel counts (from the KPCN convention).
 REQUIRED_BUFFERS = {
-    "diffuse": 3,
-    "specular": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "diffuseVariance": 1,
-    "specularVariance": 1,
-    "albedoVariance": 1,
-    "normalVariance": 1,
-    "depthVariance": 1,
+    b: len(KPCN_BUFFERS[b])
+    for b in ("diffuse", "specular", "albedo", "normal", "depth")
+    + ("diffuseVariance", "specularVariance", "albedoVariance", "normalVariance", "depthVariance")
 }
 
 

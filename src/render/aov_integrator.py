@@ -25,25 +25,20 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-# Buffers written by the integrator, with their channel counts (the order of ``aov_names``).
-BUFFER_CHANNELS: dict[str, int] = {
-    "diffuse": 3,
-    "specular": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "visibility": 1,
-}
+from src.data.kpcn_buffers import KPCN_BUFFERS
+
+# Buffers written as AOVs after the film's RGB color, in ``aov_names`` order.
+AOV_BUFFERS = ("diffuse", "specular", "albedo", "normal", "depth", "visibility")
 # Buffers whose per-sample square is also written (second moments for the variance of the mean).
 MOMENT_BUFFERS: tuple[str, ...] = ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility")
-CHANNEL_COUNT = {"color": 3, **BUFFER_CHANNELS}
+CHANNEL_COUNT = {buf: len(KPCN_BUFFERS[buf]) for buf in ("color", *AOV_BUFFERS)}
 
 
 def aov_channel_names() -> list[str]:
     """AOV channel names in the order ``sample`` returns them: buffers first, then squares."""
     names = []
-    for buf, n in BUFFER_CHANNELS.items():
-        names += [f"{buf}.{i}" for i in range(n)]
+    for buf in AOV_BUFFERS:
+        names += [f"{buf}.{i}" for i in range(CHANNEL_COUNT[buf])]
     for buf in MOMENT_BUFFERS:
         names += [f"{buf}_sq.{i}" for i in range(CHANNEL_COUNT[buf])]
     return names
@@ -179,8 +174,8 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             "visibility": visibility,
         }
         aovs = []
-        for buf, n in BUFFER_CHANNELS.items():
-            aovs += _channels(values[buf], n)
+        for buf in AOV_BUFFERS:
+            aovs += _channels(values[buf], CHANNEL_COUNT[buf])
         for buf in MOMENT_BUFFERS:
             aovs += [dr.square(c) for c in _channels(values[buf], CHANNEL_COUNT[buf])]
         return color, mi.Bool(True), aovs

@@ -125,14 +125,14 @@ def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes
     """Render ``spp`` samples in ``passes``; returns KPCN buffers (H, W, C) float32 incl. variances."""
     import mitsuba as mi
 
-    from src.render.aov_integrator import BUFFER_CHANNELS, CHANNEL_COUNT, MOMENT_BUFFERS
+    from src.render.aov_integrator import AOV_BUFFERS, CHANNEL_COUNT, MOMENT_BUFFERS
 
     acc = MomentAccumulator()
     for seed, n in zip(seeds, passes, strict=True):
         acc.add(np.asarray(mi.render(scene, sensor=sensor, integrator=integrator, spp=n, seed=seed)), n)
     img = acc.mean()
     offsets, start = {}, 0
-    for buf in ("color", *BUFFER_CHANNELS):  # film layout: RGB, then the AOVs in integrator order
+    for buf in ("color", *AOV_BUFFERS):  # film layout: RGB, then the AOVs in integrator order
         offsets[buf] = (start, start + CHANNEL_COUNT[buf])
         start += CHANNEL_COUNT[buf]
     buffers = {buf: img[..., a:b].astype(np.float32) for buf, (a, b) in offsets.items()}
