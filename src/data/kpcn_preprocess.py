@@ -171,8 +171,8 @@ def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[s
 
     Returns float32 arrays: `diffuse_in`, `specular_in` (H, W, 28), `diffuse_t`, `specular_t` (H, W, 3:
     the transformed noisy colours, = channels 0:3 of the inputs, what a KPCN kernel filters) and
-    `albedo` (H, W, 3, needed by `rebuild_color`). The auxiliary features (normal, depth, albedo) are
-    shared by both branches.
+    `albedo` (H, W, 3, needed by `rebuild_color`), `normal` (H, W, 3) and the normalised `depth` (H, W, 1)
+    (the guides of the non-learned baselines). The auxiliary features are shared by both branches.
     """
     _check_buffers(buffers, REQUIRED_BUFFERS, "noisy image")
     b = {k: np.asarray(buffers[k], dtype=np.float32) for k in REQUIRED_BUFFERS}
@@ -191,6 +191,8 @@ def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[s
         "diffuse_t": diffuse_t,
         "specular_t": specular_t,
         "albedo": albedo,
+        "normal": b["normal"],
+        "depth": depth,
     }
     return {k: v.astype(np.float32, copy=False) for k, v in out.items()}
 

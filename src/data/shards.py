@@ -50,6 +50,8 @@ SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
     "diffuse_target": _RGB,  # reference diffuse / (noisy albedo + eps)
     "specular_target": _RGB,  # log(1 + reference specular)
     "albedo": _RGB,  # noisy albedo, for rebuild_color
+    "normal": ("x", "y", "z"),  # noisy shading normal (guide of the cross-bilateral / OIDN baselines)
+    "depth": ("z",),  # depth normalised to [0, 1] per image (same as the input channel)
     "color": _RGB,  # noisy colour (baselines, metrics)
     "reference": _RGB,  # reference colour
 }
@@ -160,6 +162,8 @@ def preprocess_dataset(
                     "specular_in": inputs["specular_in"],
                     **make_targets(ref, inputs["albedo"], eps),
                     "albedo": inputs["albedo"],
+                    "normal": inputs["normal"],
+                    "depth": inputs["depth"],
                     "color": color,
                     "reference": ref_color,
                 }

@@ -1,0 +1,141 @@
+"""Model size and cost: parameter counts, FLOPs per pixel, and the text of `stage=summary`.
+
+FLOPs are counted as 2 x multiply-accumulates (MACs). Convolution MACs are measured, not derived from the
+config: forward hooks on every `nn.Conv2d` record out_channels * (in_channels / groups) * kh * kw MACs per
+output pixel during one forward pass on a small random batch (bias additions and ReLUs are not counted,
+the usual convention). Kernel application (Bako et al. 2017, Eq. 5-6) is reported separately:
+k*k*3 MACs per branch per pixel for the weighted sum, plus ~3*k*k FLOPs for the softmax (subtract max,
+exp, sum).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import torch
+from torch import nn
+
+from src.data.shards import SHARD_CHANNELS
+from src.models.denoise.base import Denoiser
+from src.models.denoise.models import BRANCHES, TwoBranchDenoiser
+
+#: FLOPs of the softmax per kernel tap (subtract the max, exp, add to the normaliser).
+SOFTMAX_FLOPS_PER_TAP = 3
+#: Side of the random batch the FLOP count runs on: 'same' convolutions cost the same per pixel at any
+#: size, so a tiny frame gives exact per-pixel counts cheaply.
+PROBE_SIZE = 8
+
+
+def random_batch(
+    height: int,
+    width: int,
+    *,
+    in_channels: int = len(SHARD_CHANNELS["diffuse_in"]),
+    batch_size: int = 1,
+    generator: torch.Generator | None = None,
+    device: torch.device | str | None = None,
+) -> dict[str, torch.Tensor]:
+    """A random batch with every key of the `base.py` interface, in plausible ranges (colours >= 0,
+    normals in [-1, 1], depth in [0, 1]); for benchmarks and FLOP counting, not for accuracy."""
+
+    def rand(channels: int, lo: float = 0.0, hi: float = 1.0) -> torch.Tensor:
+        x = torch.rand((batch_size, channels, height, width), generator=generator)
+        return (lo + (hi - lo) * x).to(device)
+
+    batch = {key: rand(len(names)) for key, names in SHARD_CHANNELS.items()}
+    for branch in BRANCHES:
+        batch[f"{branch}_in"] = rand(in_channels, -1.0, 1.0)
+        batch[f"{branch}_t"] = rand(len(SHARD_CHANNELS[f"{branch}_target"]))
+    batch["normal"] = rand(len(SHARD_CHANNELS["normal"]), -1.0, 1.0)
+    return batch
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable scalars; a module shared by two branches is counted once."""
+    return sum(p.numel() for p in model.parameters())  # parameters() already removes duplicates
+
+
+def _conv_macs(model: nn.Module, run) -> int:
+    """Total conv MACs of one call of `run()`, counted by forward hooks on every Conv2d."""
+    total = 0
+
+    def hook(conv: nn.Conv2d, _inputs, output: torch.Tensor) -> None:
+        nonlocal total
+        n, c_out, h, w = output.shape
+        kh, kw = conv.kernel_size
+        total += n * h * w * c_out * (conv.in_channels // conv.groups) * kh * kw
+
+    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
+    try:
+        with torch.inference_mode():
+            run()
+    finally:
+        for handle in handles:
+            handle.remove()
+    return total
+
+
+def kernel_application_flops(kernel_size: int, channels: int = 3) -> int:
+    """FLOPs per pixel of one branch's kernel application: 2 * k*k*channels (weighted sum) + softmax."""
+    taps = kernel_size * kernel_size
+    return 2 * taps * channels + SOFTMAX_FLOPS_PER_TAP * taps
+
+
+def flops_per_pixel(model: nn.Module, in_channels: int = len(SHARD_CHANNELS["diffuse_in"])) -> dict[str, Any]:
+    """FLOPs per output pixel: {"total", "conv", "kernel"} (both branches of a two-branch model).
+
+    A plain network (e.g. a `ConvStack`) is fed an (1, in_channels, s, s) tensor; a `Denoiser` a random
+    batch. A non-learned filter reports its own `flops_per_pixel()` as "total" if it defines one, else
+    every entry is None (unknown).
+    """
+    if isinstance(model, Denoiser) and not model.learned:
+        own = getattr(model, "flops_per_pixel", None)
+        total = float(own()) if callable(own) else None
+        return {"total": total, "conv": None, "kernel": None}
+    device = next((p.device for p in model.parameters()), torch.device("cpu"))
+    pixels = PROBE_SIZE * PROBE_SIZE
+    if isinstance(model, Denoiser):
+        # The batch must match the model's inputs, whatever the caller guessed.
+        in_channels = getattr(model, "in_channels", in_channels)
+        batch = random_batch(PROBE_SIZE, PROBE_SIZE, in_channels=in_channels, device=device)
+        conv = 2 * _conv_macs(model, lambda: model(batch)) / pixels
+    else:
+        x = torch.rand(1, in_channels, PROBE_SIZE, PROBE_SIZE, device=device)
+        conv = 2 * _conv_macs(model, lambda: model(x)) / pixels
+    kernel_size = getattr(model, "kernel_size", None)
+    kernel = len(BRANCHES) * kernel_application_flops(kernel_size) if kernel_size else 0
+    return {"total": conv + kernel, "conv": conv, "kernel": kernel}
+
+
+def _fmt(x: float | None, digits: int = 0) -> str:
+    return "n/a" if x is None else f"{x:,.{digits}f}"
+
+
+def _parameter_lines(model: nn.Module) -> list[str]:
+    total = count_parameters(model)
+    if not isinstance(model, TwoBranchDenoiser):
+        return [f"parameters: {total:,}"]
+    if model.shared:
+        return [f"parameters: {total:,} (one network shared by the diffuse and specular branches)"]
+    per = ", ".join(f"{b} {count_parameters(getattr(model, f'{b}_net')):,}" for b in BRANCHES)
+    return [f"parameters: {total:,} ({per})"]
+
+
+def model_summary(
+    model: nn.Module, model_cfg: Mapping[str, Any], frame: tuple[int, int] = (1280, 720)
+) -> str:
+    """The text `python -m src.run stage=summary` prints: architecture, parameters, FLOPs per pixel and
+    GFLOPs for one `frame` (width, height; default the KPCN set's 1280x720, Bako et al. 2017)."""
+    flops = flops_per_pixel(model)
+    width, height = frame
+    frame_gflops = None if flops["total"] is None else flops["total"] * width * height / 1e9
+    name, architecture = model_cfg.get("name", "?"), model_cfg.get("architecture", "?")
+    lines = [f"model: {name} (architecture {architecture}, learned {bool(model.learned)})", str(model)]
+    lines += _parameter_lines(model)
+    breakdown = ""
+    if flops["conv"] is not None:
+        breakdown = f" total = conv {_fmt(flops['conv'])} + kernel application {_fmt(flops['kernel'])}"
+    lines.append(f"FLOPs per pixel: {_fmt(flops['total'])}{breakdown}")
+    lines.append(f"GFLOPs per {width}x{height} frame: {_fmt(frame_gflops, 1)}")
+    return "\n".join(lines)

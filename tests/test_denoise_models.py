@@ -1,0 +1,317 @@
+"""Learned denoisers: parameter counts at paper size, kernel application against a brute-force reference,
+whitening buffers, shared branches, tiled inference, FLOP counting, the registry and the benchmark."""
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from src.bench import main as bench_main
+from src.data.kpcn_preprocess import INPUT_CHANNELS, WhiteningStats
+from src.errors import ConfigError
+from src.models.denoise.kernels import apply_kernel
+from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
+from src.models.denoise.networks import ConvStack, ResidualKernelNet
+from src.models.denoise.summary import count_parameters, flops_per_pixel, model_summary, random_batch
+from src.models.registry import build_denoiser
+from tests.conftest import compose_config, one_line_error
+
+C_IN = len(INPUT_CHANNELS)
+
+
+def assert_close(
+    actual: torch.Tensor, expected: torch.Tensor, rtol: float = 1e-5, atol: float = 1e-6
+) -> None:
+    """allclose with the worst difference in the message (torch.testing.assert_close would first import
+    torch.distributed, ~4 s, on every test process)."""
+    assert actual.shape == expected.shape, (actual.shape, expected.shape)
+    expected = expected.to(actual.dtype)
+    worst = (actual - expected).abs().max().item() if actual.numel() else 0.0
+    assert torch.allclose(actual, expected, rtol=rtol, atol=atol), f"max abs difference {worst}"
+
+
+def naive_apply_kernel(logits: torch.Tensor, image: torch.Tensor, k: int) -> torch.Tensor:
+    """Reference, the memory-hungry way the implementation avoids: pad by clamping indices (= replicate
+    padding), `F.unfold` every k x k window, torch.softmax the scores, weighted sum; in float64.
+    Only for tiny images."""
+    n, c, h, w = image.shape
+    r = k // 2
+    rows = torch.clamp(torch.arange(-r, h + r), 0, h - 1)
+    cols = torch.clamp(torch.arange(-r, w + r), 0, w - 1)
+    padded = image.double()[:, :, rows][:, :, :, cols]
+    # unfold's channel index is c * k*k + i * k + j: the (i, j) tap of channel c, as `apply_kernel` expects.
+    windows = F.unfold(padded, k).view(n, c, k * k, h, w)
+    weights = torch.softmax(logits.double(), dim=1)
+    return (windows * weights.unsqueeze(1)).sum(dim=2)
+
+
+def paper_model(name: str, **overrides):
+    cfg = compose_config(
+        [f"model={name}", "profile=paper", *(f"model.{k}={v}" for k, v in overrides.items())]
+    )
+    return build_denoiser(cfg.model), cfg.model
+
+
+def tiny_cfg(**overrides):
+    cfg = {
+        "name": "tiny",
+        "architecture": "conv_stack",
+        "output": "kernel",
+        "kernel_size": 3,
+        "shared": False,
+        "whiten": True,
+        "in_channels": C_IN,
+        "width": 4,
+        "depth": 2,
+        "conv_kernel": 3,
+    }
+    return {**cfg, **overrides}
+
+
+# --- parameter counts (paper configs) ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("name", "per_branch"), [("dpcn", 1_828_303), ("kpcn", 2_923_741)])
+def test_paper_parameter_counts_per_branch(name, per_branch):
+    model, _ = paper_model(name)
+    assert not model.shared
+    assert count_parameters(model.diffuse_net) == count_parameters(model.specular_net) == per_branch
+    assert count_parameters(model) == 2 * per_branch
+
+
+def test_residual_kpcn_shared_and_separate_counts():
+    shared, _ = paper_model("resnet")
+    assert shared.shared and shared.diffuse_net is shared.specular_net
+    assert count_parameters(shared) == 972_217
+    separate, _ = paper_model("resnet", shared="false")
+    assert separate.diffuse_net is not separate.specular_net
+    assert count_parameters(separate) == 2 * 972_217
+
+
+def test_networks_alone_match_the_documented_sizes():
+    assert count_parameters(ConvStack(28, 100, 9, 5, 3)) == 1_828_303
+    assert count_parameters(ConvStack(28, 100, 9, 5, 441)) == 2_923_741
+    assert count_parameters(ResidualKernelNet(28, 64, 12, 3, 64, 441)) == 972_217
+
+
+# --- kernel application --------------------------------------------------------------------------
+
+
+ORDERS = ("offset", "row")
+
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("k", [1, 5, 21])
+def test_apply_kernel_matches_naive_reference(k, order):
+    # Non-square, N=2, and k=21 larger than the image: every tap of the corner pixels is a border tap.
+    gen = torch.Generator().manual_seed(k)
+    n, c, h, w = 2, 3, 7, 11
+    logits = 4 * torch.randn(n, k * k, h, w, generator=gen)
+    image = torch.randn(n, c, h, w, generator=gen)
+    out = apply_kernel(logits, image, k, order=order)
+    assert out.shape == (n, c, h, w) and out.dtype == torch.float32
+    assert_close(out.double(), naive_apply_kernel(logits, image, k), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_apply_kernel_offset_convention(order):
+    # All weight on tap (i, j) = (0, 2) of a 3x3 kernel: out[y, x] = image[y - 1, x + 1] (clamped).
+    k, h, w = 3, 4, 5
+    logits = torch.full((1, k * k, h, w), -1e4)
+    logits[:, 0 * k + 2] = 0.0
+    image = torch.arange(h * w, dtype=torch.float32).view(1, 1, h, w)
+    out = apply_kernel(logits, image, k, order=order)[0, 0]
+    rows = torch.clamp(torch.arange(h) - 1, 0, h - 1)
+    cols = torch.clamp(torch.arange(w) + 1, 0, w - 1)
+    assert_close(out, image[0, 0][rows][:, cols])
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_apply_kernel_gradients_match_reference(order):
+    gen = torch.Generator().manual_seed(1)
+    k = 5
+    logits = torch.randn(2, k * k, 4, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    image = torch.randn(2, 3, 4, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+    weights = torch.randn(2, 3, 4, 6, generator=gen, dtype=torch.float64)
+    (apply_kernel(logits, image, k, order=order) * weights).sum().backward()
+    got = logits.grad.clone(), image.grad.clone()
+    logits.grad, image.grad = None, None
+    (naive_apply_kernel(logits, image, k) * weights).sum().backward()
+    assert_close(got[0], logits.grad)
+    assert_close(got[1], image.grad)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_softmax_kernel_preserves_a_constant_image_and_large_logits_are_stable(order):
+    logits = 1e4 * torch.randn(2, 21 * 21, 9, 13)  # exp() of these would overflow without the max shift
+    image = torch.full((2, 3, 9, 13), 0.7)
+    out = apply_kernel(logits, image, 21, order=order)
+    assert torch.isfinite(out).all()
+    assert_close(out, image)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_apply_kernel_under_bf16_autocast_accumulates_in_float32(order):
+    logits = torch.randn(1, 25, 6, 7).bfloat16()
+    image = torch.rand(1, 3, 6, 7).bfloat16()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = apply_kernel(logits, image, 5, order=order)
+    assert out.dtype == torch.float32
+    expected = naive_apply_kernel(logits.float(), image.float(), 5)
+    assert_close(out.double(), expected, rtol=1e-5, atol=1e-6)
+
+
+def test_apply_kernel_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="k\\*k|25"):
+        apply_kernel(torch.zeros(1, 9, 4, 4), torch.zeros(1, 3, 4, 4), 5)
+
+
+# --- models --------------------------------------------------------------------------------------
+
+
+def test_shared_branches_run_one_network_once_on_both():
+    model = build_denoiser(tiny_cfg(shared=True, whiten=False))
+    calls = []
+    model.diffuse_net.register_forward_hook(lambda m, i, o: calls.append(i[0].shape[0]))
+    batch = random_batch(5, 6, batch_size=2, generator=torch.Generator().manual_seed(0))
+    out = model(batch)
+    assert model.diffuse_net is model.specular_net and calls == [4]  # one call on 2 + 2 images
+    # Same as running the shared net on each branch separately.
+    for branch in ("diffuse", "specular"):
+        logits = model.diffuse_net(batch[f"{branch}_in"])
+        assert_close(out[branch], apply_kernel(logits, batch[f"{branch}_t"], 3))
+
+
+def test_direct_output_is_the_network_output():
+    model = build_denoiser(tiny_cfg(output="direct", whiten=False))
+    batch = random_batch(4, 5, generator=torch.Generator().manual_seed(0))
+    out = model(batch)
+    assert set(out) == {"diffuse", "specular"} and out["diffuse"].shape == (1, 3, 4, 5)
+    assert_close(out["specular"], model.specular_net(batch["specular_in"]))
+
+
+def _stats(seed: int) -> WhiteningStats:
+    rng = np.random.default_rng(seed)
+    return WhiteningStats(rng.normal(size=C_IN), rng.uniform(0.5, 2.0, size=C_IN))
+
+
+def test_whitening_buffers_are_applied_and_persist_through_state_dict():
+    stats = {"diffuse_in": _stats(1), "specular_in": _stats(2)}
+    torch.manual_seed(0)
+    model = build_denoiser(tiny_cfg(output="direct"), whitening=stats)
+    assert {"diffuse_mean", "diffuse_std", "specular_mean", "specular_std"} <= set(model.state_dict())
+    batch = random_batch(4, 5, generator=torch.Generator().manual_seed(0))
+    whitened = (batch["diffuse_in"] - torch.tensor(stats["diffuse_in"].mean).float().view(1, -1, 1, 1)) / (
+        torch.tensor(stats["diffuse_in"].std).float().view(1, -1, 1, 1)
+    )
+    assert_close(model(batch)["diffuse"], model.diffuse_net(whitened))
+    # A fresh model without stats starts at identity whitening; loading the checkpoint restores them.
+    fresh = build_denoiser(tiny_cfg(output="direct"))
+    assert torch.all(fresh.diffuse_mean == 0) and torch.all(fresh.diffuse_std == 1)
+    fresh.load_state_dict(model.state_dict())
+    assert_close(fresh(batch)["specular"], model(batch)["specular"])
+
+
+def test_whitening_of_the_wrong_length_is_a_config_error():
+    bad = {"diffuse_in": WhiteningStats(np.zeros(3), np.ones(3)), "specular_in": _stats(0)}
+    with pytest.raises(ConfigError) as excinfo:
+        build_denoiser(tiny_cfg(), whitening=bad)
+    one_line_error(excinfo, "diffuse_in", "28")
+
+
+def test_halo_and_tiled_inference_equal_one_full_frame_pass():
+    model = build_denoiser(tiny_cfg(kernel_size=5)).eval()
+    assert model.halo == 2 * 1 + 2  # 2 conv layers of 3x3 + the 5x5 kernel radius
+    batch = random_batch(13, 17, batch_size=2, generator=torch.Generator().manual_seed(3))
+    with torch.inference_mode():
+        full = model(batch)
+        tiled = infer_tiled(model, batch, tile=6)
+    for branch in ("diffuse", "specular"):
+        assert_close(tiled[branch], full[branch], atol=1e-5)
+
+
+def test_residual_network_halo_and_shape():
+    net = ResidualKernelNet(C_IN, 8, 2, 3, 8, 9)
+    assert net.halo == (2 + 2 * 2) * 1
+    assert net(torch.zeros(1, C_IN, 5, 7)).shape == (1, 9, 5, 7)
+
+
+# --- registry ------------------------------------------------------------------------------------
+
+
+def test_unknown_architecture_is_a_one_line_config_error():
+    with pytest.raises(ConfigError) as excinfo:
+        build_denoiser(tiny_cfg(architecture="foo"))
+    one_line_error(excinfo, "model.architecture", "foo", "conv_stack", "residual")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "key"),
+    [
+        ({"width": None}, "model.width"),
+        ({"conv_kernel": 4}, "model.conv_kernel"),
+        ({"output": "x"}, "model.output"),
+    ]
+    + [({"shared": "yes"}, "model.shared"), ({"kernel_size": 0}, "model.kernel_size")],
+)
+def test_invalid_keys_name_the_key(overrides, key):
+    with pytest.raises(ConfigError) as excinfo:
+        build_denoiser(tiny_cfg(**overrides))
+    one_line_error(excinfo, key)
+
+
+def test_registry_accepts_dictconfig():
+    model, cfg = paper_model("resnet", blocks=1, width=8, predictor_width=8)
+    assert isinstance(model, TwoBranchDenoiser) and model.halo == (2 + 2) * 1 + 10
+    assert count_parameters(model) > 0 and cfg.architecture == "residual"
+
+
+# --- FLOPs and summary ---------------------------------------------------------------------------
+
+
+def test_flops_per_pixel_of_a_conv_stack_matches_the_closed_form():
+    c_in, width, depth, k, c_out = C_IN, 6, 3, 5, 9
+    sizes = [c_in] + [width] * (depth - 1) + [c_out]
+    closed = 2 * sum(a * b * k * k for a, b in zip(sizes[:-1], sizes[1:], strict=True))
+    net = ConvStack(c_in, width, depth, k, c_out)
+    assert flops_per_pixel(net, in_channels=c_in) == {"total": closed, "conv": closed, "kernel": 0}
+    # A two-branch kernel model: both branches' convs plus their kernel applications (k_kernel = 3).
+    model = build_denoiser(tiny_cfg(width=6, depth=3, conv_kernel=5, kernel_size=3))
+    flops = flops_per_pixel(model)
+    per_branch_conv = 2 * (c_in * 6 * 25 + 6 * 6 * 25 + 6 * 9 * 25)
+    assert flops["conv"] == 2 * per_branch_conv
+    assert flops["kernel"] == 2 * (2 * 9 * 3 + 3 * 9)
+    assert flops["total"] == flops["conv"] + flops["kernel"]
+
+
+def test_model_summary_reports_parameters_and_flops():
+    model = build_denoiser(tiny_cfg())
+    text = model_summary(model, tiny_cfg())
+    assert f"parameters: {count_parameters(model):,}" in text
+    assert "FLOPs per pixel" in text and "kernel application" in text and "1280x720" in text
+
+
+# --- benchmark -----------------------------------------------------------------------------------
+
+
+def test_bench_runs_on_a_tiny_frame_and_prints_the_ratios(capsys):
+    code = bench_main(
+        [
+            "denoise",
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--profile",
+            "smoke",
+            "--repeats",
+            "1",
+            "--warmup",
+            "0",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0, out
+    for needle in ("dpcn", "kpcn (net only)", "resnet", "oidn", "conv2d 100->100 5x5", "KPCN / DPCN time"):
+        assert needle in out, (needle, out)
+    assert "FLOP ratio KPCN / DPCN" in out and "kernel-application overhead, kpcn" in out
