@@ -1,0 +1,157 @@
+"""Full-reference image metrics on float numpy arrays of shape (H, W, 3).
+
+Conventions (the `metrics:` section of conf/config.yaml; defaults here mirror it):
+- HDR colour is tone-mapped (`tonemap`) before the LDR metrics PSNR and SSIM, with data range 1.
+- relMSE, SMAPE and MSE are computed on linear HDR values.
+- Per-channel errors are averaged over all pixels and channels (no luminance weighting).
+- SSIM follows dm_pix / TensorFlow: 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03,
+  population (not sample) covariance, "valid" window positions only, mean over channels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from src.errors import ConfigError, DataError
+
+TONEMAPS = ("clip_gamma", "reinhard_gamma")
+#: skimage's Gaussian filter truncates at 3.5 sigma (fixed inside `structural_similarity`).
+SKIMAGE_GAUSSIAN_TRUNCATE = 3.5
+
+
+def tonemap(x: np.ndarray, method: str = "clip_gamma", gamma: float = 2.2) -> np.ndarray:
+    """Linear HDR -> display values in [0, 1].
+
+    clip_gamma:     clip(x, 0, 1) ** (1 / gamma)
+    reinhard_gamma: (max(x, 0) / (1 + max(x, 0))) ** (1 / gamma)   (Reinhard et al. 2002, global operator)
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if method == "clip_gamma":
+        base = np.clip(x, 0.0, 1.0)
+    elif method == "reinhard_gamma":
+        pos = np.maximum(x, 0.0)
+        base = pos / (1.0 + pos)
+    else:
+        raise ConfigError(f"metrics.tonemap={method!r}; expected one of {', '.join(TONEMAPS)}")
+    return base ** (1.0 / gamma)
+
+
+def _check_pair(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both as float64 arrays; a one-line DataError when shapes differ or a value is NaN/Inf."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.shape != y.shape:
+        raise DataError(f"image metrics: shapes differ, denoised {x.shape} vs reference {y.shape}")
+    for name, a in (("denoised", x), ("reference", y)):
+        if not np.isfinite(a).all():
+            raise DataError(
+                f"image metrics: {name} image has {np.count_nonzero(~np.isfinite(a))} NaN/Inf values"
+            )
+    return x, y
+
+
+def mse(x: np.ndarray, y: np.ndarray) -> float:
+    """Mean squared error mean((x - y)^2) over all pixels and channels."""
+    x, y = _check_pair(x, y)
+    return float(np.mean((x - y) ** 2))
+
+
+def psnr(x: np.ndarray, y: np.ndarray, data_range: float = 1.0) -> float:
+    """PSNR = 10 log10(data_range^2 / MSE) in dB (skimage), on tone-mapped values; y is the reference.
+    Identical images give +inf."""
+    x, y = _check_pair(x, y)
+    if np.array_equal(x, y):
+        return float("inf")  # skimage would divide by zero and warn
+    return float(peak_signal_noise_ratio(y, x, data_range=data_range))
+
+
+def _check_ssim_window(win_size: int, sigma: float) -> None:
+    """skimage's Gaussian always spans 2 * int(3.5 sigma + 0.5) + 1 pixels and uses `win_size` only to
+    crop the borders; the dm_pix convention needs both to be the same window, so refuse a mismatch."""
+    footprint = 2 * int(SKIMAGE_GAUSSIAN_TRUNCATE * sigma + 0.5) + 1
+    if win_size != footprint:
+        raise ConfigError(
+            f"metrics.ssim.win_size={win_size} but a Gaussian of sigma {sigma} spans {footprint} pixels "
+            f"in skimage; use win_size={footprint} or change sigma"
+        )
+
+
+def ssim(
+    x: np.ndarray,
+    y: np.ndarray,
+    win_size: int = 11,
+    sigma: float = 1.5,
+    k1: float = 0.01,
+    k2: float = 0.03,
+    data_range: float = 1.0,
+) -> float:
+    """Mean SSIM (Wang et al. 2004, Eq. 13) of (H, W, C) images, dm_pix / TensorFlow convention.
+
+    skimage `structural_similarity` with gaussian_weights=True (normalised Gaussian window of `sigma`,
+    `win_size` wide), use_sample_covariance=False (population covariance), channel_axis=-1 (per-channel
+    SSIM, then averaged), C1 = (k1 L)^2, C2 = (k2 L)^2 with L = data_range. The SSIM map is cropped by
+    (win_size - 1) // 2 pixels on each side before the mean, i.e. only fully covered windows count.
+    """
+    x, y = _check_pair(x, y)
+    _check_ssim_window(win_size, sigma)
+    if min(x.shape[:2]) < win_size:
+        raise DataError(f"ssim: image {x.shape[0]}x{x.shape[1]} is smaller than the {win_size}-pixel window")
+    value = structural_similarity(
+        x,
+        y,
+        win_size=win_size,
+        gaussian_weights=True,
+        sigma=sigma,
+        K1=k1,
+        K2=k2,
+        use_sample_covariance=False,
+        data_range=data_range,
+        channel_axis=-1,
+    )
+    return float(value)
+
+
+def relmse(x: np.ndarray, y: np.ndarray, eps: float = 0.01) -> float:
+    """Relative MSE mean((x - y)^2 / (y^2 + eps)) on linear HDR, y the reference (Rousselle et al. 2011);
+    per channel, averaged over all channels and pixels."""
+    x, y = _check_pair(x, y)
+    return float(np.mean((x - y) ** 2 / (y**2 + eps)))
+
+
+def smape(x: np.ndarray, y: np.ndarray, eps: float = 0.01) -> float:
+    """Symmetric mean absolute percentage error mean(|x - y| / (|x| + |y| + eps)) on linear HDR (Vogels et
+    al. 2018); per channel, averaged over all channels and pixels."""
+    x, y = _check_pair(x, y)
+    return float(np.mean(np.abs(x - y) / (np.abs(x) + np.abs(y) + eps)))
+
+
+def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
+    if key not in cfg or cfg[key] is None:
+        raise ConfigError(f"{prefix}.{key} is missing")
+    return cfg[key]
+
+
+def image_metrics(
+    denoised: np.ndarray, reference: np.ndarray, metrics_cfg: Mapping[str, Any]
+) -> dict[str, float]:
+    """psnr, ssim (both on tone-mapped values), relmse, smape, mse (linear HDR) of one image pair.
+
+    `metrics_cfg` is the `metrics:` config section (DictConfig or dict): tonemap, gamma, relmse_eps,
+    smape_eps and ssim {win_size, sigma, k1, k2}.
+    """
+    x, y = _check_pair(denoised, reference)
+    keys = ("tonemap", "gamma", "relmse_eps", "smape_eps")
+    method, gamma, eps, smape_eps = (_get(metrics_cfg, k) for k in keys)
+    ssim_cfg = _get(metrics_cfg, "ssim")
+    ssim_args = {k: _get(ssim_cfg, k, "metrics.ssim") for k in ("win_size", "sigma", "k1", "k2")}
+    x_ldr, y_ldr = tonemap(x, method, gamma), tonemap(y, method, gamma)
+    return {
+        "psnr": psnr(x_ldr, y_ldr),
+        "ssim": ssim(x_ldr, y_ldr, **ssim_args),
+        "relmse": relmse(x, y, eps),
+        "smape": smape(x, y, smape_eps),
+        "mse": mse(x, y),
+    }

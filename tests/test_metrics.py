@@ -1,0 +1,112 @@
+"""Image metrics (src/metrics/image.py) against closed forms and an independent SSIM implementation."""
+
+import numpy as np
+import pytest
+from numpy.lib.stride_tricks import sliding_window_view
+
+from src.errors import ConfigError, DataError
+from src.metrics.image import image_metrics, mse, psnr, relmse, smape, ssim, tonemap
+from tests.conftest import compose_config, one_line_error
+
+
+def reference_ssim(x, y, win_size=11, sigma=1.5, k1=0.01, k2=0.03, data_range=1.0):
+    """Straightforward SSIM (Wang et al. 2004): normalised Gaussian window, population statistics, only
+    windows fully inside the image ("valid"), mean over positions and channels (dm_pix convention)."""
+    r = win_size // 2
+    offsets = np.arange(-r, r + 1)
+    g = np.exp(-(offsets[:, None] ** 2 + offsets[None, :] ** 2) / (2 * sigma**2))
+    g /= g.sum()
+    c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
+
+    def local_mean(a):  # (H, W, C) -> (H - 2r, W - 2r, C)
+        windows = sliding_window_view(a, (win_size, win_size), axis=(0, 1))  # (h, w, C, k, k)
+        return np.einsum("hwckl,kl->hwc", windows, g)
+
+    mx, my = local_mean(x), local_mean(y)
+    vx = local_mean(x * x) - mx**2
+    vy = local_mean(y * y) - my**2
+    cxy = local_mean(x * y) - mx * my
+    s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+    return s.mean()
+
+
+def test_psnr_of_a_known_mse():
+    y = np.full((8, 10, 3), 0.5)
+    x = y + 0.1  # MSE = 0.01
+    assert psnr(x, y) == pytest.approx(10 * np.log10(1 / 0.01))
+    assert psnr(x, y) == pytest.approx(20.0)
+    assert psnr(y, y) == float("inf")
+    assert mse(x, y) == pytest.approx(0.01)
+
+
+def test_ssim_of_identical_images_is_one():
+    x = np.random.default_rng(0).uniform(0, 1, (16, 20, 3))
+    assert ssim(x, x) == pytest.approx(1.0)
+
+
+def test_ssim_matches_an_independent_implementation():
+    rng = np.random.default_rng(1)
+    x = rng.uniform(0, 1, (23, 31, 3))
+    y = np.clip(x + rng.normal(0, 0.1, x.shape), 0, 1)
+    expected = reference_ssim(x, y)
+    assert 0.3 < expected < 0.99  # a pair that is neither identical nor unrelated
+    assert ssim(x, y) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+
+
+def test_ssim_window_must_match_the_gaussian_footprint():
+    x = np.zeros((16, 16, 3))
+    with pytest.raises(ConfigError) as excinfo:
+        ssim(x, x, win_size=7, sigma=1.5)
+    one_line_error(excinfo, "metrics.ssim.win_size=7", "11")
+    with pytest.raises(DataError) as excinfo:
+        ssim(np.zeros((8, 16, 3)), np.zeros((8, 16, 3)))
+    one_line_error(excinfo, "8x16")
+
+
+def test_relmse_and_smape_by_hand():
+    x = np.array([[[1.0, 0.0, 2.0]]])
+    y = np.array([[[0.5, 0.0, 1.0]]])
+    eps = 0.01
+    # per channel: 0.25 / 0.26, 0 / 0.01, 1 / 1.01; averaged over all 3 channels
+    assert relmse(x, y, eps) == pytest.approx((0.25 / 0.26 + 0.0 + 1.0 / 1.01) / 3)
+    # per channel: 0.5 / 1.51, 0 / 0.01, 1 / 3.01
+    assert smape(x, y, eps) == pytest.approx((0.5 / 1.51 + 0.0 + 1.0 / 3.01) / 3)
+
+
+def test_tonemap_values():
+    x = np.array([-1.0, 0.0, 0.25, 1.0, 4.0])
+    np.testing.assert_allclose(tonemap(x, "clip_gamma", 2.0), [0, 0, 0.5, 1, 1])
+    np.testing.assert_allclose(tonemap(x, "reinhard_gamma", 1.0), [0, 0, 0.2, 0.5, 0.8])
+    np.testing.assert_allclose(tonemap(np.array([3.0]), "reinhard_gamma", 2.0), [np.sqrt(0.75)])
+    with pytest.raises(ConfigError) as excinfo:
+        tonemap(x, "aces")
+    one_line_error(excinfo, "metrics.tonemap", "aces")
+
+
+def test_shape_mismatch_and_nonfinite_are_one_line_data_errors():
+    cfg = compose_config().metrics
+    with pytest.raises(DataError) as excinfo:
+        image_metrics(np.zeros((16, 20, 3)), np.zeros((20, 16, 3)), cfg)
+    one_line_error(excinfo, "(16, 20, 3)", "(20, 16, 3)")
+    bad = np.zeros((16, 20, 3))
+    bad[3, 4, 1] = np.nan
+    with pytest.raises(DataError) as excinfo:
+        image_metrics(bad, np.zeros((16, 20, 3)), cfg)
+    one_line_error(excinfo, "NaN/Inf", "denoised")
+
+
+def test_image_metrics_from_the_real_config():
+    cfg = compose_config().metrics
+    rng = np.random.default_rng(2)
+    reference = rng.uniform(0, 3, (24, 32, 3))  # HDR: clip_gamma clips values above 1
+    denoised = reference * 1.05
+    m = image_metrics(denoised, reference, cfg)
+    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse"}
+    x_ldr, y_ldr = tonemap(denoised, cfg.tonemap, cfg.gamma), tonemap(reference, cfg.tonemap, cfg.gamma)
+    assert m["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((x_ldr - y_ldr) ** 2)))
+    assert m["ssim"] == pytest.approx(reference_ssim(x_ldr, y_ldr))
+    assert m["relmse"] == pytest.approx(np.mean((0.05 * reference) ** 2 / (reference**2 + cfg.relmse_eps)))
+    assert m["mse"] == pytest.approx(np.mean((0.05 * reference) ** 2))
+    same = image_metrics(reference, reference, cfg)
+    assert same["psnr"] == float("inf") and same["ssim"] == pytest.approx(1.0)
+    assert same["relmse"] == same["smape"] == same["mse"] == 0.0
