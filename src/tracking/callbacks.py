@@ -1,0 +1,138 @@
+"""Hydra callback: a parent MLflow run per multirun, and its comparison table when the sweep ends.
+
+Configured in `conf/config.yaml` under `hydra.callbacks.mlflow_sweep`. The parent run is created with
+`MlflowClient.create_run` (not `mlflow.start_run`), so no run is active in the launching process: with
+Hydra's basic launcher the jobs run in this same process and start their own fluent runs.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import os
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import mlflow
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.experimental.callback import Callback
+from hydra.types import RunMode
+from mlflow.tracking import MlflowClient
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from src.errors import ConfigError
+from src.io.atomic import atomic_write_json
+from src.provenance import git_commit
+from src.tracking.mlflow_tracking import (
+    DEFAULT_COLUMNS,
+    PARENT_FILE,
+    comparison_table,
+    format_table,
+    read_parent,
+    setup_tracking,
+)
+
+log = logging.getLogger("nrbench.tracking")
+
+# The sweep table adds each job's overrides in front, so rows of a sweep over anything are told apart.
+SWEEP_COLUMNS = {"job": "tags.nrbench.hydra_job", **DEFAULT_COLUMNS}
+_BAD_CHILD_STATUSES = ("FAILED", "KILLED")
+
+
+def tracking_section(config: DictConfig) -> DictConfig:
+    """The resolved `tracking` section of the launcher's config.
+
+    Before any job starts Hydra has not set `HydraConfig`, so `${hydra:runtime.cwd}` (behind
+    `paths.root`, hence the default `tracking.uri`) cannot resolve. Set it from a copy of this config
+    (whose `hydra.runtime.cwd` is already the launch dir) just for the resolution, then put it back.
+    """
+    holder = HydraConfig.instance()
+    previous = holder.cfg
+    scratch = copy.deepcopy(config)
+    try:
+        if previous is None:
+            holder.set_config(scratch)
+        return OmegaConf.create(OmegaConf.to_container(scratch.tracking, resolve=True))
+    except OmegaConfBaseException as err:
+        raise ConfigError(f"tracking: cannot resolve it before the sweep starts ({err.msg})") from None
+    finally:
+        holder.cfg = previous
+
+
+def sweep_dir(config: DictConfig) -> Path:
+    """Absolute sweep dir; a relative `hydra.sweep.dir` is relative to the launch directory."""
+    return Path(config.hydra.runtime.cwd or os.getcwd()) / str(config.hydra.sweep.dir)
+
+
+class MlflowSweepCallback(Callback):
+    """Creates the sweep's parent run before the jobs and closes it (with a table) after them."""
+
+    def __init__(self) -> None:
+        # The parent-run record of the sweep this launcher started (None: tracking off / not started).
+        # Kept in memory: a record file left in a reused sweep dir by an earlier sweep must not be closed.
+        self._record: dict | None = None
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        """Create the experiment and a RUNNING parent run; record it in `<sweep dir>/mlflow_parent.json`.
+
+        Creating the experiment here, before any job, avoids parallel jobs racing to create it in
+        SQLite. A stale record from an earlier sweep in the same dir is replaced.
+        """
+        tracking = tracking_section(config)
+        directory = sweep_dir(config)
+        if not tracking.enabled:
+            # A record left by an earlier sweep in a reused dir would attach jobs to a stale parent.
+            (directory / PARENT_FILE).unlink(missing_ok=True)
+            return
+        experiment_id = setup_tracking(tracking)
+        overrides = " ".join(str(o) for o in config.hydra.overrides.task)
+        commit = git_commit()
+        task = OmegaConf.select(config, "task.name", default=None, throw_on_resolution_failure=False)
+        run_name = f"sweep-{task or 'nrbench'}-{datetime.now():%Y%m%d-%H%M%S}"
+        tags = {
+            "nrbench.sweep_parent": "true",
+            "nrbench.sweep_dir": str(directory),
+            "nrbench.sweep_overrides": overrides,
+            "nrbench.git_commit": commit.removesuffix("+dirty"),
+            "nrbench.git_dirty": str(commit.endswith("+dirty")).lower(),
+        }
+        run = MlflowClient().create_run(experiment_id, tags=tags, run_name=run_name)
+        record = {
+            "run_id": run.info.run_id,
+            "experiment_id": experiment_id,
+            "tracking_uri": str(tracking.uri),
+            "run_name": run_name,
+        }
+        atomic_write_json(directory / PARENT_FILE, record)
+        self._record = record
+        log.info("MLflow parent run %s (%s) for sweep %s", run_name, run.info.run_id, directory)
+
+    def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
+        """A job that failed outside its MLflow run (e.g. in config) still marks the parent FAILED."""
+        if job_return.status != JobStatus.FAILED or config.hydra.mode != RunMode.MULTIRUN:
+            return
+        record = read_parent(sweep_dir(config))
+        if record is not None:
+            MlflowClient(tracking_uri=record["tracking_uri"]).set_terminated(record["run_id"], "FAILED")
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        """Close the parent (FAILED if any child failed), print the comparison table and log it."""
+        record = self._record
+        if record is None:
+            return
+
+        mlflow.set_tracking_uri(record["tracking_uri"])
+        client = MlflowClient(tracking_uri=record["tracking_uri"])
+        parent_id = record["run_id"]
+        table = comparison_table(parent_id, columns=SWEEP_COLUMNS)
+        failed = table["status"].isin(_BAD_CHILD_STATUSES).any() if not table.empty else False
+        text = format_table(table)
+        name = record.get("run_name", parent_id)
+        header = f"== MLflow sweep {name}: {len(table)} runs (parent run {parent_id}) =="
+        print(f"\n{header}\n{text}\n", flush=True)
+        client.log_text(parent_id, table.to_csv(index=False), "comparison.csv")
+        client.log_text(parent_id, text + "\n", "comparison.txt")
+        client.set_terminated(parent_id, "FAILED" if failed else "FINISHED")
