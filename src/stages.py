@@ -6,6 +6,8 @@ the resolved config, the git commit and the fingerprint of the data it read.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -14,12 +16,13 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.errors import ConfigError
 from src.io.atomic import atomic_directory, atomic_write_json
-from src.provenance import provenance
+from src.provenance import data_fingerprint, provenance
 
 log = logging.getLogger(__name__)
+PREPROCESS_PROVENANCE = "preprocess_provenance.json"
 
 
-def render(cfg: DictConfig) -> dict:
+def render(cfg: DictConfig, tracker=None) -> dict:
     """Render the denoising dataset's noisy inputs and references into ``paths.raw``."""
     from src.render.render_dataset import render_denoise_dataset
 
@@ -39,13 +42,35 @@ def render(cfg: DictConfig) -> dict:
     return summary
 
 
-def preprocess(cfg: DictConfig) -> dict:
-    """Turn the raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test)."""
+def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
+    """What the prepared data depends on: the preprocessing settings and the raw data's fingerprint."""
+    settings = json.dumps(OmegaConf.to_container(cfg.task.preprocess, resolve=True), sort_keys=True)
+    return hashlib.sha256(f"{settings}|{data_fingerprint(raw)}".encode()).hexdigest()[:16]
+
+
+def _cached_preprocess(out: Path, key: str) -> dict | None:
+    try:
+        record = json.loads((out / PREPROCESS_PROVENANCE).read_text())
+    except (OSError, ValueError):
+        return None
+    return record["summary"] if record.get("cache_key") == key else None
+
+
+def preprocess(cfg: DictConfig, tracker=None) -> dict:
+    """Turn the raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test).
+
+    Skipped when the prepared directory was made from the same settings and raw data (each job of a
+    multirun would otherwise redo it)."""
     from src.data.kpcn_buffers import RepairPolicy, load_kpcn_exr
     from src.data.shards import preprocess_dataset
 
     p = cfg.task.preprocess
     raw, out = Path(cfg.paths.raw), Path(cfg.paths.prepared)
+    key = _preprocess_key(cfg, raw)
+    cached = _cached_preprocess(out, key)
+    if cached is not None:
+        print(f"preprocess: up to date in {out}")
+        return cached
     policy = RepairPolicy(**OmegaConf.to_container(p.repair, resolve=True))
     repairs: dict[str, str] = {}
 
@@ -73,17 +98,68 @@ def preprocess(cfg: DictConfig) -> dict:
             load_fn=load,
         )
         summary["repairs"] = repairs
-        _write_summary(tmp / "preprocess_provenance.json", summary, cfg, raw)
+        _write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
     repaired = f", repaired {len(repairs)} files" if repairs else ""
     print(f"preprocess: {summary['noisy_images']} images, {summary['patches']} patches{repaired} -> {out}")
     return summary
 
 
-def _write_summary(path: Path, summary: dict, cfg: DictConfig, data_dir: Path) -> None:
-    atomic_write_json(path, {"summary": summary, **provenance(cfg, data_dir)})
+def train(cfg: DictConfig, tracker) -> dict:
+    """Fit a learned denoiser on the prepared patches (non-learned baselines have nothing to fit)."""
+    if not cfg.model.learned:
+        print(f"train: {cfg.model.name} is not learned; nothing to train")
+        return {}
+    from src.train.trainer import train_denoiser
+
+    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(Path(cfg.paths.raw))})
+    summary = train_denoiser(cfg, tracker)
+    print(
+        f"train: {cfg.model.name} {summary['steps']} steps, {summary['epochs']} epochs in "
+        f"{summary['train_time_s']:.1f} s -> {summary['checkpoint']}"
+    )
+    return summary
 
 
-STAGES: dict[str, Callable[[DictConfig], dict]] = {"render": render, "preprocess": preprocess}
+def evaluate(cfg: DictConfig, tracker) -> dict:
+    """Denoise and score the held-out full images; log metrics, images and strips."""
+    from src.eval.denoise_eval import evaluate_denoiser
+
+    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(Path(cfg.paths.raw))})
+    summary = evaluate_denoiser(cfg, tracker)
+    mean = summary["mean"]
+    print(
+        f"eval: {cfg.model.name} on {summary['images']} images: PSNR {mean['psnr']:.2f} dB "
+        f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE {mean['relmse']:.5f} "
+        f"(noisy {mean['noisy_relmse']:.5f}), {mean['ms_per_mpixel']:.1f} ms/MP -> {cfg.task.eval.out_dir}"
+    )
+    return summary
+
+
+def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
+    """Print the model's architecture, parameter count and FLOPs per pixel; trains nothing."""
+    from src.models.denoise.summary import model_summary
+    from src.models.registry import build_denoiser
+
+    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+    print(model_summary(build_denoiser(model_cfg), model_cfg))
+    return {}
+
+
+def _write_summary(path: Path, summary: dict, cfg: DictConfig, data_dir: Path, **extra) -> None:
+    atomic_write_json(path, {"summary": summary, **extra, **provenance(cfg, data_dir)})
+
+
+STAGES: dict[str, Callable[..., dict]] = {
+    "render": render,
+    "preprocess": preprocess,
+    "train": train,
+    "eval": evaluate,
+    "summary": print_model_summary,
+}
+#: Stages that run outside a task's pipeline and log nothing.
+STANDALONE = ("summary",)
+#: Stages whose results go to MLflow (one run per job).
+TRACKED = ("train", "eval")
 
 
 def stages_to_run(cfg: DictConfig) -> list[str]:
@@ -94,9 +170,11 @@ def stages_to_run(cfg: DictConfig) -> list[str]:
         raise ConfigError(f"task.stages: unknown stage(s) {unknown}; expected some of {sorted(STAGES)}")
     if cfg.stage == "all":
         return task_stages
+    if cfg.stage in STANDALONE:
+        return [cfg.stage]
     if cfg.stage not in task_stages:
         raise ConfigError(
             f"stage: unknown stage '{cfg.stage}' for task '{cfg.task.name}'; "
-            f"expected all or one of {task_stages}"
+            f"expected all, one of {task_stages}, or {' / '.join(STANDALONE)}"
         )
     return [cfg.stage]

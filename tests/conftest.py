@@ -27,3 +27,34 @@ def one_line_error(excinfo, *needles):
     for needle in needles:
         assert needle in msg, (needle, msg)
     return msg
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def smoke_config(data_dir, run_dir, overrides=()):
+    """The smoke-profile config with data, run outputs and MLflow under temporary directories
+    (composed outside a Hydra app, so the `${hydra:...}` paths are given explicitly)."""
+    return compose_config(
+        [
+            "profile=smoke",
+            f"paths.root={ROOT}",
+            f"paths.data={data_dir}",
+            f"paths.run_dir={run_dir}",
+            f"tracking.uri=sqlite:///{data_dir}/mlflow.db",
+            f"tracking.artifact_root={data_dir}/mlartifacts",
+            *overrides,
+        ]
+    )
+
+
+@pytest.fixture(scope="session")
+def smoke_data(tmp_path_factory, mitsuba_variant):
+    """A rendered and preprocessed smoke dataset, shared by the training/evaluation tests."""
+    from src.stages import preprocess, render
+
+    data = tmp_path_factory.mktemp("smoke_data")
+    cfg = smoke_config(data, data / "run")
+    render(cfg)
+    preprocess(cfg)
+    return data

@@ -15,8 +15,20 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def run(args, data_dir, cwd=ROOT):
-    env = {**os.environ, "NRBENCH_DATA_DIR": str(data_dir)}
-    cmd = [sys.executable, "-m", "src.run", f"hydra.run.dir={data_dir}/hydra", *args]
+    """`python -m src.run` with data, Hydra outputs and MLflow all under `data_dir`."""
+    env = {
+        **os.environ,
+        "NRBENCH_DATA_DIR": str(data_dir),
+        "MLFLOW_TRACKING_URI": f"sqlite:///{data_dir}/mlflow.db",
+    }
+    cmd = [
+        sys.executable,
+        "-m",
+        "src.run",
+        f"hydra.run.dir={data_dir}/hydra",
+        f"tracking.artifact_root={data_dir}/mlartifacts",
+        *args,
+    ]
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
 

@@ -1,0 +1,65 @@
+"""Training checkpoints: one self-contained file per save, written atomically.
+
+A checkpoint holds the model and optimiser state, the position in training (epoch, batch within the epoch,
+global step), the RNG states, the MLflow run id (so a resumed run continues the same MLflow run) and the
+model config it was built from (so loading it into a different architecture fails with a clear message
+instead of a wall of state_dict key errors).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from src.errors import DataError
+from src.io.atomic import atomic_path
+
+#: Keys every checkpoint carries; a file without them is not one of ours.
+CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
+FORMAT = "nrbench-checkpoint-v1"
+FINAL_NAME = "final.pt"
+LAST_NAME = "last.pt"
+
+
+def save_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None:
+    """Write `state` (must contain CHECKPOINT_KEYS except `format`) atomically: a crash mid-save leaves
+    the previous checkpoint intact."""
+    with atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, **state}, tmp)
+
+
+def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read a checkpoint (a file, or a directory holding `last.pt`); a missing, truncated or foreign file
+    raises a one-line DataError naming it."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / LAST_NAME
+    if not path.is_file():
+        raise DataError(f"{path}: no checkpoint there")
+    try:
+        # weights_only=False: the optimiser state and RNG states are plain containers, but numpy RNG
+        # state is not allow-listed; checkpoints are the user's own files, not downloaded ones.
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # torch raises several types for a corrupt zip / pickle
+        raise DataError(
+            f"{path}: not a readable checkpoint ({type(e).__name__}: {e})".replace("\n", " ")
+        ) from e
+    missing = [k for k in CHECKPOINT_KEYS if not isinstance(state, dict) or k not in state]
+    if missing or state.get("format") != FORMAT:
+        raise DataError(f"{path}: not an nrbench checkpoint (missing {missing or ['format ' + FORMAT]})")
+    return state
+
+
+def check_model_config(
+    state: dict[str, Any], model_cfg: dict[str, Any], path: str | os.PathLike[str]
+) -> None:
+    """The checkpoint was trained with the same architecture as `model_cfg` (ignoring the name)."""
+    saved = {k: v for k, v in state["model_config"].items() if k != "name"}
+    wanted = {k: v for k, v in model_cfg.items() if k != "name"}
+    diff = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
+    if diff:
+        pairs = ", ".join(f"model.{k}: {saved.get(k)!r} in checkpoint vs {wanted.get(k)!r}" for k in diff)
+        raise DataError(f"{path}: checkpoint built for a different model ({pairs})")

@@ -1,0 +1,30 @@
+"""Device choice and deterministic seeding shared by training, evaluation and benchmarks."""
+
+from __future__ import annotations
+
+import random
+
+import torch
+
+from src.errors import ConfigError
+
+
+def pick_device(name: str) -> torch.device:
+    """`auto`: CUDA when a GPU is visible, else CPU; `cpu` / `cuda` force one (cuda without a GPU is an
+    error rather than a silent CPU fallback, so a paper-profile job never crawls on a CPU unnoticed)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("device: 'cuda' requested but torch sees no CUDA device")
+    if name not in ("cpu", "cuda"):
+        raise ConfigError(f"device: unknown device '{name}'; expected auto, cpu or cuda")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    """Seed Python and torch, and ask cuDNN for deterministic kernels (same config + seed on the same
+    machine -> same numbers). numpy randomness in this harness uses explicitly seeded Generators."""
+    random.seed(seed)
+    torch.manual_seed(seed)
+    torch.backends.cudnn.benchmark = False
+    torch.backends.cudnn.deterministic = True

@@ -1,0 +1,46 @@
+"""Training losses on tensors, selected by name (`task.train.loss`).
+
+The seeds train with L1 (Bako et al. 2017 found it converged to better results than L2 for HDR-transformed
+targets); SMAPE and relMSE are the scale-invariant losses of later work (Vogels et al. 2018; Rousselle et
+al. 2011 for relMSE). `eps` keeps the denominators away from zero in black regions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+from src.errors import ConfigError
+
+Loss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def l1(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """mean |pred - target|."""
+    return (pred - target).abs().mean()
+
+
+def l2(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """mean (pred - target)^2."""
+    return (pred - target).square().mean()
+
+
+def smape(pred: torch.Tensor, target: torch.Tensor, eps: float = 0.01) -> torch.Tensor:
+    """Symmetric MAPE: mean |p - t| / (|p| + |t| + eps) (Vogels et al. 2018, Eq. 9)."""
+    return ((pred - target).abs() / (pred.abs() + target.abs() + eps)).mean()
+
+
+def relmse(pred: torch.Tensor, target: torch.Tensor, eps: float = 0.01) -> torch.Tensor:
+    """Relative MSE: mean (p - t)^2 / (t^2 + eps); the target is a constant (no gradient through it)."""
+    target = target.detach()
+    return ((pred - target).square() / (target.square() + eps)).mean()
+
+
+LOSSES: dict[str, Loss] = {"l1": l1, "l2": l2, "smape": smape, "relmse": relmse}
+
+
+def get_loss(name: str) -> Loss:
+    if name not in LOSSES:
+        raise ConfigError(f"task.train.loss: unknown loss '{name}'; expected one of {sorted(LOSSES)}")
+    return LOSSES[name]

@@ -1,0 +1,170 @@
+"""Training, resume, checkpoints, tiled evaluation and MLflow logging of the denoisers (smoke profile)."""
+
+import os
+import subprocess
+import sys
+
+import mlflow
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from src.data.denoise_dataset import FullImageDataset
+from src.errors import DataError
+from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
+from src.models.registry import build_denoiser
+from src.stages import evaluate, train
+from src.tracking.mlflow_tracking import job_run
+from src.train.checkpoint import load_checkpoint, save_checkpoint
+from src.train.trainer import Trainer, train_denoiser
+from tests.conftest import ROOT, one_line_error, smoke_config
+
+
+def _untracked(data, run_dir, *overrides):
+    return smoke_config(data, run_dir, ["tracking.enabled=false", *overrides])
+
+
+def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp_path):
+    cfg = smoke_config(smoke_data, tmp_path, ["model=kpcn", "task.train.epochs=6", "task.train.lr=3e-3"])
+    with job_run(cfg, run_name="kpcn-test", tags={"nrbench.model": "kpcn"}) as tracker:
+        train(cfg, tracker)
+        evaluate(cfg, tracker)
+        run_id = tracker.run_id
+    mlflow.set_tracking_uri(cfg.tracking.uri)
+    client = mlflow.MlflowClient()
+    run = client.get_run(run_id)
+    assert run.info.status == "FINISHED"
+    for key in (
+        *(f"{split}_loss_{c}" for split in ("train", "val") for c in ("diffuse", "specular", "color")),
+        "train_step_loss_diffuse",
+        "train_time_s",
+        "param_count",
+        "eval_psnr",
+        "eval_ssim",
+        "eval_relmse",
+        "eval_noisy_relmse",
+        "eval_ms_per_mpixel",
+        "eval_relmse_spp4",
+    ):
+        assert key in run.data.metrics, key
+    history = [m.value for m in client.get_metric_history(run_id, "train_loss_diffuse")]
+    assert len(history) == 6 and history[-1] < history[0]
+    eval_dir = tmp_path / "eval"
+    assert (eval_dir / "metrics.json").is_file() and (eval_dir / "per_image.csv").is_file()
+    assert (
+        len(list((eval_dir / "images").glob("*.exr"))) == len(list((eval_dir / "strips").glob("*.png"))) > 0
+    )
+
+
+def _stop_at(step):
+    def on_step(current):
+        if current == step:
+            raise KeyboardInterrupt
+
+    return on_step
+
+
+def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):
+    straight = _untracked(smoke_data, tmp_path / "a", "model=resnet", "task.train.epochs=3")
+    with job_run(straight, run_name="a", tags={}) as tracker:
+        reference = Trainer(straight, tracker)
+        reference.fit()
+    steps_per_epoch = reference.pos.step // 3
+    interrupted = _untracked(smoke_data, tmp_path / "b", "model=resnet", "task.train.epochs=3")
+    with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
+        train_denoiser(interrupted, tracker, on_step=_stop_at(steps_per_epoch + 1))  # inside epoch 2
+    resumed = _untracked(
+        smoke_data,
+        tmp_path / "c",
+        "model=resnet",
+        "task.train.epochs=3",
+        f"task.train.resume={tmp_path}/b/checkpoints",
+    )
+    with job_run(resumed, run_name="c", tags={}) as tracker:
+        summary = train_denoiser(resumed, tracker)
+    assert summary["steps"] == reference.pos.step
+    final = load_checkpoint(summary["checkpoint"])["model"]
+    for key, value in reference.model.state_dict().items():
+        assert torch.equal(final[key], value.cpu()), key
+
+
+def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_path):
+    garbage = tmp_path / "broken.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError) as err:
+        load_checkpoint(garbage)
+    one_line_error(err, "broken.pt")
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(DataError) as err:
+        load_checkpoint(foreign)
+    one_line_error(err, "foreign.pt", "not an nrbench checkpoint")
+
+    cfg = _untracked(smoke_data, tmp_path, "model=dpcn", f"task.eval.checkpoint={tmp_path}/kpcn.pt")
+    kpcn_cfg = OmegaConf.to_container(_untracked(smoke_data, tmp_path, "model=kpcn").model)
+    state = {
+        "model_config": kpcn_cfg,
+        "model": {},
+        "optimizer": {},
+        "epoch": 0,
+        "batch_in_epoch": 0,
+        "step": 0,
+    }
+    save_checkpoint(tmp_path / "kpcn.pt", state)
+    with job_run(cfg, run_name="x", tags={}) as tracker, pytest.raises(DataError) as err:
+        evaluate_denoiser(cfg, tracker)
+    one_line_error(err, "kpcn.pt", "model.output")
+
+
+@pytest.mark.parametrize("model", ["kpcn", "resnet", "dpcn", "cross_bilateral"])
+def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
+    cfg = _untracked(smoke_data, smoke_data / "run", f"model={model}")
+    torch.manual_seed(0)
+    denoiser = build_denoiser(OmegaConf.to_container(cfg.model)).eval()
+    item = FullImageDataset(cfg.paths.prepared, "test")[0]
+    batch = {k: v[None] for k, v in item.items() if isinstance(v, torch.Tensor)}
+    eps = cfg.task.preprocess.eps_albedo
+    full = denoise_tiled(denoiser, batch, tile=10_000, eps=eps)
+    tiled = denoise_tiled(denoiser, batch, tile=7, eps=eps)  # 48x32 in ragged 7x7 tiles
+    torch.testing.assert_close(tiled, full, rtol=1e-5, atol=1e-6)
+
+
+def _run_cli(args, data, cwd=ROOT):
+    env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{data}/mlflow.db"}
+    cmd = [sys.executable, "-m", "src.run", *args, f"tracking.artifact_root={data}/mlartifacts"]
+    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+def test_multirun_gives_one_parent_with_a_child_per_model_and_a_table(smoke_data, tmp_path):
+    data = smoke_data.parent / "multirun_data"
+    if not data.exists():
+        data.symlink_to(smoke_data)
+    sweep = tmp_path / "sweep"
+    result = _run_cli(["-m", "profile=smoke", "model=kpcn,cross_bilateral", f"hydra.sweep.dir={sweep}"], data)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    mlflow.set_tracking_uri(f"sqlite:///{data}/mlflow.db")
+    runs = mlflow.search_runs(
+        experiment_names=["nrbench-denoise"], filter_string=f"tags.`nrbench.sweep_dir` = '{sweep}'"
+    )
+    parents = runs[runs["tags.mlflow.parentRunId"].isna()]
+    children = runs[runs["tags.mlflow.parentRunId"].notna()]
+    assert len(parents) == 1 and len(children) == 2
+    assert set(children["tags.mlflow.parentRunId"]) == set(parents["run_id"])
+    assert set(children["status"]) == {"FINISHED"}
+    assert "kpcn" in result.stdout and "cross_bilateral" in result.stdout and "relMSE" in result.stdout
+
+
+def test_unknown_model_name_is_a_clear_error(tmp_path):
+    result = _run_cli(["model=kpcnn", f"hydra.run.dir={tmp_path}/h"], tmp_path)
+    assert result.returncode != 0
+    out = result.stdout + result.stderr
+    assert "model/kpcnn" in out and "kpcn" in out and "Traceback" not in out
+
+
+def test_summary_stage_prints_parameters_without_training(tmp_path):
+    result = _run_cli(
+        ["stage=summary", "model=dpcn", "profile=paper", f"hydra.run.dir={tmp_path}/h"], tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    assert "3,656,606" in result.stdout or "3656606" in result.stdout  # 2 branches x 1,828,303
+    assert not (tmp_path / "mlflow.db").exists()
