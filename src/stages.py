@@ -113,6 +113,7 @@ def train(cfg: DictConfig, tracker) -> dict:
 
     tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(Path(cfg.paths.raw))})
     summary = train_denoiser(cfg, tracker)
+    tracker.log_artifact(summary["checkpoint"], "checkpoints")
     print(
         f"train: {cfg.model.name} {summary['steps']} steps, {summary['epochs']} epochs in "
         f"{summary['train_time_s']:.1f} s -> {summary['checkpoint']}"

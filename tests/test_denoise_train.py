@@ -1,5 +1,6 @@
 """Training, resume, checkpoints, tiled evaluation and MLflow logging of the denoisers (smoke profile)."""
 
+import json
 import os
 import subprocess
 import sys
@@ -51,6 +52,8 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
     assert len(history) == 6 and history[-1] < history[0]
     eval_dir = tmp_path / "eval"
     assert (eval_dir / "metrics.json").is_file() and (eval_dir / "per_image.csv").is_file()
+    record = json.loads((eval_dir / "provenance.json").read_text())
+    assert record["config"]["model"]["name"] == "kpcn" and record["git_commit"] and record["data_fingerprint"]
     assert (
         len(list((eval_dir / "images").glob("*.exr"))) == len(list((eval_dir / "strips").glob("*.png"))) > 0
     )

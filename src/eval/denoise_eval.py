@@ -3,8 +3,9 @@
 For every image of `task.eval.split` (every scene x noisy spp): denoise it (tiled, so memory stays bounded
 on large frames), time it, score it against the reference with `src.metrics.image` (PSNR/SSIM on the
 tone-mapped image, relMSE/SMAPE/MSE on linear HDR), and score the noisy input the same way for
-reference. Writes `metrics.json` (means overall and per spp), `per_image.csv`, denoised EXRs and PNG
-comparison strips under `task.eval.out_dir`.
+reference. Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json`
+(resolved config, git commit, data fingerprint), denoised EXRs and PNG comparison strips under
+`task.eval.out_dir`.
 """
 
 from __future__ import annotations
@@ -28,7 +29,9 @@ from src.io.images import save_comparison_strip
 from src.metrics.image import image_metrics, tonemap
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
+from src.models.denoise.summary import count_parameters
 from src.models.registry import build_denoiser
+from src.provenance import provenance
 from src.train.checkpoint import check_model_config, load_checkpoint
 from src.train.device import pick_device
 
@@ -106,8 +109,10 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
         color, seconds = _timed_denoise(model, batch, int(e.tile), eps, device)
         rows.append(_score(item, _hwc(color), seconds, m))
         _save_images(out_dir, item, _hwc(color), e, m)
-    summary = _summarise(rows)
+    summary = {**_summarise(rows), "param_count": count_parameters(model)}
     atomic_write_json(out_dir / "metrics.json", {"model": cfg.model.name, **summary})
+    # Beside, not inside, metrics.json: DVC reads every number in a metrics file as a metric.
+    atomic_write_json(out_dir / "provenance.json", provenance(cfg, Path(cfg.paths.raw)))
     _write_csv(out_dir / "per_image.csv", rows)
     _log(tracker, summary, out_dir)
     return summary
@@ -148,7 +153,7 @@ def _summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _log(tracker, summary: dict[str, Any], out_dir: Path) -> None:
-    metrics = {f"eval_{k}": v for k, v in summary["mean"].items()}
+    metrics = {f"eval_{k}": v for k, v in summary["mean"].items()} | {"param_count": summary["param_count"]}
     for spp, means in summary["per_spp"].items():
         metrics |= {f"eval_{k}_spp{spp}": means[k] for k in (*SCORES, *(f"noisy_{s}" for s in SCORES))}
     tracker.log_metrics(metrics)
