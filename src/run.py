@@ -9,7 +9,7 @@ import hydra
 from omegaconf import DictConfig
 
 from src.errors import NrbenchError
-from src.stages import STAGES, TRACKED, stages_to_run
+from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run
 
 log = logging.getLogger("nrbench")
 
@@ -40,10 +40,15 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
 def main(cfg: DictConfig) -> None:
     try:
         stages = stages_to_run(cfg)
-        with _tracked_run(cfg, stages) as tracker:
-            for name in stages:
+        # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
+        in_run = [s for s in stages if s not in AFTER_RUN]
+        with _tracked_run(cfg, in_run) as tracker:
+            for name in in_run:
                 log.info("stage %s", name)
                 STAGES[name](cfg, tracker)
+        for name in (s for s in stages if s in AFTER_RUN):
+            log.info("stage %s", name)
+            STAGES[name](cfg, None)
     except NrbenchError as err:
         # One line for the user; the traceback adds nothing for a bad input or config value.
         log.error("%s", err)

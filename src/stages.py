@@ -136,6 +136,25 @@ def evaluate(cfg: DictConfig, tracker) -> dict:
     return summary
 
 
+def report(cfg: DictConfig, tracker=None) -> dict:
+    """Tables, figures and an HTML page from the logged MLflow runs (`report.*` selects them). Inside a
+    multirun the sweep's callback writes one report over all its jobs when they are done instead."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        print("report: written once, over all jobs, when the sweep ends")
+        return {}
+    if not cfg.tracking.enabled:
+        print("report: tracking.enabled is false, so there are no logged runs to report on")
+        return {}
+    from src.report.build import build_report, report_line
+
+    summary = build_report(cfg)
+    print(report_line(summary), flush=True)
+    return summary
+
+
 def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     """Print the model's architecture, parameter count and FLOPs per pixel; trains nothing."""
     from src.models.denoise.summary import model_summary
@@ -155,12 +174,15 @@ STAGES: dict[str, Callable[..., dict]] = {
     "preprocess": preprocess,
     "train": train,
     "eval": evaluate,
+    "report": report,
     "summary": print_model_summary,
 }
 #: Stages that run outside a task's pipeline and log nothing.
 STANDALONE = ("summary",)
 #: Stages whose results go to MLflow (one run per job).
 TRACKED = ("train", "eval")
+#: Stages that read the logged runs, so they run after the job's own MLflow run has finished.
+AFTER_RUN = ("report",)
 
 
 def stages_to_run(cfg: DictConfig) -> list[str]:

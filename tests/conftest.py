@@ -43,6 +43,7 @@ def smoke_config(data_dir, run_dir, overrides=()):
             f"paths.run_dir={run_dir}",
             f"tracking.uri=sqlite:///{data_dir}/mlflow.db",
             f"tracking.artifact_root={data_dir}/mlartifacts",
+            f"report.out_dir={data_dir}/reports",
             *overrides,
         ]
     )

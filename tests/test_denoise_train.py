@@ -134,7 +134,8 @@ def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
 
 def _run_cli(args, data, cwd=ROOT):
     env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{data}/mlflow.db"}
-    cmd = [sys.executable, "-m", "src.run", *args, f"tracking.artifact_root={data}/mlartifacts"]
+    paths = [f"tracking.artifact_root={data}/mlartifacts", f"report.out_dir={data}/reports"]
+    cmd = [sys.executable, "-m", "src.run", *args, *paths]
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 
@@ -155,6 +156,11 @@ def test_multirun_gives_one_parent_with_a_child_per_model_and_a_table(smoke_data
     assert set(children["tags.mlflow.parentRunId"]) == set(parents["run_id"])
     assert set(children["status"]) == {"FINISHED"}
     assert "kpcn" in result.stdout and "cross_bilateral" in result.stdout and "relMSE" in result.stdout
+    # The sweep ends with one report over its children (not one per job).
+    assert result.stdout.count("report: 2 runs -> ") == result.stdout.count("/index.html") == 1
+    table = (data / "reports" / "denoise" / "comparison.md").read_text()
+    assert "kpcn" in table and "cross_bilateral" in table and "**" in table
+    assert (data / "reports" / "denoise" / "index.html").is_file()
 
 
 def test_unknown_model_name_is_a_clear_error(tmp_path):

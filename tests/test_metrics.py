@@ -101,7 +101,7 @@ def test_image_metrics_from_the_real_config():
     reference = rng.uniform(0, 3, (24, 32, 3))  # HDR: clip_gamma clips values above 1
     denoised = reference * 1.05
     m = image_metrics(denoised, reference, cfg)
-    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse"}
+    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse", "lpips", "flip"}
     x_ldr, y_ldr = tonemap(denoised, cfg.tonemap, cfg.gamma), tonemap(reference, cfg.tonemap, cfg.gamma)
     assert m["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((x_ldr - y_ldr) ** 2)))
     assert m["ssim"] == pytest.approx(reference_ssim(x_ldr, y_ldr))

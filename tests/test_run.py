@@ -26,8 +26,9 @@ def run(args, data_dir, cwd=ROOT):
         "-m",
         "src.run",
         f"hydra.run.dir={data_dir}/hydra",
-        f"tracking.artifact_root={data_dir}/mlartifacts",
         *args,
+        f"tracking.artifact_root={data_dir}/mlartifacts",
+        f"report.out_dir={data_dir}/reports",
     ]
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
 
@@ -71,6 +72,9 @@ def test_main_job_renders_and_preprocesses(smoke_run):
     scenes = [s for names in splits.values() for s in names]
     assert len(scenes) == len(set(scenes)) == 3
     assert (prepared / "preprocess_provenance.json").exists()
+    # ... then trains, evaluates and reports (the default model).
+    assert "train: kpcn" in result.stdout and "eval: kpcn" in result.stdout
+    assert (data / "reports" / "denoise" / "index.html").is_file()
 
 
 def test_rerun_renders_nothing(smoke_run):

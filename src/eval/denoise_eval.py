@@ -25,8 +25,8 @@ from tqdm import tqdm
 from src.data.denoise_dataset import FullImageDataset
 from src.io.atomic import atomic_write_json, atomic_write_text
 from src.io.exr import write_exr
-from src.io.images import save_comparison_strip
-from src.metrics.image import image_metrics, tonemap
+from src.io.images import save_comparison_strip, write_png
+from src.metrics.image import image_metrics, lpips_variant, tonemap
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.models.denoise.summary import count_parameters
@@ -38,7 +38,7 @@ from src.train.device import pick_device
 log = logging.getLogger(__name__)
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>).
-SCORES = ("psnr", "ssim", "relmse", "smape", "mse")
+SCORES = ("psnr", "ssim", "relmse", "smape", "mse", "lpips", "flip")
 
 
 def load_denoiser(cfg: DictConfig, device: torch.device) -> Denoiser:
@@ -110,6 +110,9 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
         rows.append(_score(item, _hwc(color), seconds, m))
         _save_images(out_dir, item, _hwc(color), e, m)
     summary = {**_summarise(rows), "param_count": count_parameters(model)}
+    variant = lpips_variant(m)
+    if variant is not None:
+        summary["lpips_variant"] = variant
     atomic_write_json(out_dir / "metrics.json", {"model": cfg.model.name, **summary})
     # Beside, not inside, metrics.json: DVC reads every number in a metrics file as a metric.
     atomic_write_json(out_dir / "provenance.json", provenance(cfg, Path(cfg.paths.raw)))
@@ -137,13 +140,22 @@ def _save_images(
             out_dir / "images" / f"{name}.exr",
             {"R": denoised[..., 0], "G": denoised[..., 1], "B": denoised[..., 2]},
         )
+    images = {
+        "noisy": _hwc(item["color"][None]),
+        "denoised": denoised,
+        "reference": _hwc(item["reference"][None]),
+    }
+    ldr = {k: tonemap(v, m.tonemap, m.gamma) for k, v in images.items()}
+    # Tone-mapped PNGs per image: what report grids compare across models (small, unlike EXRs).
+    for kind, image in ldr.items():
+        write_png(out_dir / "png" / f"{name}-{kind}.png", image)
     if e.strips:
-        panels = [
-            (f"noisy {int(item['spp'])} spp", _hwc(item["color"][None])),
-            ("denoised", denoised),
-            (f"reference {int(item['reference_spp'])} spp", _hwc(item["reference"][None])),
-        ]
-        panels = [(label, tonemap(img, m.tonemap, m.gamma)) for label, img in panels]
+        labels = {
+            "noisy": f"noisy {int(item['spp'])} spp",
+            "denoised": "denoised",
+            "reference": f"reference {int(item['reference_spp'])} spp",
+        }
+        panels = [(labels[k], ldr[k]) for k in labels]
         save_comparison_strip(out_dir / "strips" / f"{name}.png", panels, int(e.crop_size), int(e.crop_zoom))
 
 
@@ -155,9 +167,13 @@ def _summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def _log(tracker, summary: dict[str, Any], out_dir: Path) -> None:
     metrics = {f"eval_{k}": v for k, v in summary["mean"].items()} | {"param_count": summary["param_count"]}
     for spp, means in summary["per_spp"].items():
-        metrics |= {f"eval_{k}_spp{spp}": means[k] for k in (*SCORES, *(f"noisy_{s}" for s in SCORES))}
+        keys = (*SCORES, *(f"noisy_{s}" for s in SCORES))
+        metrics |= {f"eval_{k}_spp{spp}": means[k] for k in keys if k in means}  # lpips/flip may be off
     tracker.log_metrics(metrics)
+    if "lpips_variant" in summary:
+        tracker.set_tags({"nrbench.lpips_variant": summary["lpips_variant"]})
     tracker.log_artifact(str(out_dir / "metrics.json"), "eval")
     tracker.log_artifact(str(out_dir / "per_image.csv"), "eval")
-    if (out_dir / "strips").is_dir():
-        tracker.log_artifacts(str(out_dir / "strips"), "eval/strips")
+    for folder in ("strips", "png"):
+        if (out_dir / folder).is_dir():
+            tracker.log_artifacts(str(out_dir / folder), f"eval/{folder}")

@@ -6,6 +6,9 @@ Conventions (the `metrics:` section of conf/config.yaml; defaults here mirror it
 - Per-channel errors are averaged over all pixels and channels (no luminance weighting).
 - SSIM follows dm_pix / TensorFlow: 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03,
   population (not sample) covariance, "valid" window positions only, mean over channels.
+- LPIPS (src/metrics/lpips.py, torchvision VGG16) on the tone-mapped images scaled to [-1, 1], on the CPU
+  in float32; the variant (trunk and linear weights) is reported by `lpips_variant`.
+- FLIP (src/metrics/flip.py) in `metrics.flip.mode`: hdr on linear colour, ldr on the tone-mapped image.
 """
 
 from __future__ import annotations
@@ -14,9 +17,12 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from src.errors import ConfigError, DataError
+from src.metrics.flip import flip
+from src.metrics.lpips import LPIPS, lpips_distance
 
 TONEMAPS = ("clip_gamma", "reinhard_gamma")
 #: skimage's Gaussian filter truncates at 3.5 sigma (fixed inside `structural_similarity`).
@@ -134,13 +140,46 @@ def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
     return cfg[key]
 
 
+#: LPIPS models by (trunk_weights, lin_weights, seed), built on first use (VGG16 takes a moment).
+_LPIPS_CACHE: dict[tuple[str | None, str | None, int], LPIPS] = {}
+
+
+def _enabled(metrics_cfg: Mapping[str, Any], name: str) -> Mapping[str, Any] | None:
+    """The `metrics.<name>` section when present and enabled, else None."""
+    section = metrics_cfg.get(name) if hasattr(metrics_cfg, "get") else None
+    if section is None or not section.get("enabled", False):
+        return None
+    return section
+
+
+def lpips_model(lpips_cfg: Mapping[str, Any]) -> LPIPS:
+    """The cached CPU LPIPS model for `metrics.lpips` {trunk_weights, lin_weights, seed}."""
+    trunk, lin = lpips_cfg.get("trunk_weights"), lpips_cfg.get("lin_weights")
+    key = (
+        None if trunk is None else str(trunk),
+        None if lin is None else str(lin),
+        int(lpips_cfg.get("seed", 0)),
+    )
+    if key not in _LPIPS_CACHE:
+        _LPIPS_CACHE[key] = LPIPS(trunk_weights=key[0], lin_weights=key[1], seed=key[2]).float().cpu()
+    return _LPIPS_CACHE[key]
+
+
+def lpips_variant(metrics_cfg: Mapping[str, Any]) -> str | None:
+    """The LPIPS variant string (e.g. "vgg16-random(seed=0)+lin-uniform"), or None when LPIPS is off."""
+    section = _enabled(metrics_cfg, "lpips")
+    return None if section is None else lpips_model(section).variant
+
+
 def image_metrics(
     denoised: np.ndarray, reference: np.ndarray, metrics_cfg: Mapping[str, Any]
 ) -> dict[str, float]:
-    """psnr, ssim (both on tone-mapped values), relmse, smape, mse (linear HDR) of one image pair.
+    """psnr, ssim (both on tone-mapped values), relmse, smape, mse (linear HDR) of one image pair, plus
+    lpips (tone-mapped) and flip (per `metrics.flip.mode`) when enabled.
 
     `metrics_cfg` is the `metrics:` config section (DictConfig or dict): tonemap, gamma, relmse_eps,
-    smape_eps and ssim {win_size, sigma, k1, k2}.
+    smape_eps, ssim {win_size, sigma, k1, k2}, optionally lpips {enabled, trunk_weights, lin_weights,
+    seed} and flip {enabled, mode}.
     """
     x, y = _check_pair(denoised, reference)
     keys = ("tonemap", "gamma", "relmse_eps", "smape_eps")
@@ -148,10 +187,19 @@ def image_metrics(
     ssim_cfg = _get(metrics_cfg, "ssim")
     ssim_args = {k: _get(ssim_cfg, k, "metrics.ssim") for k in ("win_size", "sigma", "k1", "k2")}
     x_ldr, y_ldr = tonemap(x, method, gamma), tonemap(y, method, gamma)
-    return {
+    out = {
         "psnr": psnr(x_ldr, y_ldr),
         "ssim": ssim(x_ldr, y_ldr, **ssim_args),
         "relmse": relmse(x, y, eps),
         "smape": smape(x, y, smape_eps),
         "mse": mse(x, y),
     }
+    lpips_cfg = _enabled(metrics_cfg, "lpips")
+    if lpips_cfg is not None:
+        with torch.no_grad():
+            out["lpips"] = lpips_distance(lpips_model(lpips_cfg), x_ldr, y_ldr)
+    flip_cfg = _enabled(metrics_cfg, "flip")
+    if flip_cfg is not None:
+        mode = _get(flip_cfg, "mode", "metrics.flip")
+        out["flip"] = flip(x, y, mode) if mode == "hdr" else flip(x_ldr, y_ldr, mode)
+    return out

@@ -42,8 +42,8 @@ SWEEP_COLUMNS = {"job": "tags.nrbench.hydra_job", **DEFAULT_COLUMNS}
 _BAD_CHILD_STATUSES = ("FAILED", "KILLED")
 
 
-def tracking_section(config: DictConfig) -> DictConfig:
-    """The resolved `tracking` section of the launcher's config.
+def resolved_section(config: DictConfig, key: str) -> DictConfig:
+    """The resolved section `key` (tracking, report) of the launcher's config.
 
     Before any job starts Hydra has not set `HydraConfig`, so `${hydra:runtime.cwd}` (behind
     `paths.root`, hence the default `tracking.uri`) cannot resolve. Set it from a copy of this config
@@ -55,9 +55,9 @@ def tracking_section(config: DictConfig) -> DictConfig:
     try:
         if previous is None:
             holder.set_config(scratch)
-        return OmegaConf.create(OmegaConf.to_container(scratch.tracking, resolve=True))
+        return OmegaConf.create(OmegaConf.to_container(scratch[key], resolve=True))
     except OmegaConfBaseException as err:
-        raise ConfigError(f"tracking: cannot resolve it before the sweep starts ({err.msg})") from None
+        raise ConfigError(f"{key}: cannot resolve it in the sweep's launcher ({err.msg})") from None
     finally:
         holder.cfg = previous
 
@@ -81,7 +81,7 @@ class MlflowSweepCallback(Callback):
         Creating the experiment here, before any job, avoids parallel jobs racing to create it in
         SQLite. A stale record from an earlier sweep in the same dir is replaced.
         """
-        tracking = tracking_section(config)
+        tracking = resolved_section(config, "tracking")
         directory = sweep_dir(config)
         if not tracking.enabled:
             # A record left by an earlier sweep in a reused dir would attach jobs to a stale parent.
@@ -136,3 +136,23 @@ class MlflowSweepCallback(Callback):
         client.log_text(parent_id, table.to_csv(index=False), "comparison.csv")
         client.log_text(parent_id, text + "\n", "comparison.txt")
         client.set_terminated(parent_id, "FAILED" if failed else "FINISHED")
+        _write_sweep_report(config, parent_id)
+
+
+def _write_sweep_report(config: DictConfig, parent_id: str) -> None:
+    """The report over this sweep's children (the `report` stage of a multirun runs here, once, rather
+    than in every job). A report failure is logged; it does not fail the finished sweep."""
+    from src.errors import NrbenchError
+    from src.report.build import build_report, report_line
+
+    report = OmegaConf.merge(
+        resolved_section(config, "report"), {"parent_run_id": parent_id, "sweep_dir": None}
+    )
+    try:
+        summary = build_report(
+            OmegaConf.create({"report": report, "tracking": resolved_section(config, "tracking")})
+        )
+    except NrbenchError as err:
+        log.error("report: %s", err)
+        return
+    print(report_line(summary), flush=True)

@@ -1,0 +1,113 @@
+"""The `report` stage: tables, figures and an HTML page from the logged MLflow runs that `cfg.report`
+selects, written to `<report.out_dir>/<report.name>/`:
+
+    comparison.{md,tex,csv}           quality metrics per compared row (mean ± std over seeds)
+    comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
+    cost.{md,tex,csv}                 parameters, training time, iterations, inference time
+    learning_curves.png, image_grid.png, index.html (self-contained)
+
+Every file is written atomically. When no run matches, `DataError` names the filter that matched
+nothing and no file is written.
+"""
+
+from __future__ import annotations
+
+import logging
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import mlflow
+
+from src.io.atomic import atomic_write_text
+from src.report.collect import differing_params, find_runs
+from src.report.figures import image_grid, learning_curves, run_labels
+from src.report.html import render_html
+from src.report.tables import axis_label, comparison_table, cost_table, to_csv, to_latex, to_markdown
+from src.tracking.mlflow_tracking import quiet_mlflow_logs
+
+log = logging.getLogger("nrbench.report")
+
+
+def _get(cfg: Any, key: str, default: Any = None) -> Any:
+    value = cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
+    return default if value is None else value
+
+
+def _crop(cfg: Any) -> tuple[int, int]:
+    """Crop size and zoom of the grid: `task.eval`'s when the config has them, else 32 and 4."""
+    try:
+        e = cfg.task.eval
+        return int(e.crop_size), int(e.crop_zoom)
+    except Exception:
+        return 32, 4
+
+
+def build_report(cfg: Any) -> dict[str, Any]:
+    """Build the report for `cfg.report` (runs from `cfg.tracking.uri`); returns a summary: number of
+    runs, output directory, written files and warnings."""
+    rc = cfg.report
+    tracking = _get(cfg, "tracking")
+    quiet_mlflow_logs()
+    if tracking is not None and _get(tracking, "uri"):
+        mlflow.set_tracking_uri(str(tracking.uri))
+    runs = find_runs(rc)  # raises DataError before anything is written
+
+    axes = [str(a) for a in (_get(rc, "axes") or ["model.name"])]
+    warnings: list[str] = []
+    differing = differing_params(runs, axes)
+    if differing:
+        msg = (
+            f"the compared runs also differ in {', '.join(differing)} (besides "
+            f"{', '.join(axes)} and the seed): the comparison is confounded"
+        )
+        log.warning("report: %s", msg)
+        warnings.append(msg)
+
+    comparison = comparison_table(runs, axes)
+    per_spp = comparison_table(runs, axes, group_by="spp")
+    cost = cost_table(runs, axes)
+    tables = {"comparison": comparison, "cost": cost}
+    if per_spp.attrs.get("metrics"):
+        tables["comparison_per_spp"] = per_spp
+
+    name = str(_get(rc, "name", "report"))
+    out_dir = Path(str(_get(rc, "out_dir", "reports"))).expanduser() / name
+    files: dict[str, Path] = {}
+    for stem, table in tables.items():
+        files[f"{stem}.md"] = atomic_write_text(out_dir / f"{stem}.md", to_markdown(table, notes=warnings))
+        files[f"{stem}.tex"] = atomic_write_text(out_dir / f"{stem}.tex", to_latex(table, notes=warnings))
+        files[f"{stem}.csv"] = atomic_write_text(out_dir / f"{stem}.csv", to_csv(table, notes=warnings))
+
+    crop_size, zoom = _crop(cfg)
+    curves = learning_curves(runs, out_dir / "learning_curves.png", axes)
+    grid = image_grid(runs, out_dir / "image_grid.png", int(_get(rc, "images", 3)), axes, crop_size, zoom)
+    for path in (curves, grid):
+        if path is not None:
+            files[path.name] = path
+
+    compared = ", ".join(axis_label(a) for a in axes)
+    headings = {"comparison": "Quality", "comparison_per_spp": "Quality per spp", "cost": "Cost"}
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    page = render_html(
+        title=f"nrbench report: {name}",
+        subtitle=f"{len(runs)} MLflow runs from {mlflow.get_tracking_uri()}, compared by {compared}; "
+        f"generated {stamp}. Values: mean ± std over runs (seeds) per row; best per column in bold.",
+        tables={headings[k]: v for k, v in tables.items()},
+        figures={"Learning curves": curves, "Test images (noisy | denoised | reference)": grid},
+        runs=runs,
+        labels=run_labels(runs, axes),
+        notes=warnings,
+    )
+    files["index.html"] = atomic_write_text(out_dir / "index.html", page)
+    return {
+        "runs": len(runs),
+        "out_dir": str(out_dir),
+        "files": {k: str(v) for k, v in files.items()},
+        "warnings": warnings,
+    }
+
+
+def report_line(summary: dict) -> str:
+    """The one line the report stage and the sweep callback print."""
+    return f"report: {summary['runs']} runs -> {summary['out_dir']}/index.html"

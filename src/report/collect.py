@@ -1,0 +1,192 @@
+"""Select the runs a report compares (`find_runs`) and find config differences it must warn about
+(`differing_params`).
+
+Runs are those of `mlflow.search_runs`: one row per run, columns `run_id`, `status`, `start_time`,
+`params.<flattened config key>`, `metrics.<key>`, `tags.<key>`. Only FINISHED job runs count; sweep
+parent runs (tag `nrbench.sweep_parent=true`) are never compared.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import mlflow
+import pandas as pd
+from mlflow.tracking import MlflowClient
+from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
+
+from src.errors import DataError
+
+log = logging.getLogger("nrbench.report")
+
+SWEEP_PARENT_TAG = "nrbench.sweep_parent"
+SWEEP_DIR_TAG = "nrbench.sweep_dir"
+
+#: Config keys that never make runs incomparable: paths, run-dir-like outputs, tracking, the stage run,
+#: and the seed (the table aggregates over seeds).
+IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.")
+IGNORED_PARAMS = frozenset(
+    {
+        "task.train.checkpoint_dir",
+        "task.eval.out_dir",
+        "task.eval.checkpoint",
+        "task.train.resume",
+        "stage",
+        "seed",
+    }
+)
+
+
+def _get(cfg: Any, key: str, default: Any = None) -> Any:
+    """`cfg.key` for a DictConfig, a dict or an object; `default` when absent or None."""
+    if cfg is None:
+        return default
+    value = cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
+    return default if value is None else value
+
+
+def _as_list(value: Any) -> list[str]:
+    if value is None:
+        return []
+    if isinstance(value, str):
+        return [value]
+    return [str(v) for v in value]
+
+
+def _quote(value: Any) -> str:
+    """A single-quoted MLflow filter literal."""
+    return "'" + str(value).replace("'", "\\'") + "'"
+
+
+def param_column(axis: str) -> str:
+    """`model.name` -> `params.model.name` (a `params.`/`metrics.`/`tags.` column is kept as is)."""
+    axis = str(axis)
+    return axis if axis.startswith(("params.", "metrics.", "tags.")) else f"params.{axis}"
+
+
+def _search(experiment_ids: list[str], steps: Iterable[tuple[str, Any]]) -> pd.DataFrame:
+    """Runs matching every step: an MLflow filter clause (str) or a predicate on the frame's rows."""
+    steps = list(steps)
+    where = " and ".join(s for _, s in steps if isinstance(s, str))
+    runs = mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
+    if f"tags.{SWEEP_PARENT_TAG}" in runs:
+        runs = runs[runs[f"tags.{SWEEP_PARENT_TAG}"] != "true"]
+    for _, step in steps:
+        if callable(step) and not runs.empty:
+            runs = runs[step(runs)]
+    return runs
+
+
+def _sweep_parent_ids(experiment_ids: list[str], sweep_dir: str) -> list[str]:
+    """Ids of the sweep parent runs whose `nrbench.sweep_dir` tag is `sweep_dir` (same resolved path)."""
+    parents = mlflow.search_runs(
+        experiment_ids=experiment_ids,
+        filter_string=f"tags.`{SWEEP_PARENT_TAG}` = 'true'",
+        output_format="pandas",
+    )
+    column = f"tags.{SWEEP_DIR_TAG}"
+    if parents.empty or column not in parents:
+        return []
+    wanted = Path(sweep_dir).expanduser().resolve()
+    same = parents[column].map(lambda d: isinstance(d, str) and Path(d).expanduser().resolve() == wanted)
+    return [str(r) for r in parents.loc[same, "run_id"]]
+
+
+def find_runs(report_cfg: Any) -> pd.DataFrame:
+    """FINISHED job runs selected by `report_cfg`, oldest first.
+
+    Keys (all optional except `experiment`): `tracking_uri` (else the current MLflow URI), `experiment`
+    (a name or a list of names), `parent_run_id` (a sweep's parent: its children only), `sweep_dir`
+    (matched to the parent runs' `nrbench.sweep_dir` tag), `tags` ({key: value}), `filter` (a free MLflow
+    filter string, e.g. "params.`task.train.lr` = '0.0001'"). When nothing matches, raises `DataError`
+    with one line naming the first filter that left no run.
+    """
+    uri = _get(report_cfg, "tracking_uri")
+    if uri:
+        mlflow.set_tracking_uri(str(uri))
+    uri = mlflow.get_tracking_uri()
+    names = _as_list(_get(report_cfg, "experiment"))
+    if not names:
+        raise DataError("report.experiment is empty: name the MLflow experiment(s) to report on")
+    client = MlflowClient()
+    experiment_ids = []
+    for name in names:
+        experiment = client.get_experiment_by_name(name)
+        if experiment is None or experiment.lifecycle_stage == "deleted":
+            raise DataError(f"report.experiment={name!r}: no such MLflow experiment in {uri}")
+        experiment_ids.append(experiment.experiment_id)
+
+    # (what the user set, MLflow clause or row predicate), applied cumulatively so that an empty result
+    # names its culprit.
+    steps: list[tuple[str, Any]] = [
+        (f"report.experiment={names if len(names) > 1 else names[0]!r}", "attributes.status = 'FINISHED'")
+    ]
+    parent_id = _get(report_cfg, "parent_run_id")
+    sweep_dir = _get(report_cfg, "sweep_dir")
+    if parent_id:
+        steps.append(
+            (f"report.parent_run_id={parent_id!r}", f"tags.{MLFLOW_PARENT_RUN_ID} = {_quote(parent_id)}")
+        )
+    elif sweep_dir:
+        parents = _sweep_parent_ids(experiment_ids, str(sweep_dir))
+        if not parents:
+            raise DataError(
+                f"report.sweep_dir={str(sweep_dir)!r}: no sweep parent run with this "
+                f"{SWEEP_DIR_TAG} tag in experiment(s) {names}"
+            )
+        column = f"tags.{MLFLOW_PARENT_RUN_ID}"
+        steps.append(
+            (
+                f"report.sweep_dir={str(sweep_dir)!r}",
+                lambda df: df[column].isin(parents) if column in df else pd.Series(False, index=df.index),
+            )
+        )
+    tags: Mapping[str, Any] = _get(report_cfg, "tags", {}) or {}
+    for key, value in tags.items():
+        steps.append((f"report.tags.{key}={value!r}", f"tags.`{key}` = {_quote(value)}"))
+    free = _get(report_cfg, "filter")
+    if free:
+        steps.append((f"report.filter={str(free)!r}", str(free)))
+
+    try:
+        runs = _search(experiment_ids, steps)
+    except Exception as err:  # MlflowException for a malformed free filter string
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise DataError(f"report.filter={free!r}: MLflow rejected the filter ({first})") from None
+    if runs.empty:
+        for n in range(1, len(steps) + 1):
+            if _search(experiment_ids, steps[:n]).empty:
+                what = "no FINISHED job runs" if n == 1 else "matched no FINISHED job runs"
+                raise DataError(f"{steps[n - 1][0]}: {what} in {uri}")
+    runs = runs.sort_values("start_time", kind="stable") if "start_time" in runs else runs
+    log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
+    return runs.reset_index(drop=True)
+
+
+def ignored_param(key: str) -> bool:
+    """Whether config key `key` (without `params.`) is a path, output location or otherwise irrelevant."""
+    return key in IGNORED_PARAMS or key.startswith(IGNORED_PARAM_PREFIXES)
+
+
+def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
+    """Config keys (without `params.`) whose values differ across `runs`, other than the compared axes.
+
+    Keys under a compared axis' config group are expected to differ with it (axis `model.name`: every
+    `model.*` key) and are skipped, as are paths, outputs and the seed (`ignored_param`). A key some runs
+    lack counts as differing when the others set it.
+    """
+    axis_keys = {param_column(a).removeprefix("params.") for a in axes}
+    groups = tuple(k.rsplit(".", 1)[0] + "." for k in axis_keys if "." in k)
+    out = []
+    for column in runs.columns:
+        if not column.startswith("params."):
+            continue
+        key = column.removeprefix("params.")
+        if key in axis_keys or ignored_param(key) or (groups and key.startswith(groups)):
+            continue
+        if runs[column].fillna("<unset>").astype(str).nunique() > 1:
+            out.append(key)
+    return sorted(out)

@@ -1,0 +1,198 @@
+"""Report figures from MLflow runs: learning curves (metric histories) and an image comparison grid
+(the tone-mapped `eval/png/*.png` artifacts each evaluated run logs).
+
+Both return the written PNG's path, or None (with a log line) when the runs lack what they need, so a
+report over baseline-only runs (no training curves) or runs without images still completes.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import mlflow  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from mlflow.tracking import MlflowClient  # noqa: E402
+from PIL import Image  # noqa: E402
+
+from src.io.atomic import atomic_path  # noqa: E402
+from src.io.images import SEPARATOR_PX, SEPARATOR_RGB, comparison_strip, write_png  # noqa: E402
+from src.report.collect import param_column  # noqa: E402
+from src.report.tables import DEFAULT_AXES  # noqa: E402
+
+log = logging.getLogger("nrbench.report")
+
+COMPONENTS = ("diffuse", "specular", "color")
+PNG_DIR = "eval/png"
+_PNG_NAME = re.compile(r"^(?P<name>.+-(?P<spp>\d+)spp)-(?P<kind>noisy|denoised|reference)\.png$")
+
+
+def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
+    """One label per run: its axis values joined by `/`, plus `seed=N` where labels would repeat."""
+    axes = list(axes or DEFAULT_AXES)
+    base = []
+    for _, run in runs.iterrows():
+        values = [run.get(param_column(a)) for a in axes]
+        base.append(
+            "/".join("-" if v is None or (isinstance(v, float) and np.isnan(v)) else str(v) for v in values)
+        )
+    counts = pd.Series(base).value_counts()
+    out = []
+    for label, (_, run) in zip(base, runs.iterrows(), strict=True):
+        seed = run.get("params.seed")
+        out.append(f"{label} seed={seed}" if counts[label] > 1 and isinstance(seed, str) else label)
+    return out
+
+
+def _history(client: MlflowClient, run_id: str, key: str) -> tuple[list[int], list[float]]:
+    points = sorted(client.get_metric_history(run_id, key), key=lambda m: (m.step, m.timestamp))
+    return [m.step for m in points], [m.value for m in points]
+
+
+def learning_curves(
+    runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] | None = None
+) -> Path | None:
+    """Train (solid) and validation (dashed) diffuse / specular / colour losses per run, against the
+    optimiser step, one subplot per component, log-scale y. None when no run logged any of them."""
+    client = MlflowClient()
+    labels = run_labels(runs, axes)
+    fig, panels = plt.subplots(1, len(COMPONENTS), figsize=(5 * len(COMPONENTS), 3.8), squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    drawn = 0
+    for i, (label, run_id) in enumerate(zip(labels, runs["run_id"], strict=True)):
+        color = colors[i % len(colors)]
+        for ax, component in zip(panels[0], COMPONENTS, strict=True):
+            for split, style in (("train", "-"), ("val", "--")):
+                steps, values = _history(client, run_id, f"{split}_loss_{component}")
+                positive = [(s, v) for s, v in zip(steps, values, strict=True) if v > 0 and np.isfinite(v)]
+                if not positive:
+                    continue
+                xs, ys = zip(*positive, strict=True)
+                ax.plot(
+                    xs, ys, style, color=color, marker="." if len(xs) < 30 else None, label=f"{label} {split}"
+                )
+                drawn += 1
+    if drawn == 0:
+        plt.close(fig)
+        log.info("report: no run logged train_loss_*/val_loss_* histories; no learning curves")
+        return None
+    for ax, component in zip(panels[0], COMPONENTS, strict=True):
+        ax.set_yscale("log")
+        ax.set_title(f"{component} loss")
+        ax.set_xlabel("optimiser step")
+        ax.grid(True, which="both", alpha=0.3)
+    panels[0][0].set_ylabel("loss (solid: train, dashed: validation)")
+    handles, names = panels[0][-1].get_legend_handles_labels()
+    if not handles:
+        handles, names = panels[0][0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=min(len(names), 4), fontsize="small", frameon=False)
+    fig.tight_layout(rect=(0, 0.08 + 0.03 * (len(names) // 4), 1, 1))
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return out_png
+
+
+def _png_names(client: MlflowClient, run_id: str) -> dict[str, set[str]]:
+    """{image name `<scene>-<NNNNN>spp`: kinds present} from a run's `eval/png` artifacts."""
+    out: dict[str, set[str]] = {}
+    try:
+        entries = client.list_artifacts(run_id, PNG_DIR)
+    except Exception as err:  # an unreachable artifact store: skip this run, do not fail the report
+        log.warning("report: cannot list %s of run %s (%s)", PNG_DIR, run_id, err)
+        return out
+    for entry in entries:
+        match = _PNG_NAME.match(Path(entry.path).name)
+        if match:
+            out.setdefault(match["name"], set()).add(match["kind"])
+    return out
+
+
+def _load(run_id: str, name: str, dst: Path) -> np.ndarray:
+    local = mlflow.artifacts.download_artifacts(
+        run_id=run_id, artifact_path=f"{PNG_DIR}/{name}", dst_path=str(dst)
+    )
+    with Image.open(local) as image:
+        return np.asarray(image.convert("RGB"), dtype=np.uint8)
+
+
+def _pick(names: Sequence[str], max_images: int) -> list[str]:
+    """Up to `max_images` names, one per scene first (lowest spp), then further spp levels."""
+    by_scene: dict[str, list[str]] = {}
+    for name in sorted(
+        names, key=lambda n: (n.rsplit("-", 1)[0], int(_PNG_NAME.match(f"{n}-noisy.png")["spp"]))
+    ):
+        by_scene.setdefault(name.rsplit("-", 1)[0], []).append(name)
+    order = []
+    depth = max((len(v) for v in by_scene.values()), default=0)
+    for level in range(depth):
+        order += [v[level] for v in by_scene.values() if level < len(v)]
+    return order[:max_images]
+
+
+def image_grid(
+    runs: pd.DataFrame,
+    out_png: str | Path,
+    max_images: int = 3,
+    axes: Sequence[str] | None = None,
+    crop_size: int = 32,
+    zoom: int = 4,
+) -> Path | None:
+    """For up to `max_images` test images: noisy | each compared row's denoised | reference, with a
+    zoomed crop row (around the largest noisy-vs-reference error), one strip per image stacked
+    vertically. One run per distinct label (the first, e.g. the lowest seed). Runs without the
+    `eval/png` artifacts are left out (logged); None when fewer than one run has them."""
+    client = MlflowClient()
+    labels = run_labels(runs, axes)
+    chosen: dict[str, tuple[str, dict[str, set[str]]]] = {}
+    for label, run_id in zip(labels, runs["run_id"], strict=True):
+        short = label.split(" seed=")[0]
+        if short in chosen:
+            continue
+        names = {n: k for n, k in _png_names(client, run_id).items() if {"denoised"} <= k}
+        if not names:
+            log.info(
+                "report: run %s (%s) has no %s images; left out of the image grid", run_id, short, PNG_DIR
+            )
+            continue
+        chosen[short] = (run_id, names)
+    if not chosen:
+        log.info("report: no run has %s artifacts; no image grid", PNG_DIR)
+        return None
+    common = set.intersection(*(set(names) for _, names in chosen.values()))
+    first_id, first_names = next(iter(chosen.values()))
+    common = {n for n in common if {"noisy", "reference"} <= first_names[n]}
+    if not common:
+        log.info("report: the runs share no test image with noisy and reference PNGs; no image grid")
+        return None
+    strips = []
+    with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
+        for name in _pick(sorted(common), max(int(max_images), 1)):
+            spp = int(_PNG_NAME.match(f"{name}-noisy.png")["spp"])
+            panels = [(f"noisy {spp} spp", _load(first_id, f"{name}-noisy.png", Path(tmp) / "n"))]
+            for short, (run_id, _) in chosen.items():
+                panels.append((short, _load(run_id, f"{name}-denoised.png", Path(tmp) / run_id)))
+            panels.append(("reference", _load(first_id, f"{name}-reference.png", Path(tmp) / "r")))
+            if len({p[1].shape for p in panels}) != 1:
+                log.warning("report: %s differs in size across runs; left out of the image grid", name)
+                continue
+            strips.append(comparison_strip(panels, crop_size, zoom))
+    if not strips:
+        return None
+    width = max(s.shape[1] for s in strips)
+    gap = np.full((SEPARATOR_PX * 2, width, 3), SEPARATOR_RGB, np.uint8)
+    rows = []
+    for strip in strips:
+        pad = np.full((strip.shape[0], width - strip.shape[1], 3), SEPARATOR_RGB, np.uint8)
+        rows += [np.concatenate([strip, pad], axis=1), gap]
+    return write_png(out_png, np.concatenate(rows[:-1], axis=0))

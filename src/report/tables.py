@@ -1,0 +1,251 @@
+"""Comparison and cost tables from MLflow runs, rendered as Markdown, LaTeX (booktabs) and CSV.
+
+A table is a DataFrame with one row per distinct value of the compared axes (index, named by the axes'
+display labels, e.g. `model`), and per metric label `L` the columns `L` (mean over the row's runs, i.e.
+over seeds), `L std` (sample std; NaN with one run) and one `runs` column (how many runs each row
+aggregates). `table.attrs["metrics"]` keeps, per label, (MLflow metric key, higher_is_better, format);
+higher_is_better None means "no best value" (e.g. iteration counts).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Mapping, Sequence
+
+import pandas as pd
+
+from src.report.collect import param_column
+
+#: label -> (MLflow metric key, higher is better, format)
+MetricSpec = tuple[str, bool | None, str]
+
+DEFAULT_AXES = ("model.name",)
+COMPARISON_METRICS: dict[str, MetricSpec] = {
+    "PSNR": ("eval_psnr", True, "{:.2f}"),
+    "SSIM": ("eval_ssim", True, "{:.4f}"),
+    "LPIPS": ("eval_lpips", False, "{:.4f}"),
+    "relMSE": ("eval_relmse", False, "{:.4g}"),
+    "FLIP": ("eval_flip", False, "{:.4f}"),
+}
+COST_METRICS: dict[str, MetricSpec] = {
+    "params": ("param_count", False, "{:,.0f}"),
+    "train time (s)": ("train_time_s", False, "{:.1f}"),
+    "iterations": ("steps", None, "{:,.0f}"),
+    "ms / image": ("eval_ms_per_image", False, "{:.1f}"),
+    "ms / MP": ("eval_ms_per_mpixel", False, "{:.1f}"),
+}
+LPIPS_VARIANT_TAG = "tags.nrbench.lpips_variant"
+RUNS_COLUMN = "runs"
+MISSING = "-"
+
+
+def axis_label(axis: str) -> str:
+    """Display label of a compared config key: `model.name` -> `model`, `task.train.lr` -> `task.train.lr`."""
+    key = param_column(axis).split(".", 1)[1]
+    return key.removesuffix(".name") if key.endswith(".name") else key
+
+
+def _lpips_label(runs: pd.DataFrame) -> str:
+    """`LPIPS (<variant>[, <variant>...])` naming the LPIPS network variant(s) the runs logged."""
+    if LPIPS_VARIANT_TAG not in runs:
+        return "LPIPS"
+    variants = sorted({str(v) for v in runs[LPIPS_VARIANT_TAG].dropna() if str(v)})
+    return f"LPIPS ({', '.join(variants)})" if variants else "LPIPS"
+
+
+def per_spp_metrics(runs: pd.DataFrame, metrics: Mapping[str, MetricSpec]) -> dict[str, MetricSpec]:
+    """Per-spp columns `"<label> <N>spp"` for every `eval_<metric>_spp<N>` key the runs logged."""
+    out: dict[str, MetricSpec] = {}
+    for label, (key, higher, fmt) in metrics.items():
+        pattern = re.compile(rf"^metrics\.{re.escape(key)}_spp(\d+)$")
+        spps = sorted({int(m.group(1)) for c in runs.columns if (m := pattern.match(c))})
+        for spp in spps:
+            out[f"{label} {spp}spp"] = (f"{key}_spp{spp}", higher, fmt)
+    return out
+
+
+def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, MetricSpec]) -> pd.DataFrame:
+    """Mean, std and count per distinct axis value, rows in order of first appearance."""
+    columns = [param_column(a) for a in axes]
+    labels = [axis_label(a) for a in axes]
+    keys = pd.DataFrame(
+        {
+            label: runs[c].fillna(MISSING).astype(str) if c in runs else pd.Series(MISSING, index=runs.index)
+            for label, c in zip(labels, columns, strict=True)
+        }
+    )
+    present = {lab: spec for lab, spec in metrics.items() if f"metrics.{spec[0]}" in runs}
+    present = {lab: spec for lab, spec in present.items() if runs[f"metrics.{spec[0]}"].notna().any()}
+    values = pd.DataFrame({lab: pd.to_numeric(runs[f"metrics.{spec[0]}"]) for lab, spec in present.items()})
+    values = values.reindex(runs.index)
+    grouped = values.groupby([keys[lab] for lab in labels], sort=False, dropna=False)
+    mean, std = grouped.mean(), grouped.std(ddof=1)
+    counts = keys.groupby(labels, sort=False).size()
+    table = pd.DataFrame(index=counts.index)
+    for label in present:
+        table[label] = mean.get(label, math.nan)
+        table[f"{label} std"] = std.get(label, math.nan)
+    table[RUNS_COLUMN] = counts
+    table.attrs["metrics"] = dict(present)
+    table.attrs["axes"] = labels
+    return table
+
+
+def comparison_table(
+    runs: pd.DataFrame,
+    axes: Sequence[str] | None = None,
+    metrics: Mapping[str, MetricSpec] | None = None,
+    group_by: str | None = None,
+) -> pd.DataFrame:
+    """Quality metrics per distinct value of `axes` (default `model.name`), mean ± std over seeds.
+
+    `group_by="spp"` gives one column per metric and noisy spp (`eval_<metric>_spp<N>` keys); any other
+    value is a config key added to the rows (e.g. `dataset.name`). Metrics no run logged are dropped;
+    the LPIPS label names the variant(s) in the runs' `nrbench.lpips_variant` tags.
+    """
+    axes = list(axes or DEFAULT_AXES)
+    metrics = dict(COMPARISON_METRICS if metrics is None else metrics)
+    if "LPIPS" in metrics:
+        metrics = {(_lpips_label(runs) if k == "LPIPS" else k): v for k, v in metrics.items()}
+    if group_by == "spp":
+        metrics = per_spp_metrics(runs, metrics)
+    elif group_by:
+        axes.append(group_by)
+    return _aggregate(runs, axes, metrics)
+
+
+def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
+    """Parameters, training time, iterations and inference time (per image and per megapixel)."""
+    return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
+
+
+# ------------------------------------------------------------------------------------------ cells
+
+
+def best_rows(table: pd.DataFrame) -> dict[str, set[int]]:
+    """Per metric label, the row positions holding its best mean (all of them on a tie)."""
+    out: dict[str, set[int]] = {}
+    for label, (_, higher, _) in table.attrs.get("metrics", {}).items():
+        values = pd.to_numeric(table[label], errors="coerce").reset_index(drop=True)
+        if higher is None or values.dropna().nunique() < 2:  # one value, or all tied: nothing stands out
+            continue
+        target = values.max() if higher else values.min()
+        out[label] = {i for i, v in values.items() if v == target}
+    return out
+
+
+def _fmt(value: float, fmt: str) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    return fmt.format(value)
+
+
+def cells(
+    table: pd.DataFrame, best: Mapping[str, set[int]] | None = None
+) -> tuple[list[str], list[bool | None], list[list[tuple[str, str | None, bool]]]]:
+    """(header labels, per-column higher_is_better (None for axes/runs), rows of (mean text, std text or
+    None, bold)) for the renderers."""
+    metrics: dict[str, MetricSpec] = table.attrs.get("metrics", {})
+    best = best_rows(table) if best is None else best
+    axes = list(table.index.names)
+    header = [str(a) for a in axes] + list(metrics) + [RUNS_COLUMN]
+    directions: list[bool | None] = [None] * len(axes) + [spec[1] for spec in metrics.values()] + [None]
+    rows = []
+    for i, (index, row) in enumerate(table.iterrows()):
+        keys = index if isinstance(index, tuple) else (index,)
+        line: list[tuple[str, str | None, bool]] = [(str(k), None, False) for k in keys]
+        for label, (_, _, fmt) in metrics.items():
+            std = row.get(f"{label} std", math.nan)
+            std_text = None if pd.isna(std) or row[RUNS_COLUMN] < 2 else _fmt(float(std), fmt)
+            line.append((_fmt(row[label], fmt), std_text, i in best.get(label, set())))
+        line.append((str(int(row[RUNS_COLUMN])), None, False))
+        rows.append(line)
+    return header, directions, rows
+
+
+def _arrow(higher: bool | None, up: str, down: str) -> str:
+    return "" if higher is None else f" {up if higher else down}"
+
+
+# -------------------------------------------------------------------------------------- renderers
+
+
+def _notes(notes: Iterable[str] | str | None) -> list[str]:
+    if notes is None:
+        return []
+    return [notes] if isinstance(notes, str) else [str(n) for n in notes]
+
+
+def to_markdown(table: pd.DataFrame, best: Mapping[str, set[int]] | None = None, notes=None) -> str:
+    """GitHub Markdown table; best value per metric column in **bold**, `mean ± std` over several runs.
+    `notes` (e.g. the differing-params warning) go above the table as block quotes."""
+    header, directions, rows = cells(table, best)
+
+    def esc(text: str) -> str:
+        return text.replace("|", "\\|")
+
+    heads = [esc(h) + _arrow(d, "↑", "↓") for h, d in zip(header, directions, strict=True)]
+    align = ["---" if d is None and i < len(table.index.names) else "---:" for i, d in enumerate(directions)]
+    lines = [f"> **Warning:** {esc(n)}\n" for n in _notes(notes)]
+    lines += ["| " + " | ".join(heads) + " |", "|" + "|".join(align) + "|"]
+    for row in rows:
+        texts = []
+        for mean, std, bold in row:
+            text = esc(mean if std is None else f"{mean} ± {std}")
+            texts.append(f"**{text}**" if bold else text)
+        lines.append("| " + " | ".join(texts) + " |")
+    return "\n".join(lines) + "\n"
+
+
+_LATEX_SPECIAL = {
+    "\\": r"\textbackslash{}",
+    "&": r"\&",
+    "%": r"\%",
+    "$": r"\$",
+    "#": r"\#",
+    "_": r"\_",
+    "{": r"\{",
+    "}": r"\}",
+    "~": r"\textasciitilde{}",
+    "^": r"\textasciicircum{}",
+}
+
+
+def latex_escape(text: str) -> str:
+    """Escape LaTeX's special characters (underscores in model names, `%`, ...)."""
+    return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in str(text))
+
+
+def to_latex(table: pd.DataFrame, best: Mapping[str, set[int]] | None = None, notes=None) -> str:
+    """booktabs `tabular` (\\toprule, \\midrule, \\bottomrule); best value per column in \\textbf{};
+    `notes` as a full-width row under the table (and as `%` comments)."""
+    header, directions, rows = cells(table, best)
+    n_axes = len(table.index.names)
+    spec = "l" * n_axes + "r" * (len(header) - n_axes)
+    heads = [
+        latex_escape(h) + _arrow(d, r"$\uparrow$", r"$\downarrow$")
+        for h, d in zip(header, directions, strict=True)
+    ]
+    lines = [f"% Warning: {n}" for n in _notes(notes)]
+    lines += [f"\\begin{{tabular}}{{{spec}}}", r"\toprule", " & ".join(heads) + r" \\", r"\midrule"]
+    for row in rows:
+        texts = []
+        for mean, std, bold in row:
+            text = latex_escape(mean) if std is None else f"{latex_escape(mean)} $\\pm$ {latex_escape(std)}"
+            texts.append(f"\\textbf{{{text}}}" if bold else text)
+        lines.append(" & ".join(texts) + r" \\")
+    lines.append(r"\bottomrule")
+    for note in _notes(notes):
+        cell = f"\\footnotesize Warning: {latex_escape(note)}"
+        lines.append(f"\\multicolumn{{{len(header)}}}{{p{{0.95\\linewidth}}}}{{{cell}}} \\\\")
+    lines.append(r"\end{tabular}")
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(table: pd.DataFrame, notes=None) -> str:
+    """Plain numbers: axis columns, then per metric `<label>` (mean) and `<label> std`, then `runs`.
+    `notes` become leading `# ` comment lines (read back with `pandas.read_csv(..., comment="#")`)."""
+    text = table.reset_index().to_csv(index=False, float_format="%.10g")
+    comments = "".join(f"# Warning: {n}\n" for n in _notes(notes))
+    return comments + text

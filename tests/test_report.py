@@ -1,0 +1,258 @@
+"""Report tables, figures and HTML page built from fixture MLflow runs in a temporary SQLite store."""
+
+import base64
+import io
+import re
+
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+from mlflow.entities import Metric, Param
+from mlflow.tracking import MlflowClient
+from omegaconf import OmegaConf
+from PIL import Image
+
+from src.errors import DataError
+from src.report.build import build_report
+from src.report.collect import differing_params, find_runs
+from src.report.tables import comparison_table, cost_table, to_csv, to_latex, to_markdown
+from tests.conftest import compose_config, one_line_error
+
+EXPERIMENT = "nrbench-denoise"
+LPIPS_VARIANT = "vgg16-random(seed=0)+lin-uniform"
+# model, seed, lr, psnr, relmse, lpips
+RUNS = [
+    ("kpcn", 0, "0.0001", 30.0, 0.020, 0.20),
+    ("kpcn", 1, "0.0001", 31.0, 0.010, 0.22),
+    ("dpcn", 0, "0.0001", 29.0, 0.030, 0.25),
+    ("resnet", 0, "0.0003", 32.0, 0.015, 0.18),
+]
+
+
+def _log_run(
+    client, experiment_id, tmp, model, seed, lr, psnr, relmse, lpips, parent=None, status="FINISHED"
+):
+    tags = {
+        "nrbench.model": model,
+        "nrbench.profile": "cpu",
+        "nrbench.task": "denoise",
+        "nrbench.git_commit": "abc1234",
+        "nrbench.lpips_variant": LPIPS_VARIANT,
+    }
+    if parent is not None:
+        tags["mlflow.parentRunId"] = parent
+    run_id = client.create_run(experiment_id, tags=tags, run_name=f"{model}-cpu").info.run_id
+    params = {
+        "model.name": model,
+        "seed": str(seed),
+        "task.train.lr": lr,
+        "task.train.batch": "64",
+        "paths.root": f"/somewhere/{run_id}",  # ignored: paths differ per run
+        "task.eval.out_dir": f"/out/{run_id}/eval",
+    }
+    if model == "kpcn":
+        params["model.kernel_size"] = "11"  # under the compared axis' group: expected to differ
+    metrics = {
+        "eval_psnr": psnr,
+        "eval_ssim": 0.8 + psnr / 1000,
+        "eval_lpips": lpips,
+        "eval_relmse": relmse,
+        "eval_psnr_spp4": psnr - 2,
+        "eval_psnr_spp16": psnr + 1,
+        "param_count": 1000.0 * len(model),
+        "train_time_s": 12.5,
+        "steps": 30.0,
+        "eval_ms_per_image": 3.0,
+        "eval_ms_per_mpixel": 40.0,
+    }
+    history = [
+        Metric(f"{split}_loss_{c}", 1.0 / (step + seed + 1), 0, step)
+        for split in ("train", "val")
+        for c in ("diffuse", "specular", "color")
+        for step in (10, 20, 30)
+    ]
+    client.log_batch(
+        run_id,
+        params=[Param(k, v) for k, v in params.items()],
+        metrics=[Metric(k, v, 0, 0) for k, v in metrics.items()] + history,
+    )
+    png_dir = tmp / f"png-{run_id}"
+    png_dir.mkdir()
+    rng = np.random.default_rng(seed + len(model))
+    reference = np.linspace(0, 255, 16 * 24 * 3).reshape(16, 24, 3).astype(np.uint8)
+    for name in ("scene0-00004spp", "scene1-00004spp"):
+        noisy = np.clip(reference + rng.normal(0, 40, reference.shape), 0, 255).astype(np.uint8)
+        denoised = np.clip(reference + rng.normal(0, 5, reference.shape), 0, 255).astype(np.uint8)
+        for kind, image in (("noisy", noisy), ("denoised", denoised), ("reference", reference)):
+            Image.fromarray(image).save(png_dir / f"{name}-{kind}.png")
+    client.log_artifacts(run_id, str(png_dir), "eval/png")
+    client.set_terminated(run_id, status)
+    return run_id
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    """One SQLite store for the module (creating one costs seconds): 4 finished runs (kpcn twice,
+    dpcn, resnet with another lr), a failed run, and a sweep parent whose children are dpcn and resnet."""
+    tmp = tmp_path_factory.mktemp("report_store")
+    previous = mlflow.get_tracking_uri()
+    uri = f"sqlite:///{tmp}/mlflow.db"
+    mlflow.set_tracking_uri(uri)
+    client = MlflowClient()
+    experiment_id = client.create_experiment(EXPERIMENT, artifact_location=(tmp / "mlartifacts").as_uri())
+    sweep_dir = tmp / "multirun" / "2024-01-01" / "00-00-00"
+    parent = client.create_run(
+        experiment_id,
+        tags={"nrbench.sweep_parent": "true", "nrbench.sweep_dir": str(sweep_dir)},
+        run_name="sweep",
+    ).info.run_id
+    ids = {}
+    for model, seed, lr, psnr, relmse, lpips in RUNS:
+        child_of = parent if model in ("dpcn", "resnet") else None
+        ids[(model, seed)] = _log_run(
+            client, experiment_id, tmp, model, seed, lr, psnr, relmse, lpips, child_of
+        )
+    _log_run(client, experiment_id, tmp, "broken", 0, "0.0001", 99.0, 0.0, 0.0, status="FAILED")
+    client.set_terminated(parent, "FINISHED")
+    yield {"tmp": tmp, "uri": uri, "parent": parent, "sweep_dir": sweep_dir, "ids": ids}
+    mlflow.set_tracking_uri(previous)
+
+
+def _cfg(store, out, **report):
+    cfg = compose_config(
+        [
+            f"paths.root={store['tmp']}",
+            f"paths.run_dir={store['tmp']}/run",
+            f"tracking.uri={store['uri']}",
+            f"report.out_dir={out}",
+        ]
+    )
+    for key, value in report.items():
+        OmegaConf.update(cfg, f"report.{key}", value, merge=False)
+    return cfg
+
+
+def test_find_runs_selects_finished_job_runs(store):
+    mlflow.set_tracking_uri(store["uri"])
+    runs = find_runs({"experiment": EXPERIMENT})
+    assert sorted(runs["params.model.name"]) == ["dpcn", "kpcn", "kpcn", "resnet"]  # no parent, no FAILED
+    by_parent = find_runs({"experiment": EXPERIMENT, "parent_run_id": store["parent"]})
+    assert sorted(by_parent["params.model.name"]) == ["dpcn", "resnet"]
+    by_dir = find_runs({"experiment": EXPERIMENT, "sweep_dir": str(store["sweep_dir"])})
+    assert sorted(by_dir["run_id"]) == sorted(by_parent["run_id"])
+    by_filter = find_runs(
+        {"experiment": EXPERIMENT, "tags": {"nrbench.model": "kpcn"}, "filter": "params.seed = '1'"}
+    )
+    assert list(by_filter["run_id"]) == [store["ids"][("kpcn", 1)]]
+
+
+def test_differing_params_names_lr_only(store):
+    mlflow.set_tracking_uri(store["uri"])
+    runs = find_runs({"experiment": EXPERIMENT})
+    assert differing_params(runs, ["model.name"]) == ["task.train.lr"]
+    same_lr = runs[runs["params.task.train.lr"] == "0.0001"]
+    assert differing_params(same_lr, ["model.name"]) == []
+
+
+def test_comparison_table_aggregates_seeds_and_renders(store):
+    mlflow.set_tracking_uri(store["uri"])
+    runs = find_runs({"experiment": EXPERIMENT})
+    table = comparison_table(runs, ["model.name"])
+    lpips = f"LPIPS ({LPIPS_VARIANT})"
+    assert table.index.name == "model"
+    assert list(table.index) == ["kpcn", "dpcn", "resnet"]  # order of first run
+    assert [c for c in table.columns if not c.endswith(" std")] == ["PSNR", "SSIM", lpips, "relMSE", "runs"]
+    assert table.loc["kpcn", "PSNR"] == pytest.approx(30.5)
+    assert table.loc["kpcn", "PSNR std"] == pytest.approx(np.std([30.0, 31.0], ddof=1))
+    assert np.isnan(table.loc["dpcn", "PSNR std"])
+    assert list(table["runs"]) == [2, 1, 1]
+
+    md = to_markdown(table)
+    assert "| kpcn | 30.50 ± 0.71 |" in md
+    assert "**32.00**" in md  # best PSNR: resnet
+    assert "**0.0150**" not in md and "**0.015**" in md  # best relMSE (lower is better), {:.4g}
+    assert f"{lpips} ↓" in md and "PSNR ↑" in md
+
+    tex = to_latex(table)
+    for rule in (r"\toprule", r"\midrule", r"\bottomrule"):
+        assert tex.count(rule) == 1
+    assert r"\textbf{32.00}" in tex
+    assert r"30.50 $\pm$ 0.71" in tex
+    escaped = to_latex(comparison_table(runs.assign(**{"params.model.name": "cross_bilateral"})))
+    assert r"cross\_bilateral" in escaped
+
+    csv = pd.read_csv(io.StringIO(to_csv(table)))
+    assert list(csv["model"]) == ["kpcn", "dpcn", "resnet"]
+    assert csv.loc[0, "PSNR"] == pytest.approx(30.5) and csv.loc[0, "PSNR std"] == pytest.approx(0.7071, 1e-3)
+
+    per_spp = comparison_table(runs, ["model.name"], group_by="spp")
+    assert {"PSNR 4spp", "PSNR 16spp"} <= set(per_spp.columns)
+    assert per_spp.loc["resnet", "PSNR 16spp"] == pytest.approx(33.0)
+
+    cost = cost_table(runs, ["model.name"])
+    assert {"params", "train time (s)", "iterations", "ms / image", "ms / MP"} <= set(cost.columns)
+    assert "**4,000**" in to_markdown(cost)  # fewest params: kpcn / dpcn (4 letters) tie
+    assert "**6,000**" not in to_markdown(cost)
+    assert "**12.5" not in to_markdown(cost)  # all runs tie: no best value
+
+
+def _embedded_pngs(page):
+    return [base64.b64decode(b) for b in re.findall(r'<img [^>]*src="data:image/png;base64,([^"]+)"', page)]
+
+
+def test_build_report_writes_all_outputs(store, tmp_path, caplog):
+    with caplog.at_level("WARNING", logger="nrbench.report"):
+        summary = build_report(_cfg(store, tmp_path / "reports"))
+    out = tmp_path / "reports" / "denoise"
+    assert summary["runs"] == 4 and summary["out_dir"] == str(out)
+    assert any("task.train.lr" in r.getMessage() for r in caplog.records)
+    assert len(summary["warnings"]) == 1 and "task.train.lr" in summary["warnings"][0]
+    names = {p.name for p in out.iterdir()}
+    for stem in ("comparison", "cost", "comparison_per_spp"):
+        assert {f"{stem}.md", f"{stem}.tex", f"{stem}.csv"} <= names
+    assert {"learning_curves.png", "image_grid.png", "index.html"} <= names
+    assert not [n for n in names if n.startswith(".")]  # no temporary files left
+    for name in ("comparison.md", "comparison.tex", "comparison.csv", "cost.md", "index.html"):
+        assert "task.train.lr" in (out / name).read_text(), name  # the warning is visible everywhere
+    csv = pd.read_csv(out / "comparison.csv", comment="#")
+    assert len(csv) == 3
+
+    with Image.open(out / "image_grid.png") as grid:
+        # 2 images: (noisy + 3 models + reference) columns, full row and a 4x zoomed 16-px crop row
+        assert grid.width >= 5 * 24 and grid.height >= 2 * (16 + 4 * 16)
+
+    page = (out / "index.html").read_text()
+    pngs = _embedded_pngs(page)
+    assert len(pngs) == 2
+    assert pngs[0] == (out / "learning_curves.png").read_bytes()
+    assert pngs[1] == (out / "image_grid.png").read_bytes()
+    for data in pngs:
+        assert Image.open(io.BytesIO(data)).format == "PNG"
+    assert "<b>32.00</b>" in page and "abc1234" in page
+    for run_id in store["ids"].values():
+        assert run_id in page
+
+
+def test_build_report_sweep_children_only(store, tmp_path):
+    summary = build_report(_cfg(store, tmp_path, sweep_dir=str(store["sweep_dir"]), name="sweep"))
+    assert summary["runs"] == 2
+    table = pd.read_csv(tmp_path / "sweep" / "comparison.csv", comment="#")
+    assert sorted(table["model"]) == ["dpcn", "resnet"]
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "needle"),
+    [
+        ("filter", "params.`task.train.lr` = '0.5'", "report.filter"),
+        ("tags", {"nrbench.profile": "paper"}, "report.tags.nrbench.profile"),
+        ("parent_run_id", "0" * 32, "report.parent_run_id"),
+        ("sweep_dir", "/no/such/sweep", "report.sweep_dir"),
+        ("experiment", "nrbench-nothing", "report.experiment"),
+    ],
+)
+def test_no_matching_runs_is_one_line_error_and_writes_nothing(store, tmp_path, key, value, needle):
+    with pytest.raises(DataError) as excinfo:
+        build_report(_cfg(store, tmp_path / "reports", **{key: value}))
+    one_line_error(excinfo, needle)
+    assert not (tmp_path / "reports").exists()
