@@ -15,3 +15,11 @@ class ConfigError(NrbenchError):
 
 class EnvironmentSetupError(NrbenchError):
     """A system dependency (LLVM, CUDA, a package) needed by the chosen backend is missing."""
+
+
+def require(cfg, key: str, section: str, needed_by: str = ""):
+    """`cfg[key]`, or a one-line ConfigError naming `<section>.<key>` when it is absent or null."""
+    if key not in cfg or cfg[key] is None:
+        reason = f"; {needed_by} needs it" if needed_by else ""
+        raise ConfigError(f"{section}.{key} is missing{reason}")
+    return cfg[key]

@@ -107,8 +107,13 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
         if i == 0:  # warm-up: one-time costs (allocator, OIDN device, kernel selection) are not runtime
             denoise_tiled(model, batch, int(e.tile), eps)
         color, seconds = _timed_denoise(model, batch, int(e.tile), eps, device)
-        rows.append(_score(item, _hwc(color), seconds, m))
-        _save_images(out_dir, item, _hwc(color), e, m)
+        images = {
+            "noisy": _hwc(item["color"][None]),
+            "denoised": _hwc(color),
+            "reference": _hwc(item["reference"][None]),
+        }
+        rows.append(_score(item, images, seconds, m))
+        _save_images(out_dir, item, images, e, m)
     summary = {**_summarise(rows), "param_count": count_parameters(model)}
     variant = lpips_variant(m)
     if variant is not None:
@@ -121,8 +126,11 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
     return summary
 
 
-def _score(item: dict[str, Any], denoised: np.ndarray, seconds: float, m: DictConfig) -> dict[str, Any]:
-    reference, noisy = _hwc(item["reference"][None]), _hwc(item["color"][None])
+def _score(
+    item: dict[str, Any], images: dict[str, np.ndarray], seconds: float, m: DictConfig
+) -> dict[str, Any]:
+    """Metrics of the denoised and of the noisy image against the reference, and the runtime."""
+    denoised, noisy, reference = images["denoised"], images["noisy"], images["reference"]
     megapixels = reference.shape[0] * reference.shape[1] / 1e6
     row: dict[str, Any] = {"scene": item["scene"], "spp": int(item["spp"])}
     row |= image_metrics(denoised, reference, m)
@@ -132,19 +140,16 @@ def _score(item: dict[str, Any], denoised: np.ndarray, seconds: float, m: DictCo
 
 
 def _save_images(
-    out_dir: Path, item: dict[str, Any], denoised: np.ndarray, e: DictConfig, m: DictConfig
+    out_dir: Path, item: dict[str, Any], images: dict[str, np.ndarray], e: DictConfig, m: DictConfig
 ) -> None:
+    """EXR of the denoised image, tone-mapped PNGs of noisy/denoised/reference, the comparison strip."""
+    denoised = images["denoised"]
     name = f"{item['scene']}-{int(item['spp']):05d}spp"
     if e.save_exr:
         write_exr(
             out_dir / "images" / f"{name}.exr",
             {"R": denoised[..., 0], "G": denoised[..., 1], "B": denoised[..., 2]},
         )
-    images = {
-        "noisy": _hwc(item["color"][None]),
-        "denoised": denoised,
-        "reference": _hwc(item["reference"][None]),
-    }
     ldr = {k: tonemap(v, m.tonemap, m.gamma) for k, v in images.items()}
     # Tone-mapped PNGs per image: what report grids compare across models (small, unlike EXRs).
     for kind, image in ldr.items():

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from src.errors import ConfigError, DataError
+from src.errors import ConfigError, DataError, require
 from src.metrics.flip import flip
 from src.metrics.lpips import LPIPS, lpips_distance
 
@@ -135,9 +135,7 @@ def smape(x: np.ndarray, y: np.ndarray, eps: float = 0.01) -> float:
 
 
 def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
-    if key not in cfg or cfg[key] is None:
-        raise ConfigError(f"{prefix}.{key} is missing")
-    return cfg[key]
+    return require(cfg, key, prefix)
 
 
 #: LPIPS models by (trunk_weights, lin_weights, seed), built on first use (VGG16 takes a moment).

@@ -17,7 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
 from src.data.kpcn_preprocess import WhiteningStats
-from src.errors import ConfigError
+from src.errors import ConfigError, require
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import OUTPUTS, TwoBranchDenoiser
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
@@ -37,9 +37,7 @@ def _as_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _get(cfg: Mapping[str, Any], key: str) -> Any:
-    if key not in cfg or cfg[key] is None:
-        raise ConfigError(f"model.{key}: missing (architecture {cfg.get('architecture')!r} needs it)")
-    return cfg[key]
+    return require(cfg, key, "model", f"architecture {cfg.get('architecture')!r}")
 
 
 def _int(cfg: Mapping[str, Any], key: str, minimum: int = 1, odd: bool = False) -> int:

@@ -20,18 +20,13 @@ from typing import Any
 import mlflow
 
 from src.io.atomic import atomic_write_text
-from src.report.collect import differing_params, find_runs
+from src.report.collect import config_value, differing_params, find_runs
 from src.report.figures import image_grid, learning_curves, run_labels
 from src.report.html import render_html
 from src.report.tables import axis_label, comparison_table, cost_table, to_csv, to_latex, to_markdown
 from src.tracking.mlflow_tracking import quiet_mlflow_logs
 
 log = logging.getLogger("nrbench.report")
-
-
-def _get(cfg: Any, key: str, default: Any = None) -> Any:
-    value = cfg.get(key, default) if hasattr(cfg, "get") else getattr(cfg, key, default)
-    return default if value is None else value
 
 
 def _crop(cfg: Any) -> tuple[int, int]:
@@ -47,13 +42,13 @@ def build_report(cfg: Any) -> dict[str, Any]:
     """Build the report for `cfg.report` (runs from `cfg.tracking.uri`); returns a summary: number of
     runs, output directory, written files and warnings."""
     rc = cfg.report
-    tracking = _get(cfg, "tracking")
+    tracking = config_value(cfg, "tracking")
     quiet_mlflow_logs()
-    if tracking is not None and _get(tracking, "uri"):
+    if tracking is not None and config_value(tracking, "uri"):
         mlflow.set_tracking_uri(str(tracking.uri))
     runs = find_runs(rc)  # raises DataError before anything is written
 
-    axes = [str(a) for a in (_get(rc, "axes") or ["model.name"])]
+    axes = [str(a) for a in (config_value(rc, "axes") or ["model.name"])]
     warnings: list[str] = []
     differing = differing_params(runs, axes)
     if differing:
@@ -71,8 +66,8 @@ def build_report(cfg: Any) -> dict[str, Any]:
     if per_spp.attrs.get("metrics"):
         tables["comparison_per_spp"] = per_spp
 
-    name = str(_get(rc, "name", "report"))
-    out_dir = Path(str(_get(rc, "out_dir", "reports"))).expanduser() / name
+    name = str(config_value(rc, "name", "report"))
+    out_dir = Path(str(config_value(rc, "out_dir", "reports"))).expanduser() / name
     files: dict[str, Path] = {}
     for stem, table in tables.items():
         files[f"{stem}.md"] = atomic_write_text(out_dir / f"{stem}.md", to_markdown(table, notes=warnings))
@@ -81,7 +76,8 @@ def build_report(cfg: Any) -> dict[str, Any]:
 
     crop_size, zoom = _crop(cfg)
     curves = learning_curves(runs, out_dir / "learning_curves.png", axes)
-    grid = image_grid(runs, out_dir / "image_grid.png", int(_get(rc, "images", 3)), axes, crop_size, zoom)
+    n_images = int(config_value(rc, "images", 3))
+    grid = image_grid(runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
     for path in (curves, grid):
         if path is not None:
             files[path.name] = path

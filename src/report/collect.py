@@ -40,7 +40,7 @@ IGNORED_PARAMS = frozenset(
 )
 
 
-def _get(cfg: Any, key: str, default: Any = None) -> Any:
+def config_value(cfg: Any, key: str, default: Any = None) -> Any:
     """`cfg.key` for a DictConfig, a dict or an object; `default` when absent or None."""
     if cfg is None:
         return default
@@ -104,11 +104,11 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     filter string, e.g. "params.`task.train.lr` = '0.0001'"). When nothing matches, raises `DataError`
     with one line naming the first filter that left no run.
     """
-    uri = _get(report_cfg, "tracking_uri")
+    uri = config_value(report_cfg, "tracking_uri")
     if uri:
         mlflow.set_tracking_uri(str(uri))
     uri = mlflow.get_tracking_uri()
-    names = _as_list(_get(report_cfg, "experiment"))
+    names = _as_list(config_value(report_cfg, "experiment"))
     if not names:
         raise DataError("report.experiment is empty: name the MLflow experiment(s) to report on")
     client = MlflowClient()
@@ -124,8 +124,8 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     steps: list[tuple[str, Any]] = [
         (f"report.experiment={names if len(names) > 1 else names[0]!r}", "attributes.status = 'FINISHED'")
     ]
-    parent_id = _get(report_cfg, "parent_run_id")
-    sweep_dir = _get(report_cfg, "sweep_dir")
+    parent_id = config_value(report_cfg, "parent_run_id")
+    sweep_dir = config_value(report_cfg, "sweep_dir")
     if parent_id:
         steps.append(
             (f"report.parent_run_id={parent_id!r}", f"tags.{MLFLOW_PARENT_RUN_ID} = {_quote(parent_id)}")
@@ -144,10 +144,10 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
                 lambda df: df[column].isin(parents) if column in df else pd.Series(False, index=df.index),
             )
         )
-    tags: Mapping[str, Any] = _get(report_cfg, "tags", {}) or {}
+    tags: Mapping[str, Any] = config_value(report_cfg, "tags", {}) or {}
     for key, value in tags.items():
         steps.append((f"report.tags.{key}={value!r}", f"tags.`{key}` = {_quote(value)}"))
-    free = _get(report_cfg, "filter")
+    free = config_value(report_cfg, "filter")
     if free:
         steps.append((f"report.filter={str(free)!r}", str(free)))
 

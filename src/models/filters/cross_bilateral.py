@@ -34,7 +34,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-from src.errors import ConfigError
+from src.errors import ConfigError, require
 from src.models.denoise.base import Batch, Denoiser
 
 #: Keys `from_config` reads from the model config, in constructor order.
@@ -47,11 +47,7 @@ GUIDE_CHANNELS = 3 + sum(c for _, c in FEATURE_BUFFERS)
 
 def _require(model_cfg: Mapping[str, Any], key: str) -> Any:
     """model_cfg[key], or a one-line ConfigError naming `model.<key>` when it is missing or null."""
-    if key not in model_cfg or model_cfg[key] is None:
-        raise ConfigError(
-            f"model.{key} is missing; the cross-bilateral filter needs {', '.join(CONFIG_KEYS)}"
-        )
-    return model_cfg[key]
+    return require(model_cfg, key, "model", "the cross-bilateral filter")
 
 
 def _scaled(x: torch.Tensor, sigma: float) -> torch.Tensor:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from src.errors import ConfigError, EnvironmentSetupError
+from src.errors import ConfigError, EnvironmentSetupError, require
 from src.models.denoise.base import Batch, Denoiser
 
 #: Keys `from_config` reads from the model config, in constructor order.
@@ -80,10 +80,7 @@ class OIDNDenoiser(Denoiser):
     @classmethod
     def from_config(cls, model_cfg: Mapping[str, Any]) -> OIDNDenoiser:
         """Build from the `model:` config group (conf/model/oidn.yaml); a missing key is a ConfigError."""
-        for key in CONFIG_KEYS:
-            if key not in model_cfg or model_cfg[key] is None:
-                raise ConfigError(f"model.{key} is missing; the OIDN denoiser needs {', '.join(CONFIG_KEYS)}")
-        return cls(*(model_cfg[key] for key in CONFIG_KEYS))
+        return cls(*(require(model_cfg, key, "model", "the OIDN denoiser") for key in CONFIG_KEYS))
 
     @property
     def halo(self) -> None:
