@@ -73,6 +73,19 @@ def test_relmse_and_smape_by_hand():
     assert smape(x, y, eps) == pytest.approx((0.5 / 1.51 + 0.0 + 1.0 / 3.01) / 3)
 
 
+def test_relmse_border_crop_ignores_the_border():
+    reference = np.ones((10, 12, 3))
+    x = reference.copy()
+    x[:2] = x[-2:] = x[:, :2] = x[:, -2:] = 5.0  # a 2-pixel frame of filter border artefacts
+    assert relmse(x, reference, 1e-4) > 1.0
+    assert relmse(x, reference, 1e-4, crop=2) == 0.0
+    x[5, 6, 0] = 2.0  # inside the crop: counted, over the 6 x 8 x 3 values left
+    assert relmse(x, reference, 1e-4, crop=2) == pytest.approx(1.0 / (1.0 + 1e-4) / (6 * 8 * 3))
+    with pytest.raises(ConfigError) as excinfo:
+        relmse(x, reference, crop=5)
+    one_line_error(excinfo, "metrics.relmse_crop", "12x10")
+
+
 def test_tonemap_values():
     x = np.array([-1.0, 0.0, 0.25, 1.0, 4.0])
     np.testing.assert_allclose(tonemap(x, "clip_gamma", 2.0), [0, 0, 0.5, 1, 1])
