@@ -33,5 +33,7 @@ else
   python3 -m uv --version >/dev/null 2>&1 || { echo "setup: installing uv"; python3 -m pip install --quiet "uv==0.13.8"; }
   UV=(python3 -m uv)
 fi
-"${UV[@]}" sync --frozen --quiet
+# --compile-bytecode: every `python -m src.run` (each DVC stage, each CLI test) would otherwise recompile
+# torch, mlflow and friends from source, ~14 s per process here (PYTHONDONTWRITEBYTECODE is common on CI).
+"${UV[@]}" sync --frozen --quiet --compile-bytecode
 echo "setup: environment ready in .venv ($(.venv/bin/python --version))"

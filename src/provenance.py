@@ -42,6 +42,45 @@ def data_fingerprint(directory: Path) -> str:
     return h.hexdigest()[:16]
 
 
+#: Config keys that say where things go, not what is computed: they never make two runs incomparable.
+#: The seed is listed too because reports aggregate over it.
+IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.", "report.")
+IGNORED_PARAMS = frozenset(
+    {
+        "task.train.checkpoint_dir",
+        "task.train.curves_file",
+        "task.eval.out_dir",
+        "task.eval.checkpoint",
+        "task.train.resume",
+        "stage",
+        "seed",
+    }
+)
+
+
+def ignored_param(key: str) -> bool:
+    """Whether dotted config key `key` is a path, output location or otherwise irrelevant to results."""
+    return key in IGNORED_PARAMS or key.startswith(IGNORED_PARAM_PREFIXES)
+
+
+def result_config(cfg: DictConfig) -> dict:
+    """The resolved config minus what `ignored_param` names (the seed stays): everything that decides a
+    result and nothing machine- or run-specific, so it is equal on every clone (DVC params/deps)."""
+
+    def keep(prefix: str, node):
+        if not isinstance(node, dict):
+            return node
+        out = {}
+        for key, value in node.items():
+            dotted = f"{prefix}{key}"
+            if dotted != "seed" and (ignored_param(dotted) or ignored_param(f"{dotted}.")):
+                continue
+            out[key] = keep(f"{dotted}.", value)
+        return out
+
+    return keep("", OmegaConf.to_container(cfg, resolve=True))
+
+
 def provenance(cfg: DictConfig, data_dir: Path | None = None) -> dict:
     record = {"git_commit": git_commit(), "config": OmegaConf.to_container(cfg, resolve=True)}
     if data_dir is not None and data_dir.exists():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
@@ -14,25 +15,42 @@ from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run
 log = logging.getLogger("nrbench")
 
 
+def _run_to_continue(cfg: DictConfig, stages: list[str]) -> str | None:
+    """The MLflow run this job appends to: a resumed training continues its checkpoint's run, and an
+    evaluation of a trained checkpoint (e.g. DVC's separate eval stage) logs into the run that trained it,
+    so one run holds a model's training curves and test metrics."""
+    from src.train.checkpoint import load_checkpoint
+
+    if "train" in stages:
+        checkpoint = cfg.task.get("train", {}).get("resume")
+    elif "eval" in stages and cfg.model.get("learned", False):
+        checkpoint = cfg.task.get("eval", {}).get("checkpoint")
+        checkpoint = checkpoint if checkpoint and Path(checkpoint).is_file() else None
+    else:
+        checkpoint = None
+    return load_checkpoint(checkpoint).get("mlflow_run_id") if checkpoint else None
+
+
 def _tracked_run(cfg: DictConfig, stages: list[str]):
-    """One MLflow run for this job when it trains or evaluates; a resumed training continues the MLflow
-    run its checkpoint names."""
+    """One MLflow run for this job when it trains or evaluates (see `_run_to_continue`)."""
     if not any(s in TRACKED for s in stages):
         return contextlib.nullcontext(None)
     from src.tracking.mlflow_tracking import job_run
-    from src.train.checkpoint import load_checkpoint
     from src.train.device import pick_device
 
-    resume = cfg.task.get("train", {}).get("resume")
-    resume_run_id = load_checkpoint(resume).get("mlflow_run_id") if resume and "train" in stages else None
     tags = {
         "nrbench.task": cfg.task.name,
         "nrbench.model": cfg.model.name,
         "nrbench.profile": cfg.profile_name,
         "nrbench.device": str(pick_device(cfg.device)),
     }
+    if cfg.tracking.get("group"):
+        tags["nrbench.group"] = str(cfg.tracking.group)
     return job_run(
-        cfg, run_name=f"{cfg.model.name}-{cfg.profile_name}", tags=tags, resume_run_id=resume_run_id
+        cfg,
+        run_name=f"{cfg.model.name}-{cfg.profile_name}",
+        tags=tags,
+        resume_run_id=_run_to_continue(cfg, stages),
     )
 
 

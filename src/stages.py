@@ -15,8 +15,8 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.errors import ConfigError
-from src.io.atomic import atomic_directory, atomic_write_json
-from src.provenance import data_fingerprint, provenance
+from src.io.atomic import atomic_directory, atomic_write_json, atomic_write_text
+from src.provenance import data_fingerprint, provenance, result_config
 
 log = logging.getLogger(__name__)
 PREPROCESS_PROVENANCE = "preprocess_provenance.json"
@@ -165,6 +165,17 @@ def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     return {}
 
 
+def write_result_config(cfg: DictConfig, tracker=None) -> dict:
+    """Write what decides this job's results (`provenance.result_config`) to `<paths.run_dir>/params.yaml`.
+
+    DVC's train/eval stages depend on this file instead of on `conf/`: it changes only when a value the
+    job uses changes, so editing one model's config reruns that model's stages and no other."""
+    path = Path(cfg.paths.run_dir) / "params.yaml"
+    atomic_write_text(path, OmegaConf.to_yaml(result_config(cfg), sort_keys=True))
+    print(f"config: {cfg.model.name} -> {path}")
+    return {}
+
+
 def _write_summary(path: Path, summary: dict, cfg: DictConfig, data_dir: Path, **extra) -> None:
     atomic_write_json(path, {"summary": summary, **extra, **provenance(cfg, data_dir)})
 
@@ -176,9 +187,10 @@ STAGES: dict[str, Callable[..., dict]] = {
     "eval": evaluate,
     "report": report,
     "summary": print_model_summary,
+    "config": write_result_config,
 }
 #: Stages that run outside a task's pipeline and log nothing.
-STANDALONE = ("summary",)
+STANDALONE = ("summary", "config")
 #: Stages whose results go to MLflow (one run per job).
 TRACKED = ("train", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.

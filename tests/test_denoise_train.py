@@ -6,6 +6,8 @@ import subprocess
 import sys
 
 import mlflow
+import numpy as np
+import pandas as pd
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -50,6 +52,9 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
         assert key in run.data.metrics, key
     history = [m.value for m in client.get_metric_history(run_id, "train_loss_diffuse")]
     assert len(history) == 6 and history[-1] < history[0]
+    curves = pd.read_csv(tmp_path / "curves.csv")  # the same per-epoch values, for DVC plots
+    np.testing.assert_allclose(curves["train_loss_diffuse"], history, rtol=1e-6)
+    assert list(curves["epoch"]) == [1, 2, 3, 4, 5, 6] and "val_loss_specular" in curves
     eval_dir = tmp_path / "eval"
     assert (eval_dir / "metrics.json").is_file() and (eval_dir / "per_image.csv").is_file()
     record = json.loads((eval_dir / "provenance.json").read_text())
@@ -86,6 +91,8 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_
     with job_run(resumed, run_name="c", tags={}) as tracker:
         summary = train_denoiser(resumed, tracker)
     assert summary["steps"] == reference.pos.step
+    # The resumed run's curves file continues the interrupted one's: all three epochs, in order.
+    assert list(pd.read_csv(tmp_path / "c" / "curves.csv")["epoch"]) == [1, 2, 3]
     final = load_checkpoint(summary["checkpoint"])["model"]
     for key, value in reference.model.state_dict().items():
         assert torch.equal(final[key], value.cpu()), key

@@ -15,7 +15,7 @@ from PIL import Image
 
 from src.errors import DataError
 from src.report.build import build_report
-from src.report.collect import differing_params, find_runs
+from src.report.collect import differing_params, find_runs, keep_latest
 from src.report.tables import comparison_table, cost_table, to_csv, to_latex, to_markdown
 from tests.conftest import compose_config, one_line_error
 
@@ -145,6 +145,28 @@ def test_find_runs_selects_finished_job_runs(store):
         {"experiment": EXPERIMENT, "tags": {"nrbench.model": "kpcn"}, "filter": "params.seed = '1'"}
     )
     assert list(by_filter["run_id"]) == [store["ids"][("kpcn", 1)]]
+
+
+def test_keep_latest_drops_older_reruns_of_a_setting_but_keeps_seeds():
+    runs = pd.DataFrame(
+        {
+            "run_id": ["old-kpcn", "dpcn", "kpcn-seed1", "new-kpcn"],
+            "params.model.name": ["kpcn", "dpcn", "kpcn", "kpcn"],
+            "params.seed": ["0", "0", "1", "0"],
+        }
+    )  # oldest first, as find_runs sorts them
+    assert list(keep_latest(runs, ["model.name"])["run_id"]) == ["dpcn", "kpcn-seed1", "new-kpcn"]
+    assert len(keep_latest(runs, ["task.train.lr"])) == 2  # an axis no run logged: one group per seed
+
+
+def test_group_filter_and_keep_values(store):
+    mlflow.set_tracking_uri(store["uri"])
+    with pytest.raises(DataError) as excinfo:
+        find_runs({"experiment": EXPERIMENT, "group": "dvc"})
+    one_line_error(excinfo, "report.group='dvc'", "matched no FINISHED job runs")
+    with pytest.raises(DataError) as excinfo:
+        find_runs({"experiment": EXPERIMENT, "keep": "newest"})
+    one_line_error(excinfo, "report.keep='newest'", "latest")
 
 
 def test_differing_params_names_lr_only(store):

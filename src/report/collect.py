@@ -19,25 +19,14 @@ from mlflow.tracking import MlflowClient
 from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
 
 from src.errors import DataError
+from src.provenance import ignored_param
 
 log = logging.getLogger("nrbench.report")
 
 SWEEP_PARENT_TAG = "nrbench.sweep_parent"
 SWEEP_DIR_TAG = "nrbench.sweep_dir"
-
-#: Config keys that never make runs incomparable: paths, run-dir-like outputs, tracking, the stage run,
-#: and the seed (the table aggregates over seeds).
-IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.")
-IGNORED_PARAMS = frozenset(
-    {
-        "task.train.checkpoint_dir",
-        "task.eval.out_dir",
-        "task.eval.checkpoint",
-        "task.train.resume",
-        "stage",
-        "seed",
-    }
-)
+GROUP_TAG = "nrbench.group"
+KEEP_CHOICES = ("latest", "all")
 
 
 def config_value(cfg: Any, key: str, default: Any = None) -> Any:
@@ -100,9 +89,10 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
 
     Keys (all optional except `experiment`): `tracking_uri` (else the current MLflow URI), `experiment`
     (a name or a list of names), `parent_run_id` (a sweep's parent: its children only), `sweep_dir`
-    (matched to the parent runs' `nrbench.sweep_dir` tag), `tags` ({key: value}), `filter` (a free MLflow
-    filter string, e.g. "params.`task.train.lr` = '0.0001'"). When nothing matches, raises `DataError`
-    with one line naming the first filter that left no run.
+    (matched to the parent runs' `nrbench.sweep_dir` tag), `group` (the runs' `nrbench.group` tag),
+    `tags` ({key: value}), `filter` (a free MLflow filter string, e.g.
+    "params.`task.train.lr` = '0.0001'"), `keep` + `axes` (see `keep_latest`). When nothing matches,
+    raises `DataError` with one line naming the first filter that left no run.
     """
     uri = config_value(report_cfg, "tracking_uri")
     if uri:
@@ -144,6 +134,9 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
                 lambda df: df[column].isin(parents) if column in df else pd.Series(False, index=df.index),
             )
         )
+    group = config_value(report_cfg, "group")
+    if group:
+        steps.append((f"report.group={group!r}", f"tags.`{GROUP_TAG}` = {_quote(group)}"))
     tags: Mapping[str, Any] = config_value(report_cfg, "tags", {}) or {}
     for key, value in tags.items():
         steps.append((f"report.tags.{key}={value!r}", f"tags.`{key}` = {_quote(value)}"))
@@ -162,13 +155,21 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
                 what = "no FINISHED job runs" if n == 1 else "matched no FINISHED job runs"
                 raise DataError(f"{steps[n - 1][0]}: {what} in {uri}")
     runs = runs.sort_values("start_time", kind="stable") if "start_time" in runs else runs
+    keep = str(config_value(report_cfg, "keep", "all"))
+    if keep not in KEEP_CHOICES:
+        raise DataError(f"report.keep={keep!r}: expected one of {list(KEEP_CHOICES)}")
+    if keep == "latest":
+        runs = keep_latest(runs, [str(a) for a in config_value(report_cfg, "axes", ["model.name"])])
     log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
     return runs.reset_index(drop=True)
 
 
-def ignored_param(key: str) -> bool:
-    """Whether config key `key` (without `params.`) is a path, output location or otherwise irrelevant."""
-    return key in IGNORED_PARAMS or key.startswith(IGNORED_PARAM_PREFIXES)
+def keep_latest(runs: pd.DataFrame, axes: Iterable[str]) -> pd.DataFrame:
+    """The newest run (by start time; `runs` is sorted oldest first) per compared setting and seed: a
+    stage rerun after a change replaces its older self instead of being averaged with it as a "seed"."""
+    columns = [param_column(a) for a in [*axes, "seed"]]
+    keys = pd.DataFrame({c: runs.get(c) for c in columns}, index=runs.index)
+    return runs[~keys.fillna("<unset>").astype(str).duplicated(keep="last")]
 
 
 def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:

@@ -36,6 +36,7 @@ from src.train.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
+from src.train.curves import write_curves
 from src.train.device import pick_device, seed_everything
 from src.train.losses import Loss, get_loss
 
@@ -99,6 +100,7 @@ class Trainer:
         self.pos = Position()
         self.checkpoint_dir = Path(t.checkpoint_dir)
         self.train_seconds = 0.0
+        self.curves: list[dict[str, float]] = []  # one row per epoch: step, epoch, train/val losses
 
     # -- checkpoints ---------------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -112,6 +114,7 @@ class Trainer:
             "train_seconds": self.train_seconds,
             "torch_rng": torch.get_rng_state(),
             "mlflow_run_id": self.tracker.run_id,
+            "curves": self.curves,
         }
 
     def save(self, name: str = LAST_NAME) -> Path:
@@ -127,6 +130,7 @@ class Trainer:
         torch.set_rng_state(state["torch_rng"])
         self.pos = Position(state["epoch"], state["batch_in_epoch"], state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
+        self.curves = list(state.get("curves", []))
         log.info("resumed from %s at epoch %d, batch %d, step %d", path, *vars(self.pos).values())
 
     # -- loop ----------------------------------------------------------------------------------------
@@ -229,6 +233,8 @@ class Trainer:
         metrics = {f"train_loss_{k}": v for k, v in train_losses.items()}
         metrics |= {f"val_loss_{k}": v for k, v in val_losses.items()}
         self.tracker.log_metrics({**metrics, "epoch": self.pos.epoch}, step=self.pos.step)
+        self.curves.append({"step": self.pos.step, "epoch": self.pos.epoch, **metrics})
+        write_curves(self.t.curves_file, self.curves)
         log.info(
             "epoch %d: train %s | val %s",
             self.pos.epoch,
