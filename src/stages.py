@@ -23,7 +23,10 @@ PREPROCESS_PROVENANCE = "preprocess_provenance.json"
 
 
 def render(cfg: DictConfig, tracker=None) -> dict:
-    """Render the denoising dataset's noisy inputs and references into ``paths.raw``."""
+    """Render the task's dataset: the denoising EXRs into `paths.raw`, or the NeRF multi-view scenes
+    into `paths.scenes` (nothing to do for a user's Blender scenes, `dataset=blender`)."""
+    if cfg.task.name == "nerf":
+        return _render_multiview(cfg)
     from src.render.render_dataset import render_denoise_dataset
 
     raw = Path(cfg.paths.raw)
@@ -39,6 +42,24 @@ def render(cfg: DictConfig, tracker=None) -> dict:
     else:
         print(f"render: all {summary['files_cached']} files up to date in {raw}")
     _write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, raw)
+    return summary
+
+
+def _render_multiview(cfg: DictConfig) -> dict:
+    scenes = Path(cfg.paths.scenes)
+    if "root" in cfg.dataset:
+        print(f"render: dataset {cfg.dataset.name} is read from {scenes}; nothing to render")
+        return {}
+    from src.render.multiview import render_multiview_dataset
+
+    summary = render_multiview_dataset(
+        OmegaConf.to_container(cfg.dataset, resolve=True), scenes, cfg.render.variant
+    )
+    print(
+        f"render: {summary.get('scenes_rendered', 0)} scenes rendered, {summary.get('scenes_cached', 0)} "
+        f"up to date in {scenes} ({(summary.get('rays_per_second') or 0) / 1e6:.2f} M rays/s)"
+    )
+    _write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, scenes)
     return summary
 
 
@@ -105,24 +126,35 @@ def preprocess(cfg: DictConfig, tracker=None) -> dict:
 
 
 def train(cfg: DictConfig, tracker) -> dict:
-    """Fit a learned denoiser on the prepared patches (non-learned baselines have nothing to fit)."""
+    """Fit the learned model: a denoiser on the prepared patches, or a radiance field on one scene
+    (non-learned baselines have nothing to fit)."""
     if not cfg.model.learned:
         print(f"train: {cfg.model.name} is not learned; nothing to train")
         return {}
-    from src.train.trainer import train_denoiser
+    if cfg.task.name == "nerf":
+        from src.train.nerf_trainer import scene_dir
+        from src.train.nerf_trainer import train_nerf as fit
 
-    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(Path(cfg.paths.raw))})
-    summary = train_denoiser(cfg, tracker)
+        data = scene_dir(cfg)
+    else:
+        from src.train.trainer import train_denoiser as fit
+
+        data = Path(cfg.paths.raw)
+    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(data)})
+    summary = fit(cfg, tracker)
     tracker.log_artifact(summary["checkpoint"], "checkpoints")
     print(
-        f"train: {cfg.model.name} {summary['steps']} steps, {summary['epochs']} epochs in "
-        f"{summary['train_time_s']:.1f} s -> {summary['checkpoint']}"
+        f"train: {cfg.model.name} {summary['steps']} steps in {summary['train_time_s']:.1f} s "
+        f"-> {summary['checkpoint']}"
     )
     return summary
 
 
 def evaluate(cfg: DictConfig, tracker) -> dict:
-    """Denoise and score the held-out full images; log metrics, images and strips."""
+    """Score the model on the held-out data (denoised test images, or rendered test views); log metrics
+    and images."""
+    if cfg.task.name == "nerf":
+        return _evaluate_nerf(cfg, tracker)
     from src.eval.denoise_eval import evaluate_denoiser
 
     tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(Path(cfg.paths.raw))})
@@ -132,6 +164,21 @@ def evaluate(cfg: DictConfig, tracker) -> dict:
         f"eval: {cfg.model.name} on {summary['images']} images: PSNR {mean['psnr']:.2f} dB "
         f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE {mean['relmse']:.5f} "
         f"(noisy {mean['noisy_relmse']:.5f}), {mean['ms_per_mpixel']:.1f} ms/MP -> {cfg.task.eval.out_dir}"
+    )
+    return summary
+
+
+def _evaluate_nerf(cfg: DictConfig, tracker) -> dict:
+    from src.eval.nerf_eval import evaluate_nerf
+    from src.train.nerf_trainer import scene_dir
+
+    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(scene_dir(cfg))})
+    summary = evaluate_nerf(cfg, tracker)
+    mean = summary["mean"]
+    lpips = f", LPIPS {mean['lpips']:.4f}" if "lpips" in mean else ""
+    print(
+        f"eval: {cfg.model.name} on {cfg.task.scene}, {summary['images']} views: PSNR {mean['psnr']:.2f} dB, "
+        f"SSIM {mean['ssim']:.4f}{lpips}, {mean['rays_per_s'] / 1e3:.1f} k rays/s -> {cfg.task.eval.out_dir}"
     )
     return summary
 
@@ -156,11 +203,17 @@ def report(cfg: DictConfig, tracker=None) -> dict:
 
 
 def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
-    """Print the model's architecture, parameter count and FLOPs per pixel; trains nothing."""
+    """Print the model's architecture and parameter count (and FLOPs per pixel or per ray); trains
+    nothing."""
+    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+    if cfg.task.name == "nerf":
+        from src.models.nerf.models import build_nerf_model, nerf_model_summary
+
+        print(nerf_model_summary(build_nerf_model(model_cfg), model_cfg))
+        return {}
     from src.models.denoise.summary import model_summary
     from src.models.registry import build_denoiser
 
-    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
     print(model_summary(build_denoiser(model_cfg), model_cfg))
     return {}
 

@@ -91,6 +91,7 @@ def test_tonemap_values():
     np.testing.assert_allclose(tonemap(x, "clip_gamma", 2.0), [0, 0, 0.5, 1, 1])
     np.testing.assert_allclose(tonemap(x, "reinhard_gamma", 1.0), [0, 0, 0.2, 0.5, 0.8])
     np.testing.assert_allclose(tonemap(np.array([3.0]), "reinhard_gamma", 2.0), [np.sqrt(0.75)])
+    np.testing.assert_allclose(tonemap(x, "clip", 2.2), [0, 0, 0.25, 1, 1])  # sRGB input: no gamma
     with pytest.raises(ConfigError) as excinfo:
         tonemap(x, "aces")
     one_line_error(excinfo, "metrics.tonemap", "aces")

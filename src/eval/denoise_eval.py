@@ -10,8 +10,6 @@ reference. Writes `metrics.json` (means overall and per spp), `per_image.csv`, `
 
 from __future__ import annotations
 
-import csv
-import io
 import logging
 import time
 from pathlib import Path
@@ -23,7 +21,8 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from src.data.denoise_dataset import FullImageDataset
-from src.io.atomic import atomic_write_json, atomic_write_text
+from src.eval.common import mean_rows, sync
+from src.io.atomic import atomic_write_csv, atomic_write_json
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
 from src.metrics.image import image_metrics, lpips_variant, tonemap
@@ -62,34 +61,16 @@ def denoise_tiled(model: Denoiser, batch: Batch, tile: int, eps: float) -> torch
     return final_color(infer_tiled(model, batch, tile), batch, eps).float()
 
 
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 def _hwc(x: torch.Tensor) -> np.ndarray:
     return x[0].permute(1, 2, 0).cpu().numpy().astype(np.float32)
 
 
 def _timed_denoise(model: Denoiser, batch: Batch, tile: int, eps: float, device: torch.device):
-    _sync(device)
+    sync(device)
     start = time.perf_counter()
     color = denoise_tiled(model, batch, tile, eps)
-    _sync(device)
+    sync(device)
     return color, time.perf_counter() - start
-
-
-def _means(rows: list[dict[str, Any]]) -> dict[str, float]:
-    keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
-    return {k: float(np.mean([r[k] for r in rows])) for k in keys}
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write_text(path, buf.getvalue())
 
 
 def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
@@ -121,7 +102,7 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
     atomic_write_json(out_dir / "metrics.json", {"model": cfg.model.name, **summary})
     # Beside, not inside, metrics.json: DVC reads every number in a metrics file as a metric.
     atomic_write_json(out_dir / "provenance.json", provenance(cfg, Path(cfg.paths.raw)))
-    _write_csv(out_dir / "per_image.csv", rows)
+    atomic_write_csv(out_dir / "per_image.csv", rows)
     _log(tracker, summary, out_dir)
     return summary
 
@@ -165,8 +146,10 @@ def _save_images(
 
 
 def _summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    per_spp = {spp: _means([r for r in rows if r["spp"] == spp]) for spp in sorted({r["spp"] for r in rows})}
-    return {"images": len(rows), "mean": _means(rows), "per_spp": per_spp}
+    per_spp = {
+        spp: mean_rows([r for r in rows if r["spp"] == spp]) for spp in sorted({r["spp"] for r in rows})
+    }
+    return {"images": len(rows), "mean": mean_rows(rows), "per_spp": per_spp}
 
 
 def _log(tracker, summary: dict[str, Any], out_dir: Path) -> None:

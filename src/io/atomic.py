@@ -8,12 +8,15 @@ file under the final name: either the old file stays intact or the complete new 
 from __future__ import annotations
 
 import contextlib
+import csv
+import io
 import json
 import os
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 
 def _fsync_file(path: Path) -> None:
@@ -97,3 +100,14 @@ def atomic_directory(path: str | os.PathLike[str]) -> Iterator[Path]:
 def atomic_write_json(path: str | os.PathLike[str], obj) -> Path:
     """Write `obj` as indented JSON atomically (non-JSON leaves such as paths become strings)."""
     return atomic_write_text(path, json.dumps(obj, indent=1, default=str) + "\n")
+
+
+def atomic_write_csv(
+    path: str | os.PathLike[str], rows: Sequence[Mapping[str, Any]], columns: Sequence[str] | None = None
+) -> Path:
+    """Write dict rows as CSV (columns: `columns`, else the first row's keys), atomically."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(columns or rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    return atomic_write_text(path, buffer.getvalue())

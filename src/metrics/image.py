@@ -24,7 +24,7 @@ from src.errors import ConfigError, DataError, require
 from src.metrics.flip import flip
 from src.metrics.lpips import LPIPS, lpips_distance
 
-TONEMAPS = ("clip_gamma", "reinhard_gamma")
+TONEMAPS = ("clip_gamma", "reinhard_gamma", "clip")
 #: skimage's Gaussian filter truncates at 3.5 sigma (fixed inside `structural_similarity`).
 SKIMAGE_GAUSSIAN_TRUNCATE = 3.5
 
@@ -34,6 +34,7 @@ def tonemap(x: np.ndarray, method: str = "clip_gamma", gamma: float = 2.2) -> np
 
     clip_gamma:     clip(x, 0, 1) ** (1 / gamma)
     reinhard_gamma: (max(x, 0) / (1 + max(x, 0))) ** (1 / gamma)   (Reinhard et al. 2002, global operator)
+    clip:           clip(x, 0, 1), for images already display-encoded (NeRF's sRGB views); no gamma
     """
     x = np.asarray(x, dtype=np.float64)
     if method == "clip_gamma":
@@ -41,6 +42,8 @@ def tonemap(x: np.ndarray, method: str = "clip_gamma", gamma: float = 2.2) -> np
     elif method == "reinhard_gamma":
         pos = np.maximum(x, 0.0)
         base = pos / (1.0 + pos)
+    elif method == "clip":
+        return np.clip(x, 0.0, 1.0)
     else:
         raise ConfigError(f"metrics.tonemap={method!r}; expected one of {', '.join(TONEMAPS)}")
     return base ** (1.0 / gamma)
@@ -188,8 +191,8 @@ def image_metrics(
     lpips (tone-mapped) and flip (per `metrics.flip.mode`) when enabled.
 
     `metrics_cfg` is the `metrics:` config section (DictConfig or dict): tonemap, gamma, relmse_eps,
-    relmse_crop, smape_eps, ssim {win_size, sigma, k1, k2}, optionally lpips {enabled, trunk_weights, lin_weights,
-    seed} and flip {enabled, mode}.
+    relmse_crop, smape_eps, ssim {win_size, sigma, k1, k2}, optionally lpips {enabled, trunk_weights,
+    lin_weights, seed} and flip {enabled, mode}.
     """
     x, y = _check_pair(denoised, reference)
     keys = ("tonemap", "gamma", "relmse_eps", "relmse_crop", "smape_eps")

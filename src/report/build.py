@@ -20,10 +20,18 @@ from typing import Any
 import mlflow
 
 from src.io.atomic import atomic_write_text
-from src.report.collect import config_value, differing_params, find_runs
+from src.report.collect import config_value, differing_params, find_runs, param_column
 from src.report.figures import image_grid, learning_curves, run_labels
 from src.report.html import render_html
-from src.report.tables import axis_label, comparison_table, cost_table, to_csv, to_latex, to_markdown
+from src.report.tables import (
+    axis_label,
+    comparison_table,
+    cost_table,
+    per_value_table,
+    to_csv,
+    to_latex,
+    to_markdown,
+)
 from src.tracking.mlflow_tracking import quiet_mlflow_logs
 
 log = logging.getLogger("nrbench.report")
@@ -38,6 +46,15 @@ def _crop(cfg: Any) -> tuple[int, int]:
         return 32, 4
 
 
+def _first_value_only(runs, columns_by: str | None):
+    """The runs of the first value of `columns_by` (e.g. one scene): an image grid compares one image
+    across models, so all its panels must come from the same scene."""
+    column = param_column(str(columns_by)) if columns_by else None
+    if column is None or column not in runs:
+        return runs
+    return runs[runs[column] == runs[column].iloc[0]]
+
+
 def build_report(cfg: Any) -> dict[str, Any]:
     """Build the report for `cfg.report` (runs from `cfg.tracking.uri`); returns a summary: number of
     runs, output directory, written files and warnings."""
@@ -49,8 +66,9 @@ def build_report(cfg: Any) -> dict[str, Any]:
     runs = find_runs(rc)  # raises DataError before anything is written
 
     axes = [str(a) for a in (config_value(rc, "axes") or ["model.name"])]
+    columns_by = config_value(rc, "columns_by")
     warnings: list[str] = []
-    differing = differing_params(runs, axes)
+    differing = differing_params(runs, [*axes, *([str(columns_by)] if columns_by else [])])
     if differing:
         msg = (
             f"the compared runs also differ in {', '.join(differing)} (besides "
@@ -59,7 +77,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
         log.warning("report: %s", msg)
         warnings.append(msg)
 
-    comparison = comparison_table(runs, axes)
+    comparison = per_value_table(runs, str(columns_by), axes) if columns_by else comparison_table(runs, axes)
     per_spp = comparison_table(runs, axes, group_by="spp")
     cost = cost_table(runs, axes)
     tables = {"comparison": comparison, "cost": cost}
@@ -75,9 +93,11 @@ def build_report(cfg: Any) -> dict[str, Any]:
         files[f"{stem}.csv"] = atomic_write_text(out_dir / f"{stem}.csv", to_csv(table, notes=warnings))
 
     crop_size, zoom = _crop(cfg)
-    curves = learning_curves(runs, out_dir / "learning_curves.png", axes)
+    labelled_by = [*axes, *([str(columns_by)] if columns_by else [])]
+    curves = learning_curves(runs, out_dir / "learning_curves.png", labelled_by)
     n_images = int(config_value(rc, "images", 3))
-    grid = image_grid(runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
+    grid_runs = _first_value_only(runs, columns_by)
+    grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
     for path in (curves, grid):
         if path is not None:
             files[path.name] = path

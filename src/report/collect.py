@@ -159,7 +159,9 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     if keep not in KEEP_CHOICES:
         raise DataError(f"report.keep={keep!r}: expected one of {list(KEEP_CHOICES)}")
     if keep == "latest":
-        runs = keep_latest(runs, [str(a) for a in config_value(report_cfg, "axes", ["model.name"])])
+        axes = [str(a) for a in config_value(report_cfg, "axes", ["model.name"])]
+        columns_by = config_value(report_cfg, "columns_by")
+        runs = keep_latest(runs, [*axes, *([str(columns_by)] if columns_by else [])])
     log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
     return runs.reset_index(drop=True)
 
@@ -180,7 +182,8 @@ def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
     lack counts as differing when the others set it.
     """
     axis_keys = {param_column(a).removeprefix("params.") for a in axes}
-    groups = tuple(k.rsplit(".", 1)[0] + "." for k in axis_keys if "." in k)
+    # A group choice (`model.name`) brings its whole group along; any other axis (`task.scene`) only itself.
+    groups = tuple(k.removesuffix("name") for k in axis_keys if k.endswith(".name"))
     out = []
     for column in runs.columns:
         if not column.startswith("params."):

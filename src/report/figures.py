@@ -31,9 +31,33 @@ from src.report.tables import DEFAULT_AXES  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
 
-COMPONENTS = ("diffuse", "specular", "color")
+#: Loss components drawn first when present (denoisers; then NeRF levels); any others follow by name.
+COMPONENT_ORDER = ("diffuse", "specular", "color", "coarse", "fine")
+_LOSS_COLUMN = re.compile(r"^metrics\.(?:train|val)_loss_(?P<component>.+)$")
+
+
+def loss_components(runs: pd.DataFrame) -> list[str]:
+    """The `<c>` of every `train_loss_<c>` / `val_loss_<c>` metric the runs logged, in display order."""
+    found = {m["component"] for c in runs.columns if (m := _LOSS_COLUMN.match(c))}
+    first = [c for c in COMPONENT_ORDER if c in found]
+    return first + sorted(found - set(first))
+
+
 PNG_DIR = "eval/png"
-_PNG_NAME = re.compile(r"^(?P<name>.+-(?P<spp>\d+)spp)-(?P<kind>noisy|denoised|reference)\.png$")
+# `<image>-<kind>.png`: denoising images are `<scene>-<NNNNN>spp`, NeRF test views `<scene>-r_<i>`.
+_PNG_NAME = re.compile(r"^(?P<name>.+?)-(?P<kind>noisy|denoised|rendered|reference)\.png$")
+_SPP = re.compile(r"-(?P<spp>\d+)spp$")
+#: The kinds that hold a method's output (denoised image, rendered view), in order of preference.
+OUTPUT_KINDS = ("denoised", "rendered")
+
+
+def _spp(name: str) -> int:
+    match = _SPP.search(name)
+    return int(match["spp"]) if match else 0
+
+
+def _output_kind(kinds: set[str]) -> str | None:
+    return next((k for k in OUTPUT_KINDS if k in kinds), None)
 
 
 def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
@@ -63,14 +87,18 @@ def learning_curves(
 ) -> Path | None:
     """Train (solid) and validation (dashed) diffuse / specular / colour losses per run, against the
     optimiser step, one subplot per component, log-scale y. None when no run logged any of them."""
+    components = loss_components(runs)
+    if not components:
+        log.info("report: no run logged train_loss_*/val_loss_* histories; no learning curves")
+        return None
     client = MlflowClient()
     labels = run_labels(runs, axes)
-    fig, panels = plt.subplots(1, len(COMPONENTS), figsize=(5 * len(COMPONENTS), 3.8), squeeze=False)
+    fig, panels = plt.subplots(1, len(components), figsize=(5 * len(components), 3.8), squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     drawn = 0
     for i, (label, run_id) in enumerate(zip(labels, runs["run_id"], strict=True)):
         color = colors[i % len(colors)]
-        for ax, component in zip(panels[0], COMPONENTS, strict=True):
+        for ax, component in zip(panels[0], components, strict=True):
             for split, style in (("train", "-"), ("val", "--")):
                 steps, values = _history(client, run_id, f"{split}_loss_{component}")
                 positive = [(s, v) for s, v in zip(steps, values, strict=True) if v > 0 and np.isfinite(v)]
@@ -85,7 +113,7 @@ def learning_curves(
         plt.close(fig)
         log.info("report: no run logged train_loss_*/val_loss_* histories; no learning curves")
         return None
-    for ax, component in zip(panels[0], COMPONENTS, strict=True):
+    for ax, component in zip(panels[0], components, strict=True):
         ax.set_yscale("log")
         ax.set_title(f"{component} loss")
         ax.set_xlabel("optimiser step")
@@ -104,7 +132,7 @@ def learning_curves(
 
 
 def _png_names(client: MlflowClient, run_id: str) -> dict[str, set[str]]:
-    """{image name `<scene>-<NNNNN>spp`: kinds present} from a run's `eval/png` artifacts."""
+    """{image name (`<scene>-<NNNNN>spp`, `<scene>-r_<i>`): kinds present} from a run's `eval/png`."""
     out: dict[str, set[str]] = {}
     try:
         entries = client.list_artifacts(run_id, PNG_DIR)
@@ -127,11 +155,9 @@ def _load(run_id: str, name: str, dst: Path) -> np.ndarray:
 
 
 def _pick(names: Sequence[str], max_images: int) -> list[str]:
-    """Up to `max_images` names, one per scene first (lowest spp), then further spp levels."""
+    """Up to `max_images` names, one per scene first (lowest spp / first view), then further ones."""
     by_scene: dict[str, list[str]] = {}
-    for name in sorted(
-        names, key=lambda n: (n.rsplit("-", 1)[0], int(_PNG_NAME.match(f"{n}-noisy.png")["spp"]))
-    ):
+    for name in sorted(names, key=lambda n: (n.rsplit("-", 1)[0], _spp(n))):
         by_scene.setdefault(name.rsplit("-", 1)[0], []).append(name)
     order = []
     depth = max((len(v) for v in by_scene.values()), default=0)
@@ -148,10 +174,10 @@ def image_grid(
     crop_size: int = 32,
     zoom: int = 4,
 ) -> Path | None:
-    """For up to `max_images` test images: noisy | each compared row's denoised | reference, with a
-    zoomed crop row (around the largest noisy-vs-reference error), one strip per image stacked
-    vertically. One run per distinct label (the first, e.g. the lowest seed). Runs without the
-    `eval/png` artifacts are left out (logged); None when fewer than one run has them."""
+    """For up to `max_images` test images: noisy (when logged) | each compared row's denoised image or
+    rendered view | reference, with a zoomed crop row (around the largest first-vs-last panel error),
+    one strip per image stacked vertically. One run per distinct label (the first, e.g. the lowest
+    seed). Runs without the `eval/png` artifacts are left out (logged); None when no run has them."""
     client = MlflowClient()
     labels = run_labels(runs, axes)
     chosen: dict[str, tuple[str, dict[str, set[str]]]] = {}
@@ -159,7 +185,7 @@ def image_grid(
         short = label.split(" seed=")[0]
         if short in chosen:
             continue
-        names = {n: k for n, k in _png_names(client, run_id).items() if {"denoised"} <= k}
+        names = {n: k for n, k in _png_names(client, run_id).items() if _output_kind(k)}
         if not names:
             log.info(
                 "report: run %s (%s) has no %s images; left out of the image grid", run_id, short, PNG_DIR
@@ -171,17 +197,20 @@ def image_grid(
         return None
     common = set.intersection(*(set(names) for _, names in chosen.values()))
     first_id, first_names = next(iter(chosen.values()))
-    common = {n for n in common if {"noisy", "reference"} <= first_names[n]}
+    common = {n for n in common if "reference" in first_names[n]}
     if not common:
-        log.info("report: the runs share no test image with noisy and reference PNGs; no image grid")
+        log.info("report: the runs share no test image with a reference PNG; no image grid")
         return None
     strips = []
     with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
         for name in _pick(sorted(common), max(int(max_images), 1)):
-            spp = int(_PNG_NAME.match(f"{name}-noisy.png")["spp"])
-            panels = [(f"noisy {spp} spp", _load(first_id, f"{name}-noisy.png", Path(tmp) / "n"))]
-            for short, (run_id, _) in chosen.items():
-                panels.append((short, _load(run_id, f"{name}-denoised.png", Path(tmp) / run_id)))
+            panels = []
+            if "noisy" in first_names[name]:
+                noisy = _load(first_id, f"{name}-noisy.png", Path(tmp) / "n")
+                panels.append((f"noisy {_spp(name)} spp", noisy))
+            for short, (run_id, names) in chosen.items():
+                output = f"{name}-{_output_kind(names[name])}.png"
+                panels.append((short, _load(run_id, output, Path(tmp) / run_id)))
             panels.append(("reference", _load(first_id, f"{name}-reference.png", Path(tmp) / "r")))
             if len({p[1].shape for p in panels}) != 1:
                 log.warning("report: %s differs in size across runs; left out of the image grid", name)

@@ -115,6 +115,38 @@ def comparison_table(
     return _aggregate(runs, axes, metrics)
 
 
+def per_value_table(
+    runs: pd.DataFrame,
+    column_key: str,
+    axes: Sequence[str] | None = None,
+    metrics: Mapping[str, MetricSpec] | None = None,
+) -> pd.DataFrame:
+    """Quality metrics with one column per metric and value of config key `column_key` (e.g.
+    `task.scene`: "PSNR materials", "PSNR busy", ...), rows per distinct value of `axes`: the per-scene
+    layout of the NeRF papers' tables. Values are means ± std over the runs (seeds) of a row and value."""
+    axes = list(axes or DEFAULT_AXES)
+    column = param_column(column_key)
+    values = (
+        runs[column].fillna(MISSING).astype(str) if column in runs else pd.Series(MISSING, index=runs.index)
+    )
+    parts = []
+    for value in dict.fromkeys(values):
+        part = comparison_table(runs[values == value], axes, metrics)
+        rename = {
+            c: f"{c.removesuffix(' std')} {value}" + (" std" if c.endswith(" std") else "") for c in part
+        }
+        part.attrs["metrics"] = {f"{label} {value}": spec for label, spec in part.attrs["metrics"].items()}
+        rename[RUNS_COLUMN] = f"{RUNS_COLUMN} {value}"
+        parts.append(part.rename(columns=rename))
+    table = pd.concat(parts, axis=1)
+    table.attrs["metrics"] = {k: v for part in parts for k, v in part.attrs["metrics"].items()}
+    table.attrs["axes"] = parts[0].attrs["axes"]
+    # One runs column (the total per row), as in the other tables.
+    counts = [c for c in table.columns if c.startswith(f"{RUNS_COLUMN} ")]
+    table[RUNS_COLUMN] = table[counts].fillna(0).sum(axis=1).astype(int)
+    return table.drop(columns=counts)
+
+
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training time, iterations and inference time (per image and per megapixel)."""
     return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)

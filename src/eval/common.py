@@ -1,0 +1,20 @@
+"""Helpers shared by the evaluation stages of both tasks."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+
+def sync(device: torch.device) -> None:
+    """Wait for queued GPU work, so that wall-clock timings cover it (a no-op on the CPU)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def mean_rows(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Per float-valued column of per-image rows, its mean over the rows."""
+    keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
+    return {k: float(np.mean([r[k] for r in rows])) for k in keys}

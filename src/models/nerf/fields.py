@@ -1,0 +1,221 @@
+"""The MLPs of NeRF / mip-NeRF (`NerfMLP`) and Ref-NeRF (`RefNerfMLP`).
+
+Layout shared by both (NeRF, Mildenhall et al. 2020, Fig. 7 / Appendix A; mip-NeRF and Ref-NeRF keep it):
+a ReLU trunk of `depth` fully connected layers of `width` units, with the encoded input concatenated to the
+output of every layer i > 0 with i % skip_layer == 0 (skip_layer = 4 at depth 8: the fifth layer's
+activation, as in the paper and multinerf), a density head, a linear bottleneck, and a view-dependent
+MLP producing the colour. Weights are He-uniform initialised and biases zero (multinerf's choice).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from src.models.nerf.directional import ide_dim, integrated_dir_enc, l2_normalize, reflect
+from src.models.nerf.encodings import integrated_pos_enc
+
+ACTIVATIONS: dict[str, Callable[[Tensor], Tensor]] = {"relu": F.relu, "softplus": F.softplus}
+#: Colour channels of every head.
+RGB = 3
+
+
+def linear_to_srgb(linear: Tensor, eps: float = torch.finfo(torch.float32).eps) -> Tensor:
+    """The sRGB transfer curve (IEC 61966-2-1), Ref-NeRF's tone mapping (Sec. 3):
+    12.92 x for x <= 0.0031308, else 1.055 x^(1/2.4) - 0.055 (written 323/25 and (211 x^(5/12) - 11)/200)."""
+    srgb0 = 323 / 25 * linear
+    srgb1 = (211 * torch.clamp(linear, min=eps) ** (5 / 12) - 11) / 200
+    return torch.where(linear <= 0.0031308, srgb0, srgb1)
+
+
+def padded_sigmoid(x: Tensor, padding: float) -> Tensor:
+    """sigmoid(x) * (1 + 2p) - p: colours in [-p, 1 + p] (mip-NeRF Sec. 4, p = 0.001; p = 0 is NeRF's)."""
+    return torch.sigmoid(x) * (1 + 2 * padding) - padding
+
+
+def _init_linear(layer: nn.Linear) -> nn.Linear:
+    nn.init.kaiming_uniform_(layer.weight, nonlinearity="relu")  # He-uniform: U(+-sqrt(6 / fan_in))
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def _activation(name: str) -> Callable[[Tensor], Tensor]:
+    if name not in ACTIVATIONS:
+        raise ValueError(f"unknown density activation {name!r}; expected one of {list(ACTIVATIONS)}")
+    return ACTIVATIONS[name]
+
+
+class SkipMLP(nn.Module):
+    """`depth` Linear + ReLU layers of `width` units; the input is concatenated to the output of layer i
+    whenever i > 0 and i % skip_layer == 0 (skip_layer None or 0: no skip). `out_dim` is the width of
+    the last activation (width, plus in_dim if the last layer is followed by a skip)."""
+
+    def __init__(self, in_dim: int, depth: int, width: int, skip_layer: int | None) -> None:
+        super().__init__()
+        self.in_dim, self.depth, self.width, self.skip_layer = in_dim, depth, width, skip_layer
+        layers, dim = [], in_dim
+        for i in range(depth):
+            layers.append(_init_linear(nn.Linear(dim, width)))
+            dim = width + (in_dim if self._skip_after(i) else 0)
+        self.layers = nn.ModuleList(layers)
+        self.out_dim = dim
+
+    def _skip_after(self, i: int) -> bool:
+        return bool(self.skip_layer) and i > 0 and i % self.skip_layer == 0
+
+    def forward(self, x: Tensor) -> Tensor:
+        h = x
+        for i, layer in enumerate(self.layers):
+            h = F.relu(layer(h))
+            if self._skip_after(i):
+                h = torch.cat([h, x], dim=-1)
+        return h
+
+
+class NerfMLP(nn.Module):
+    """NeRF's MLP (Mildenhall et al. 2020, Fig. 7), also mip-NeRF's (Barron et al. 2021, Sec. 4).
+
+    trunk(encoded position) -> density = act(head + density_bias); bottleneck (linear) ++ encoded view
+    direction -> view MLP -> rgb = padded_sigmoid(head, rgb_padding).
+    NeRF: density_activation relu, density_bias 0, rgb_padding 0. mip-NeRF: softplus, -1, 0.001.
+
+    forward(x_enc (..., S, pos_dim), view_enc (..., view_dim) per ray) ->
+    {"density": (..., S), "rgb": (..., S, 3)}.
+    """
+
+    def __init__(
+        self,
+        pos_dim: int,
+        view_dim: int,
+        *,
+        depth: int = 8,
+        width: int = 256,
+        skip_layer: int | None = 4,
+        bottleneck_width: int = 256,
+        view_depth: int = 1,
+        view_width: int = 128,
+        view_skip_layer: int | None = None,
+        density_activation: str = "relu",
+        density_bias: float = 0.0,
+        rgb_padding: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.density_act = _activation(density_activation)
+        self.density_bias, self.rgb_padding = density_bias, rgb_padding
+        self.trunk = SkipMLP(pos_dim, depth, width, skip_layer)
+        self.density_head = _init_linear(nn.Linear(self.trunk.out_dim, 1))
+        self.bottleneck = _init_linear(nn.Linear(self.trunk.out_dim, bottleneck_width))
+        self.view_mlp = SkipMLP(bottleneck_width + view_dim, view_depth, view_width, view_skip_layer)
+        self.rgb_head = _init_linear(nn.Linear(self.view_mlp.out_dim, RGB))
+
+    def forward(self, x_enc: Tensor, view_enc: Tensor) -> dict[str, Tensor]:
+        h = self.trunk(x_enc)
+        density = self.density_act(self.density_head(h)[..., 0] + self.density_bias)
+        bottleneck = self.bottleneck(h)
+        view = view_enc[..., None, :].expand(*bottleneck.shape[:-1], view_enc.shape[-1])
+        h = self.view_mlp(torch.cat([bottleneck, view], dim=-1))
+        return {"density": density, "rgb": padded_sigmoid(self.rgb_head(h), self.rgb_padding)}
+
+
+class RefNerfMLP(nn.Module):
+    """Ref-NeRF's spatial and directional MLPs (Verbin et al. 2022, Sec. 3-4, Fig. 2).
+
+    Spatial MLP on IPE(mean, diag cov) (mip-NeRF encoding, degrees [min_deg_point, max_deg_point)):
+    density = act(raw + density_bias); diffuse colour c_d = sigmoid(raw - log 3) (linear, initialised
+    around 0.25); specular tint s = sigmoid(raw); roughness rho = softplus(raw + roughness_bias) (the
+    vMF's 1 / kappa); predicted normals n' = -normalize(raw_3); a linear bottleneck b.
+    Normals n = -grad_x(raw density) / ||.|| (Ref-NeRF Sec. 3), by autograd w.r.t. the Gaussian means.
+
+    Directional MLP on [b, IDE(omega_r, rho), n' . d] with omega_r = reflect(-d, n') and the IDE (Eq. 7-8),
+    the reflection of the view direction about the predicted normal: specular colour c_s = sigmoid(raw);
+    rgb = clip(linear_to_srgb(s * c_s + c_d), 0, 1), then the mip-NeRF padding.
+
+    forward(means (N, S, 3), covs (N, S, 3) diagonal, viewdirs (N, 3) unit) -> per-sample dict with
+    density (N, S), rgb, normals, normals_pred, diffuse, tint, specular (N, S, 3), roughness (N, S).
+    The density gradient keeps its graph (double backprop, so the normal losses train the density)
+    exactly when grad mode is on at the call; under `torch.no_grad` it is computed and detached.
+    `torch.inference_mode` forbids autograd altogether: a RuntimeError says so.
+    """
+
+    def __init__(
+        self,
+        *,
+        min_deg_point: int = 0,
+        max_deg_point: int = 16,
+        deg_view: int = 5,
+        depth: int = 8,
+        width: int = 256,
+        skip_layer: int | None = 4,
+        bottleneck_width: int = 128,
+        view_depth: int = 8,
+        view_width: int = 256,
+        view_skip_layer: int | None = 4,
+        density_activation: str = "softplus",
+        density_bias: float = 0.5,
+        roughness_bias: float = -1.0,
+        rgb_padding: float = 0.001,
+    ) -> None:
+        super().__init__()
+        self.min_deg_point, self.max_deg_point, self.deg_view = min_deg_point, max_deg_point, deg_view
+        self.density_act = _activation(density_activation)
+        self.density_bias, self.roughness_bias, self.rgb_padding = density_bias, roughness_bias, rgb_padding
+        pos_dim = 2 * 3 * (max_deg_point - min_deg_point)
+        self.trunk = SkipMLP(pos_dim, depth, width, skip_layer)
+        feat = self.trunk.out_dim
+        self.density_head = _init_linear(nn.Linear(feat, 1))
+        self.diffuse_head = _init_linear(nn.Linear(feat, RGB))
+        self.tint_head = _init_linear(nn.Linear(feat, RGB))
+        self.roughness_head = _init_linear(nn.Linear(feat, 1))
+        self.normal_head = _init_linear(nn.Linear(feat, 3))
+        self.bottleneck = _init_linear(nn.Linear(feat, bottleneck_width))
+        dir_in = bottleneck_width + ide_dim(deg_view) + 1  # [b, IDE, n' . d]
+        self.view_mlp = SkipMLP(dir_in, view_depth, view_width, view_skip_layer)
+        self.rgb_head = _init_linear(nn.Linear(self.view_mlp.out_dim, RGB))
+
+    def _spatial(self, means: Tensor, covs: Tensor) -> tuple[Tensor, Tensor]:
+        h = self.trunk(integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point))
+        return h, self.density_head(h)[..., 0]
+
+    def forward(self, means: Tensor, covs: Tensor, viewdirs: Tensor) -> dict[str, Tensor]:
+        if torch.is_inference_mode_enabled():
+            raise RuntimeError(
+                "RefNerfMLP differentiates its density for the normals: run it under torch.no_grad, "
+                "not torch.inference_mode"
+            )
+        keep_graph = torch.is_grad_enabled()
+        with torch.enable_grad():
+            x = means if means.requires_grad else means.detach().requires_grad_(True)
+            h, raw_density = self._spatial(x, covs)
+            (grad,) = torch.autograd.grad(raw_density.sum(), x, create_graph=keep_graph)
+        if not keep_graph:
+            h, raw_density, grad = h.detach(), raw_density.detach(), grad.detach()
+        normals = -l2_normalize(grad)
+        normals_pred = -l2_normalize(self.normal_head(h))
+        density = self.density_act(raw_density + self.density_bias)
+        diffuse = torch.sigmoid(self.diffuse_head(h) - math.log(3.0))
+        tint = torch.sigmoid(self.tint_head(h))
+        roughness = F.softplus(self.roughness_head(h) + self.roughness_bias)  # (N, S, 1)
+        bottleneck = self.bottleneck(h)
+
+        d = viewdirs[..., None, :].expand_as(normals_pred)
+        refdirs = reflect(-d, normals_pred)
+        dir_features = integrated_dir_enc(refdirs, roughness, self.deg_view)
+        n_dot_d = (normals_pred * d).sum(dim=-1, keepdim=True)
+        hv = self.view_mlp(torch.cat([bottleneck, dir_features, n_dot_d], dim=-1))
+        specular = torch.sigmoid(self.rgb_head(hv))
+        rgb = torch.clamp(linear_to_srgb(tint * specular + diffuse), 0.0, 1.0)
+        rgb = rgb * (1 + 2 * self.rgb_padding) - self.rgb_padding
+        return {
+            "density": density,
+            "rgb": rgb,
+            "normals": normals,
+            "normals_pred": normals_pred,
+            "diffuse": diffuse,
+            "tint": tint,
+            "specular": specular,
+            "roughness": roughness[..., 0],
+        }

@@ -1,0 +1,496 @@
+"""NeRF, mip-NeRF and Ref-NeRF behind one interface, their builder, chunked rendering and summary.
+
+Every model renders two levels (coarse, fine) of the same rays:
+
+    coarse: stratified intervals on [near, far] -> field -> weights (NeRF Eq. 3)
+    fine:   intervals resampled from the coarse weights (gradients stopped) -> field -> weights
+
+- `NeRF` (Mildenhall et al. 2020): PE of the interval midpoints, separate coarse and fine MLPs, the
+  fine level on the coarse samples merged with importance samples (64 + 128), loss MSE_c + MSE_f.
+- `MipNeRF` (Barron et al. 2021): IPE of each interval's conical frustum, one MLP for both levels,
+  blurred resampling (padding 0.01), loss 0.1 MSE_c + MSE_f.
+- `RefNeRF` (Verbin et al. 2022): mip-NeRF's sampling and IPE with `RefNerfMLP`, plus the orientation
+  and predicted-normal regularisers (Ref-NeRF Eq. 11-12).
+
+Rays are a dict of (N, k) tensors: origins, directions (camera-space z = -1 directions rotated to world,
+not normalised: t is then the camera depth), viewdirs (unit), radii (cone radius at t = 1), near, far.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torch import Tensor, nn
+
+from src.errors import ConfigError, DataError, require
+from src.models.denoise.summary import count_parameters
+from src.models.nerf.directional import l2_normalize
+from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
+from src.models.nerf.fields import ACTIVATIONS, NerfMLP, RefNerfMLP
+from src.models.nerf.sampling import resample_tdist, stratified_samples
+from src.models.nerf.volume import compute_alpha_weights, volumetric_rendering
+
+RAY_KEYS = ("origins", "directions", "viewdirs", "radii", "near", "far")
+LEVELS = ("coarse", "fine")
+ORIENTATION_NORMALS = ("pred", "density")
+
+Rays = Mapping[str, Tensor]
+
+
+class NerfModelBase(nn.Module):
+    """Two-level volume rendering shared by the three models.
+
+    Subclasses define `evaluate(level, rays, tdist)` (the field on the intervals: a dict with at least
+    density (N, S) and rgb (N, S, 3)) and, optionally, `level_extras` / `regularizers`.
+
+    Args:
+        coarse_mlp, fine_mlp: the fields of the two levels; fine_mlp None: the coarse one serves both.
+        num_coarse_samples: coarse intervals per ray (S_c).
+        num_fine_samples: fine samples: importance samples merged with the coarse ones when
+            `resample_padding` is None (NeRF, S_f = S_c + n), else the fine intervals (mip-NeRF, S_f = n).
+        resample_padding: None (NeRF) or mip-NeRF's histogram padding (`sampling.resample_tdist`).
+        lindisp: coarse intervals uniform in 1/t instead of t.
+        background: RGB composited behind each ray with weight 1 - acc.
+        coarse_loss_mult: weight of the coarse level in the loss (NeRF 1, mip-NeRF 0.1).
+    """
+
+    name = "base"
+    #: Per-ray outputs of the fine level that `render_rays_chunked` returns.
+    render_keys: tuple[str, ...] = ("rgb", "depth", "acc")
+
+    def __init__(
+        self,
+        coarse_mlp: nn.Module,
+        fine_mlp: nn.Module | None,
+        *,
+        num_coarse_samples: int,
+        num_fine_samples: int,
+        resample_padding: float | None,
+        lindisp: bool = False,
+        background: Sequence[float] = (1.0, 1.0, 1.0),
+        coarse_loss_mult: float = 1.0,
+    ) -> None:
+        super().__init__()
+        self.mlps = nn.ModuleList([coarse_mlp] if fine_mlp is None else [coarse_mlp, fine_mlp])
+        self.num_coarse_samples, self.num_fine_samples = num_coarse_samples, num_fine_samples
+        self.resample_padding, self.lindisp = resample_padding, lindisp
+        self.coarse_loss_mult = coarse_loss_mult
+        background_rgb = torch.tensor(list(background), dtype=torch.float32)
+        self.register_buffer("background", background_rgb, persistent=False)  # config, not state
+
+    # --- to be defined by the models -------------------------------------------------------------------
+    def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
+        raise NotImplementedError
+
+    def level_extras(self, fields: dict[str, Tensor], weights: Tensor, rays: Rays) -> dict[str, Tensor]:
+        return {}
+
+    def regularizers(self, outputs: list[dict[str, Tensor]]) -> tuple[Tensor | None, dict[str, float]]:
+        return None, {}
+
+    # --- shared --------------------------------------------------------------------------------------
+    def mlp_for(self, level: int) -> nn.Module:
+        return self.mlps[min(level, len(self.mlps) - 1)]
+
+    def mlp_modules(self) -> dict[str, nn.Module]:
+        """{label: module} of the distinct MLPs (a shared MLP appears once)."""
+        if len(self.mlps) == 1:
+            return {"mlp (coarse and fine, shared)": self.mlps[0]}
+        return {f"{name} mlp": mlp for name, mlp in zip(LEVELS, self.mlps, strict=True)}
+
+    def samples_per_level(self) -> tuple[int, int]:
+        """(coarse, fine) intervals per ray."""
+        fine = self.num_fine_samples + (self.num_coarse_samples if self.resample_padding is None else 0)
+        return self.num_coarse_samples, fine
+
+    def forward(
+        self, rays: Rays, randomized: bool, generator: torch.Generator | None = None
+    ) -> list[dict[str, Tensor]]:
+        """One dict per level (coarse, fine): rgb (N, 3), depth (N,), acc (N,), weights (N, S),
+        tdist (N, S+1), and the model's extras. `randomized` jitters the samples (training)."""
+        tdist = stratified_samples(
+            rays["near"], rays["far"], self.num_coarse_samples, randomized, self.lindisp, generator
+        )
+        outputs: list[dict[str, Tensor]] = []
+        for level in range(len(LEVELS)):
+            if level > 0:
+                tdist = resample_tdist(
+                    tdist,
+                    outputs[-1]["weights"],
+                    self.num_fine_samples,
+                    randomized,
+                    self.resample_padding,
+                    generator,
+                )
+            fields = self.evaluate(level, rays, tdist)
+            weights, _, _ = compute_alpha_weights(fields["density"], tdist, rays["directions"])
+            out = volumetric_rendering(fields["rgb"], weights, tdist, self.background.to(weights.dtype))
+            out.update(weights=weights, tdist=tdist)
+            out.update(self.level_extras(fields, weights, rays))
+            outputs.append(out)
+        return outputs
+
+    def loss(self, outputs: list[dict[str, Tensor]], target_rgb: Tensor) -> tuple[Tensor, dict[str, float]]:
+        """coarse_loss_mult * MSE_coarse + MSE_fine (+ the model's regularisers).
+
+        The logged components are the unweighted per-level MSEs ('coarse', 'fine'; PSNR = -10 log10)
+        and whatever `regularizers` adds; the returned tensor is the weighted total.
+        """
+        mses = [((out["rgb"] - target_rgb) ** 2).mean() for out in outputs]
+        total = self.coarse_loss_mult * sum(mses[:-1]) + mses[-1]
+        stats = {name: float(mse.detach()) for name, mse in zip(LEVELS, mses, strict=True)}
+        reg, reg_stats = self.regularizers(outputs)
+        if reg is not None:
+            total = total + reg
+        stats.update(reg_stats)
+        return total, stats
+
+
+class NeRF(NerfModelBase):
+    """NeRF (Mildenhall et al. 2020): positional encoding (Eq. 4) of the interval midpoints
+    o + t_mid d and of the view direction; one MLP per level unless `single_mlp`."""
+
+    name = "nerf"
+
+    def __init__(
+        self,
+        coarse_mlp: NerfMLP,
+        fine_mlp: NerfMLP | None,
+        *,
+        pos_deg: tuple[int, int],
+        pos_identity: bool,
+        view_deg: tuple[int, int],
+        view_identity: bool,
+        **base: Any,
+    ) -> None:
+        super().__init__(coarse_mlp, fine_mlp, **base)
+        self.pos_deg, self.pos_identity = pos_deg, pos_identity
+        self.view_deg, self.view_identity = view_deg, view_identity
+
+    def encode_positions(self, rays: Rays, tdist: Tensor) -> Tensor:
+        t_mid = 0.5 * (tdist[..., 1:] + tdist[..., :-1])
+        x = rays["origins"][..., None, :] + t_mid[..., None] * rays["directions"][..., None, :]
+        return pos_enc(x, *self.pos_deg, append_identity=self.pos_identity)
+
+    def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
+        view_enc = pos_enc(rays["viewdirs"], *self.view_deg, append_identity=self.view_identity)
+        return self.mlp_for(level)(self.encode_positions(rays, tdist), view_enc)
+
+
+class MipNeRF(NeRF):
+    """mip-NeRF (Barron et al. 2021): the integrated positional encoding (Eq. 14-16) of each interval's
+    conical frustum Gaussian (Eq. 7-8) instead of the PE of a point."""
+
+    name = "mipnerf"
+
+    def encode_positions(self, rays: Rays, tdist: Tensor) -> Tensor:
+        means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
+        return integrated_pos_enc(means, covs, *self.pos_deg)
+
+
+class RefNeRF(NerfModelBase):
+    """Ref-NeRF (Verbin et al. 2022) on mip-NeRF's sampling: `RefNerfMLP` per level (or shared).
+
+    Extra outputs per level: rendered normals (normalize(sum_i w_i n_i)) and normals_pred, rendered
+    roughness, and per sample: sample_normals, sample_normals_pred (N, S, 3); viewdirs (N, 3).
+
+    Loss (Ref-NeRF Sec. 4), every term summed over levels with weight coarse_loss_mult on the coarse one:
+        data + orientation_loss_mult * R_o + pred_normal_loss_mult * R_p,
+        R_o = sum_i w_i max(0, n_i . d)^2          (Eq. 11; n: `orientation_normals` 'pred' (n') or
+                                                  'density'; d: the view direction)
+        R_p = sum_i w_i ||n_i - n'_i||^2            (Eq. 12),
+    each averaged over rays. `orientation_stop_grad` stops the gradient of R_o through the weights.
+    """
+
+    name = "refnerf"
+    render_keys = ("rgb", "depth", "acc", "normals", "normals_pred")
+
+    def __init__(
+        self,
+        coarse_mlp: RefNerfMLP,
+        fine_mlp: RefNerfMLP | None,
+        *,
+        orientation_loss_mult: float = 0.1,
+        pred_normal_loss_mult: float = 3e-4,
+        orientation_normals: str = "pred",
+        orientation_stop_grad: bool = False,
+        **base: Any,
+    ) -> None:
+        super().__init__(coarse_mlp, fine_mlp, **base)
+        if orientation_normals not in ORIENTATION_NORMALS:
+            raise ValueError(f"orientation_normals: expected one of {list(ORIENTATION_NORMALS)}")
+        self.orientation_loss_mult, self.pred_normal_loss_mult = orientation_loss_mult, pred_normal_loss_mult
+        self.orientation_normals, self.orientation_stop_grad = orientation_normals, orientation_stop_grad
+
+    def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
+        means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
+        return self.mlp_for(level)(means, covs, rays["viewdirs"])
+
+    def level_extras(self, fields: dict[str, Tensor], weights: Tensor, rays: Rays) -> dict[str, Tensor]:
+        w = weights[..., None]
+        return {
+            "normals": l2_normalize((w * fields["normals"]).sum(dim=-2)),
+            "normals_pred": l2_normalize((w * fields["normals_pred"]).sum(dim=-2)),
+            "roughness": (weights * fields["roughness"]).sum(dim=-1),
+            "sample_normals": fields["normals"],
+            "sample_normals_pred": fields["normals_pred"],
+            "viewdirs": rays["viewdirs"],
+        }
+
+    def regularizers(self, outputs: list[dict[str, Tensor]]) -> tuple[Tensor, dict[str, float]]:
+        key = "sample_normals_pred" if self.orientation_normals == "pred" else "sample_normals"
+        level_mults = [self.coarse_loss_mult] * (len(outputs) - 1) + [1.0]
+        orientation, pred_normal = 0.0, 0.0
+        for mult, out in zip(level_mults, outputs, strict=True):
+            w = out["weights"]
+            w_o = w.detach() if self.orientation_stop_grad else w
+            n_dot_d = (out[key] * out["viewdirs"][..., None, :]).sum(dim=-1)
+            orientation = orientation + mult * (w_o * torch.clamp(n_dot_d, min=0.0) ** 2).sum(dim=-1).mean()
+            diff_sq = ((out["sample_normals"] - out["sample_normals_pred"]) ** 2).sum(dim=-1)
+            pred_normal = pred_normal + mult * (w * diff_sq).sum(dim=-1).mean()
+        total = self.orientation_loss_mult * orientation + self.pred_normal_loss_mult * pred_normal
+        return total, {"orientation": float(orientation.detach()), "pred_normal": float(pred_normal.detach())}
+
+
+# --- building from the config ---------------------------------------------------------------------------
+
+
+def _as_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    if isinstance(model_cfg, DictConfig):
+        return OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[return-value]
+    if not isinstance(model_cfg, Mapping):
+        raise ConfigError(f"model: expected a mapping, got {type(model_cfg).__name__}")
+    return dict(model_cfg)
+
+
+def _get(cfg: Mapping[str, Any], key: str) -> Any:
+    return require(cfg, key, "model", f"model {cfg.get('name')!r}")
+
+
+def _int(cfg: Mapping[str, Any], key: str, minimum: int = 1) -> int:
+    value = _get(cfg, key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ConfigError(f"model.{key}: expected an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _optional_int(cfg: Mapping[str, Any], key: str) -> int | None:
+    """An integer >= 0 or null (the skip-layer keys: null or 0 disables the skip)."""
+    value = cfg.get(key)
+    return None if value is None else _int(cfg, key, minimum=0)
+
+
+def _float(cfg: Mapping[str, Any], key: str, minimum: float | None = None) -> float:
+    value = _get(cfg, key)
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or (minimum is not None and value < minimum)
+    ):
+        bound = "" if minimum is None else f" >= {minimum}"
+        raise ConfigError(f"model.{key}: expected a number{bound}, got {value!r}")
+    return float(value)
+
+
+def _bool(cfg: Mapping[str, Any], key: str) -> bool:
+    value = _get(cfg, key)
+    if not isinstance(value, bool):
+        raise ConfigError(f"model.{key}: expected true or false, got {value!r}")
+    return value
+
+
+def _choice(cfg: Mapping[str, Any], key: str, allowed: Sequence[str]) -> str:
+    value = _get(cfg, key)
+    if value not in allowed:
+        raise ConfigError(f"model.{key}: unknown {value!r}; expected one of {list(allowed)}")
+    return value
+
+
+def _degrees(cfg: Mapping[str, Any], prefix: str) -> tuple[int, int]:
+    lo, hi = _int(cfg, f"{prefix}_min_deg", minimum=0), _int(cfg, f"{prefix}_max_deg", minimum=0)
+    if hi <= lo:
+        raise ConfigError(f"model.{prefix}_max_deg: expected > {prefix}_min_deg ({lo}), got {hi}")
+    return lo, hi
+
+
+def _base_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    padding = cfg.get("resample_padding")
+    if padding is not None:
+        padding = _float(cfg, "resample_padding", minimum=0.0)
+    background = _get(cfg, "background")
+    if (
+        not isinstance(background, list | tuple)
+        or len(background) != 3
+        or not all(isinstance(c, int | float) and not isinstance(c, bool) for c in background)
+    ):
+        raise ConfigError(f"model.background: expected 3 numbers (RGB), got {background!r}")
+    return {
+        "num_coarse_samples": _int(cfg, "num_coarse_samples"),
+        "num_fine_samples": _int(cfg, "num_fine_samples"),
+        "resample_padding": padding,
+        "lindisp": _bool(cfg, "lindisp"),
+        "background": tuple(float(c) for c in background),
+        "coarse_loss_mult": _float(cfg, "coarse_loss_mult", minimum=0.0),
+    }
+
+
+def _trunk_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    return {
+        "depth": _int(cfg, "depth"),
+        "width": _int(cfg, "width"),
+        "skip_layer": _optional_int(cfg, "skip_layer"),
+        "bottleneck_width": _int(cfg, "bottleneck_width"),
+        "view_depth": _int(cfg, "view_depth", minimum=0),
+        "view_width": _int(cfg, "view_width"),
+        "view_skip_layer": _optional_int(cfg, "view_skip_layer"),
+        "density_activation": _choice(cfg, "density_activation", list(ACTIVATIONS)),
+        "density_bias": _float(cfg, "density_bias"),
+        "rgb_padding": _float(cfg, "rgb_padding", minimum=0.0),
+    }
+
+
+def _levels(cfg: Mapping[str, Any], make: Callable[[], nn.Module]) -> tuple[nn.Module, nn.Module | None]:
+    """(coarse MLP, fine MLP or None when `single_mlp`)."""
+    coarse = make()
+    return coarse, (None if _bool(cfg, "single_mlp") else make())
+
+
+def _build_nerf(cfg: Mapping[str, Any], cls: type[NeRF]) -> NeRF:
+    pos_deg, view_deg = _degrees(cfg, "pos"), _degrees(cfg, "view")
+    integrated = issubclass(cls, MipNeRF)
+    pos_identity = False if integrated else _bool(cfg, "pos_identity")  # the IPE has no identity term
+    view_identity = _bool(cfg, "view_identity")
+    pos_dim = 3 * (2 * (pos_deg[1] - pos_deg[0]) + pos_identity)
+    view_dim = 3 * (2 * (view_deg[1] - view_deg[0]) + view_identity)
+    mlp_kwargs = _trunk_kwargs(cfg)
+    coarse, fine = _levels(cfg, lambda: NerfMLP(pos_dim, view_dim, **mlp_kwargs))
+    return cls(
+        coarse,
+        fine,
+        pos_deg=pos_deg,
+        pos_identity=pos_identity,
+        view_deg=view_deg,
+        view_identity=view_identity,
+        **_base_kwargs(cfg),
+    )
+
+
+def _build_refnerf(cfg: Mapping[str, Any]) -> RefNeRF:
+    pos_deg = _degrees(cfg, "pos")
+    deg_view = _int(cfg, "deg_view")
+    if deg_view > 5:
+        raise ConfigError(f"model.deg_view: expected an integer in [1, 5] (l <= 16), got {deg_view}")
+    kwargs = _trunk_kwargs(cfg)
+    kwargs.update(
+        min_deg_point=pos_deg[0],
+        max_deg_point=pos_deg[1],
+        deg_view=deg_view,
+        roughness_bias=_float(cfg, "roughness_bias"),
+    )
+    coarse, fine = _levels(cfg, lambda: RefNerfMLP(**kwargs))
+    return RefNeRF(
+        coarse,
+        fine,
+        orientation_loss_mult=_float(cfg, "orientation_loss_mult", minimum=0.0),
+        pred_normal_loss_mult=_float(cfg, "pred_normal_loss_mult", minimum=0.0),
+        orientation_normals=_choice(cfg, "orientation_normals", ORIENTATION_NORMALS),
+        orientation_stop_grad=_bool(cfg, "orientation_stop_grad"),
+        **_base_kwargs(cfg),
+    )
+
+
+BUILDERS: dict[str, Callable[[Mapping[str, Any]], NerfModelBase]] = {
+    "nerf": lambda cfg: _build_nerf(cfg, NeRF),
+    "mipnerf": lambda cfg: _build_nerf(cfg, MipNeRF),
+    "refnerf": _build_refnerf,
+}
+
+
+def build_nerf_model(model_cfg: Mapping[str, Any]) -> NerfModelBase:
+    """The model `model_cfg["name"]` names (nerf | mipnerf | refnerf), from its conf/model/*.yaml group
+    (DictConfig or dict). A missing or invalid key is a one-line `ConfigError` naming `model.<key>`."""
+    cfg = _as_dict(model_cfg)
+    name = _get(cfg, "name")
+    if name not in BUILDERS:
+        raise ConfigError(f"model.name: unknown {name!r}; expected one of {list(BUILDERS)}")
+    return BUILDERS[name](cfg)
+
+
+# --- inference and reporting ------------------------------------------------------------------------------
+
+
+def render_rays_chunked(
+    model: NerfModelBase,
+    rays: Rays,
+    chunk: int,
+    randomized: bool = False,
+    generator: torch.Generator | None = None,
+) -> dict[str, Tensor]:
+    """Render any number of rays `chunk` at a time (no_grad; Ref-NeRF still differentiates its density
+    internally for the normals, then detaches). Returns the fine level's `model.render_keys`, each
+    (N, ...) concatenated on the CPU."""
+    missing = [k for k in RAY_KEYS if k not in rays]
+    if missing:
+        raise DataError(f"rays: missing {missing}; expected keys {list(RAY_KEYS)}")
+    if chunk < 1:
+        raise ConfigError(f"chunk: expected a positive integer, got {chunk!r}")
+    param = next(model.parameters())
+    n = rays["origins"].shape[0]
+    pieces: dict[str, list[Tensor]] = {k: [] for k in model.render_keys}
+    with torch.no_grad():
+        for start in range(0, n, chunk):
+            batch = {k: rays[k][start : start + chunk].to(param.device, param.dtype) for k in RAY_KEYS}
+            fine = model(batch, randomized=randomized, generator=generator)[-1]
+            for k in model.render_keys:
+                pieces[k].append(fine[k].detach().cpu())
+    return {k: torch.cat(v) for k, v in pieces.items()}
+
+
+def mlp_flops_per_sample(mlp: nn.Module) -> int:
+    """2 x the multiply-accumulates of one MLP evaluation: every `nn.Linear` runs once per sample
+    (bias additions, activations and encodings are not counted, the usual convention)."""
+    return 2 * sum(m.in_features * m.out_features for m in mlp.modules() if isinstance(m, nn.Linear))
+
+
+def nerf_mlp_flops_per_ray(model: NerfModelBase) -> dict[str, int]:
+    """{"coarse", "fine", "total"}: MLP forward FLOPs per ray (samples x FLOPs per sample)."""
+    samples = model.samples_per_level()
+    flops = {
+        level: s * mlp_flops_per_sample(model.mlp_for(i))
+        for i, (level, s) in enumerate(zip(LEVELS, samples, strict=True))
+    }
+    flops["total"] = sum(flops.values())
+    return flops
+
+
+def nerf_model_summary(model: NerfModelBase, model_cfg: Mapping[str, Any]) -> str:
+    """Architecture, parameter counts (total and per MLP), samples per ray and MLP FLOPs per ray."""
+    cfg = _as_dict(model_cfg)
+    lines = [
+        f"model: {cfg.get('name', model.name)} (family {cfg.get('family', 'nerf')}, learned True)",
+        str(model),
+    ]
+    per = ", ".join(f"{label} {count_parameters(m):,}" for label, m in model.mlp_modules().items())
+    lines.append(f"parameters: {count_parameters(model):,} ({per})")
+    coarse, fine = model.samples_per_level()
+    how = (
+        f"{model.num_coarse_samples} coarse + {model.num_fine_samples} importance samples"
+        if model.resample_padding is None
+        else f"resampled with padding {model.resample_padding}"
+    )
+    lines.append(
+        f"samples per ray: coarse {coarse}, fine {fine} ({how}); MLP evaluations per ray: {coarse + fine}"
+    )
+    flops = nerf_mlp_flops_per_ray(model)
+    note = ""
+    if isinstance(model, RefNeRF):
+        note = "; excludes the density-gradient backward pass for the normals (about 2x the spatial MLP)"
+    lines.append(
+        f"MLP FLOPs per ray (forward, 2 x MACs): {flops['total']:,} "
+        f"(coarse {flops['coarse']:,} + fine {flops['fine']:,}){note}"
+    )
+    lines.append(f"GFLOPs per 800x800 frame (NeRF-synthetic size): {flops['total'] * 800 * 800 / 1e9:,.1f}")
+    return "\n".join(lines)

@@ -1,0 +1,132 @@
+"""The NeRF task end to end in the smoke profile: render the scenes, train each model, evaluate on the
+test views, resume exactly, and report per scene."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from src.errors import DataError
+from src.report.build import build_report
+from src.stages import evaluate, render, train
+from src.tracking.mlflow_tracking import job_run
+from src.train.checkpoint import load_checkpoint
+from src.train.nerf_trainer import NerfTrainer, train_nerf
+from tests.conftest import one_line_error, smoke_config
+
+
+def _cfg(data, run_dir, *overrides):
+    return smoke_config(data, run_dir, ["task=nerf", *overrides])
+
+
+@pytest.fixture(scope="module")
+def nerf_data(tmp_path_factory, mitsuba_variant):
+    data = tmp_path_factory.mktemp("nerf_data")
+    render(_cfg(data, data / "run"))
+    return data
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    """Tiny tensors: two threads only add synchronisation cost on a 2-core machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="module")
+def trained(nerf_data, tmp_path_factory):
+    """Each model trained and evaluated on `materials`, plus NeRF on `busy`: {(model, scene): run dir}."""
+    runs = {}
+    for model, scene in (
+        ("nerf", "materials"),
+        ("mipnerf", "materials"),
+        ("refnerf", "materials"),
+        ("nerf", "busy"),
+    ):
+        run_dir = tmp_path_factory.mktemp(f"{model}-{scene}")
+        cfg = _cfg(nerf_data, run_dir, f"model={model}", f"task.scene={scene}")
+        with job_run(cfg, run_name=model, tags={"nrbench.model": model}) as tracker:
+            train(cfg, tracker)
+            evaluate(cfg, tracker)
+        runs[(model, scene)] = run_dir
+    return runs
+
+
+@pytest.mark.parametrize("model", ["nerf", "mipnerf", "refnerf"])
+def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
+    run_dir = trained[(model, "materials")]
+    curves = pd.read_csv(run_dir / "curves.csv")
+    assert list(curves["step"]) == [0, 10, 20, 30]  # from the initialisation
+    assert curves["val_loss_fine"].iloc[-1] < curves["val_loss_fine"].iloc[0]
+    metrics = json.loads((run_dir / "eval" / "metrics.json").read_text())
+    assert metrics["images"] == 2 and metrics["scene"] == "materials"
+    for key in ("psnr", "ssim", "lpips", "ms_per_image", "rays_per_s"):
+        assert np.isfinite(metrics["mean"][key]), key
+    pngs = {p.name for p in (run_dir / "eval" / "png").iterdir()}
+    assert {"materials-r_0-rendered.png", "materials-r_0-reference.png"} <= pngs
+    buffers = {p.name for p in (run_dir / "eval" / "buffers").iterdir()}
+    assert "materials-r_0-depth.png" in buffers
+    assert ("materials-r_0-normals.png" in buffers) == (model == "refnerf")
+
+
+def test_report_has_one_column_group_per_scene(trained, nerf_data, tmp_path):
+    cfg = _cfg(nerf_data, tmp_path, f"report.out_dir={tmp_path}/reports")
+    summary = build_report(cfg)
+    assert summary["runs"] == 4 and not summary["warnings"]
+    table = pd.read_csv(tmp_path / "reports" / "nerf" / "comparison.csv", comment="#", index_col=0)
+    assert {"PSNR materials", "PSNR busy", "SSIM materials"} <= set(table.columns)
+    assert set(table.index) == {"nerf", "mipnerf", "refnerf"}
+    assert np.isnan(table.loc["mipnerf", "PSNR busy"]) and np.isfinite(table.loc["nerf", "PSNR busy"])
+    assert (tmp_path / "reports" / "nerf" / "image_grid.png").is_file()
+
+
+def _stop_at(step):
+    def on_step(current):
+        if current == step:
+            raise KeyboardInterrupt
+
+    return on_step
+
+
+def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_path):
+    common = ["model=mipnerf", "task.train.max_steps=12", "tracking.enabled=false"]
+    straight = _cfg(nerf_data, tmp_path / "a", *common)
+    with job_run(straight, run_name="a", tags={}) as tracker:
+        reference = NerfTrainer(straight, tracker)
+        reference.fit()
+    interrupted = _cfg(nerf_data, tmp_path / "b", *common)
+    with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
+        train_nerf(interrupted, tracker, on_step=_stop_at(7))
+    resumed = _cfg(nerf_data, tmp_path / "c", *common, f"task.train.resume={tmp_path}/b/checkpoints")
+    with job_run(resumed, run_name="c", tags={}) as tracker:
+        summary = train_nerf(resumed, tracker)
+    assert summary["steps"] == 12
+    final = load_checkpoint(summary["checkpoint"])["model"]
+    for key, value in reference.model.state_dict().items():
+        assert torch.equal(final[key], value), key
+
+
+def test_a_missing_scene_is_one_clear_line(nerf_data, tmp_path):
+    cfg = _cfg(nerf_data, tmp_path, "task.scene=lego", "tracking.enabled=false")
+    with job_run(cfg, run_name="x", tags={}) as tracker, pytest.raises(DataError) as excinfo:
+        train(cfg, tracker)
+    one_line_error(excinfo, "lego", "transforms_train.json")
+
+
+
+def test_log_linear_schedule_closed_form():
+    from src.train.schedules import log_linear_lr
+
+    assert log_linear_lr(0, 5e-4, 5e-6, 1000) == pytest.approx(5e-4)
+    assert log_linear_lr(500, 5e-4, 5e-6, 1000) == pytest.approx(5e-5)  # geometric mean halfway
+    assert log_linear_lr(1000, 5e-4, 5e-6, 1000) == pytest.approx(5e-6)
+    assert log_linear_lr(5000, 5e-4, 5e-6, 1000) == pytest.approx(5e-6)  # clipped after the end
+    # warm-up: delay_mult at step 0, sin(pi/4) of the way at half the delay, no effect after it
+    assert log_linear_lr(0, 1e-3, 1e-3, 100, 10, 0.01) == pytest.approx(1e-5)
+    half = 0.01 + 0.99 * np.sin(np.pi / 4)
+    assert log_linear_lr(5, 1e-3, 1e-3, 100, 10, 0.01) == pytest.approx(1e-3 * half)
+    assert log_linear_lr(10, 1e-3, 1e-3, 100, 10, 0.01) == pytest.approx(1e-3)
