@@ -117,7 +117,6 @@ def test_a_missing_scene_is_one_clear_line(nerf_data, tmp_path):
     one_line_error(excinfo, "lego", "transforms_train.json")
 
 
-
 def test_log_linear_schedule_closed_form():
     from src.train.schedules import log_linear_lr
 

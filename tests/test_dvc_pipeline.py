@@ -1,0 +1,68 @@
+"""`dvc repro` end to end in a temporary copy of the repository, smoke profile (slow: minutes, about
+forty `python -m src.run` processes; run with `pytest -m slow`)."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def _copy_repository(dst: Path) -> None:
+    """The working tree's tracked and non-ignored files (what a fresh clone plus local edits has)."""
+    listed = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+    ).stdout.decode()
+    for name in filter(None, listed.split("\0")):
+        if (ROOT / name).is_file():
+            (dst / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, dst / name)
+    subprocess.run(["git", "init", "-q"], cwd=dst, check=True)
+
+
+def _dvc(repo: Path, *args: str) -> str:
+    env = dict(os.environ)
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"  # stages call `python`
+    env.pop("MLFLOW_TRACKING_URI", None)  # the copy's own mlflow.db
+    env.pop("NRBENCH_DATA_DIR", None)
+    result = subprocess.run(
+        [sys.executable, "-m", "dvc", *args], cwd=repo, env=env, capture_output=True, text=True
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result.stdout
+
+
+def test_dvc_repro_runs_everything_then_nothing(tmp_path):
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    _copy_repository(repo)
+    params = repo / "params.yaml"
+    params.write_text(params.read_text().replace("profile: cpu", "profile: smoke"))
+
+    _dvc(repo, "repro")
+    for task, names in (
+        ("denoise", ["kpcn", "dpcn", "resnet", "cross_bilateral", "oidn"]),
+        ("nerf", [f"{m}-{s}" for m in ("nerf", "mipnerf", "refnerf") for s in ("materials", "busy")]),
+    ):
+        for name in names:
+            metrics = json.loads((repo / "runs" / task / name / "eval" / "metrics.json").read_text())
+            assert metrics["mean"]["psnr"] > 0, (task, name)
+        report = repo / "reports" / task
+        assert (report / "index.html").is_file() and (report / "comparison.md").is_file()
+        table = (report / "comparison.csv").read_text()
+        assert all(m.split("-")[0] in table for m in names)
+    assert "denoise_eval@kpcn" in _dvc(repo, "metrics", "show")
+
+    again = _dvc(repo, "repro")
+    assert "Running stage" not in again, again
+    assert "up to date" in _dvc(repo, "status")
