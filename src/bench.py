@@ -1,5 +1,6 @@
 """Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
---models dpcn,kpcn,resnet --profile paper]``.
+--models dpcn,kpcn,resnet --profile paper]`` and ``python -m src.bench nerf [--models nerf,mipnerf,refnerf
+--profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]``.
 
 `denoise` times full-frame inference of the learned denoisers (random weights, seeded; random inputs:
 speed does not depend on the values) and prints, in one run:
@@ -17,11 +18,21 @@ memory; on CUDA the default is the whole frame at once. GFLOP/s counts the usefu
 (`flops_per_pixel` x pixels): work redone in tile halos shows up as lower throughput, not more FLOPs.
 Times are medians, with a model and its network-only variant timed alternately so that load on a
 shared machine does not bias their ratio.
+
+`nerf` times the NeRF-family models (random weights, seeded) as ``python -m src.run task=nerf
+model=<name> profile=<profile>`` builds them, and prints per model: parameters, MLP forward FLOPs per ray
+(`nerf_mlp_flops_per_ray`), training rays/s (Adam steps on one random batch of `--batch` rays, loss,
+backward and optimiser step included; one untimed warm-up step, then `--steps` timed ones), rendering
+rays/s (`render_rays_chunked` on `--render-rays` rays; one untimed warm-up pass, then one timed pass),
+each model's time per ray relative to the first model's (measured in the same run) and the achieved
+GFLOP/s (a training step counted as 3 x the forward FLOPs, rendering as 1 x). The rays are those of
+one camera on a sphere of radius 4 looking at the origin, on [2, 6] (the Blender scenes' setting).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import statistics
 import sys
 import time
@@ -38,11 +49,22 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from torch import nn
 
-from src.errors import NrbenchError
+from src.data.blender import focal_from_fov, generate_rays
+from src.errors import ConfigError, NrbenchError
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.summary import count_parameters, flops_per_pixel, random_batch
+from src.models.nerf.models import (
+    BUILDERS,
+    NerfModelBase,
+    RefNeRF,
+    build_nerf_model,
+    nerf_mlp_flops_per_ray,
+    render_rays_chunked,
+)
 from src.models.registry import build_denoiser
+from src.render.multiview import look_at_c2w, sphere_position
+from src.train.device import pick_device, seed_everything
 
 CONF_DIR = Path(__file__).resolve().parent.parent / "conf"
 #: Tile side on CPU (pixels, before the halo): bounds activation memory at paper width.
@@ -50,6 +72,14 @@ CPU_TILE = 256
 #: The reference convolution: the DPCN/KPCN hidden layer of Bako et al. 2017 (100 -> 100 channels, 5x5).
 BASELINE_CONV = {"channels": 100, "kernel": 5}
 AUTOCAST_DTYPES = {"none": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+#: The `nerf` rays: one camera at this distance from the origin, looking at it (the Blender scenes' setup:
+#: conf/dataset/nerf_procedural.yaml radius, elevation of its test circle, field of view, near and far).
+NERF_CAMERA = {"radius": 4.0, "elevation_deg": 30.0, "azimuth_deg": 0.0, "camera_angle_x": 0.6911112070083618}
+NERF_NEAR, NERF_FAR = 2.0, 6.0
+#: Forward-FLOP multiplier of a training step (forward + backward ~ 2 x forward) and of rendering.
+TRAIN_FLOP_FACTOR, RENDER_FLOP_FACTOR = 3, 1
+#: The models `nerf` can time (conf/model names).
+NERF_MODELS = tuple(BUILDERS)
 
 
 @dataclass
@@ -63,10 +93,13 @@ class Row:
     note: str = ""
 
 
-def load_model_config(name: str, profile: str) -> dict[str, Any]:
-    """The `model:` group as `python -m src.run model=<name> profile=<profile>` composes it."""
+def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
+    """The `model:` group as `python -m src.run [task=<task>] model=<name> profile=<profile>` composes it
+    (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also sets the NeRF dataset that
+    `model.background` refers to)."""
+    overrides = ([f"task={task}"] if task else []) + [f"model={name}", f"profile={profile}"]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=[f"model={name}", f"profile={profile}"])
+        cfg = compose("config", overrides=overrides)
     return OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[return-value]
 
 
@@ -229,15 +262,18 @@ def format_ratios(by_name: Mapping[str, Row]) -> list[str]:
     return lines
 
 
-def _header(args, device: torch.device, tile: int) -> str:
+def _where(device: torch.device) -> str:
+    """The GPU's name, or the CPU thread count torch uses."""
     if device.type == "cuda":
-        where = torch.cuda.get_device_name(device)
-    else:
-        where = f"{torch.get_num_threads()} threads"
+        return torch.cuda.get_device_name(device)
+    return f"{torch.get_num_threads()} threads"
+
+
+def _header(args, device: torch.device, tile: int) -> str:
     tiling = "whole frame" if tile <= 0 else f"{tile}x{tile} tiles + halo"
     return (
         f"denoise benchmark: {args.width}x{args.height} frame, profile {args.profile}, device {device} "
-        f"({where}), {tiling}, median of {args.repeats} after {args.warmup} warm-up, "
+        f"({_where(device)}), {tiling}, median of {args.repeats} after {args.warmup} warm-up, "
         f"autocast {args.autocast}, torch {torch.__version__}"
     )
 
@@ -271,6 +307,221 @@ def run_denoise(args: argparse.Namespace) -> str:
     )
 
 
+# --- nerf ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class NerfRow:
+    """One model's measurements."""
+
+    name: str
+    params: int
+    flops_per_ray: int  # MLP forward FLOPs per ray, coarse + fine
+    train_seconds: float  # median seconds of one step of `train_rays` rays
+    train_rays: int
+    render_seconds: float  # seconds of one pass over `render_rays` rays
+    render_rays: int
+    note: str = ""
+
+    @property
+    def train_seconds_per_ray(self) -> float:
+        return self.train_seconds / self.train_rays
+
+    @property
+    def render_seconds_per_ray(self) -> float:
+        return self.render_seconds / self.render_rays
+
+
+def parse_model_names(models: str) -> list[str]:
+    """The comma-separated `--models` list; an unknown or missing name is a one-line `ConfigError`."""
+    names = [m.strip() for m in models.split(",") if m.strip()]
+    expected = f"expected one of {list(NERF_MODELS)}"
+    if not names:
+        raise ConfigError(f"--models: no model named in {models!r}; {expected}")
+    for name in names:
+        if name not in NERF_MODELS:
+            raise ConfigError(f"--models: unknown NeRF model {name!r}; {expected}")
+    return names
+
+
+def nerf_model_configs(models: str, profile: str) -> dict[str, dict[str, Any]]:
+    """{name: model config} for the `--models` list, composed as `python -m src.run task=nerf
+    model=<name> profile=<profile>`, all before anything is timed (a bad name or profile fails at once)."""
+    return {name: load_model_config(name, profile, task="nerf") for name in parse_model_names(models)}
+
+
+def benchmark_rays(
+    n: int, generator: torch.Generator, device: torch.device, shuffle: bool
+) -> dict[str, torch.Tensor]:
+    """`n` rays (`RAY_KEYS`) of one camera on a sphere of radius 4 looking at the origin, near 2, far 6:
+    the pixels of a square image just large enough, in image order or (`shuffle`) a random subset."""
+    side = max(2, math.isqrt(n - 1) + 1)  # side * side >= n
+    cam = NERF_CAMERA
+    position = sphere_position(
+        cam["radius"], math.radians(cam["elevation_deg"]), math.radians(cam["azimuth_deg"])
+    )
+    c2w = look_at_c2w(position)
+    rays = generate_rays(c2w, focal_from_fov(cam["camera_angle_x"], side), side, side, NERF_NEAR, NERF_FAR)
+    pick = torch.randperm(side * side, generator=generator)[:n] if shuffle else torch.arange(n)
+    return {key: value[pick].to(device) for key, value in rays.items()}
+
+
+def time_runs(fn: Callable[[], Any], device: torch.device, runs: int, warmup: int = 1) -> float:
+    """Median wall-clock seconds of `runs` calls of `fn()` after `warmup` untimed ones, each call
+    synchronised (a median, so a load spike on a shared machine does not decide the result)."""
+    return time_calls([fn], device, runs, warmup)[0]
+
+
+def train_step_fn(
+    model: NerfModelBase, rays: Mapping[str, torch.Tensor], target: torch.Tensor, lr: float = 5e-4
+) -> Callable[[], None]:
+    """One training step on a fixed ray batch, as `NerfTrainer.train_step` does it: stratified (jittered)
+    samples, the model's loss, backward, Adam step."""
+    model.train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
+
+    def step() -> None:
+        loss, _ = model.loss(model(rays, randomized=True), target)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+
+    return step
+
+
+def time_training(
+    model: NerfModelBase,
+    rays: Mapping[str, torch.Tensor],
+    target: torch.Tensor,
+    steps: int,
+    device: torch.device,
+) -> float:
+    """Median seconds of one training step on `rays` over `steps` steps (after one untimed warm-up)."""
+    return time_runs(train_step_fn(model, rays, target), device, steps)
+
+
+def time_rendering(
+    model: NerfModelBase, rays: Mapping[str, torch.Tensor], chunk: int, device: torch.device
+) -> float:
+    """Seconds of one `render_rays_chunked` pass over `rays` (after one untimed warm-up pass)."""
+    model.eval()
+    return time_runs(lambda: render_rays_chunked(model, rays, chunk), device, 1)
+
+
+def bench_nerf_model(
+    name: str,
+    cfg: Mapping[str, Any],
+    train_rays: Mapping[str, torch.Tensor],
+    target: torch.Tensor,
+    render_rays: Mapping[str, torch.Tensor],
+    args: argparse.Namespace,
+    device: torch.device,
+) -> NerfRow:
+    """Build `name` (seeded), then time its training steps and its rendering."""
+    torch.manual_seed(args.seed)
+    model = build_nerf_model(cfg).to(device)
+    coarse, fine = model.samples_per_level()
+    note = f"{coarse}+{fine} samples"
+    if isinstance(model, RefNeRF):
+        note += "; FLOPs exclude the normals' density gradient"
+    n_train, n_render = train_rays["origins"].shape[0], render_rays["origins"].shape[0]
+    train_seconds = time_training(model, train_rays, target, args.steps, device)
+    render_seconds = time_rendering(model, render_rays, args.chunk, device)
+    return NerfRow(
+        name,
+        count_parameters(model),
+        nerf_mlp_flops_per_ray(model)["total"],
+        train_seconds,
+        n_train,
+        render_seconds,
+        n_render,
+        note,
+    )
+
+
+def format_nerf_table(rows: Sequence[NerfRow]) -> str:
+    """Fixed-width table; the ratios are time per ray over the first row's (so that row reads 1.00)."""
+    first = rows[0]
+    header = (
+        "model",
+        "params",
+        "FLOP/ray",
+        "train rays/s",
+        "train ratio",
+        "train GFLOP/s",
+        "render rays/s",
+        "render ratio",
+        "render GFLOP/s",
+        "note",
+    )
+    lines = [header]
+    for r in rows:
+        train_rate, render_rate = 1 / r.train_seconds_per_ray, 1 / r.render_seconds_per_ray
+        lines.append(
+            (
+                r.name,
+                f"{r.params:,}",
+                f"{r.flops_per_ray:,}",
+                f"{train_rate:,.0f}",
+                f"{r.train_seconds_per_ray / first.train_seconds_per_ray:.2f}",
+                f"{TRAIN_FLOP_FACTOR * r.flops_per_ray * train_rate / 1e9:,.2f}",
+                f"{render_rate:,.0f}",
+                f"{r.render_seconds_per_ray / first.render_seconds_per_ray:.2f}",
+                f"{RENDER_FLOP_FACTOR * r.flops_per_ray * render_rate / 1e9:,.2f}",
+                r.note,
+            )
+        )
+    widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
+    return "\n".join(_format_line(line, widths) for line in lines)
+
+
+def nerf_footnotes(first: str) -> list[str]:
+    return [
+        "FLOP/ray: MLP forward FLOPs per ray (2 x MACs of every nn.Linear, coarse + fine samples; "
+        "encodings and volume rendering not counted).",
+        f"ratio: the model's time per ray / {first}'s (the first model, measured in this run).",
+        f"GFLOP/s: FLOP/ray x rays/s, counting a training step as {TRAIN_FLOP_FACTOR} x the forward FLOPs "
+        f"(forward + backward) and rendering as {RENDER_FLOP_FACTOR} x.",
+    ]
+
+
+def _nerf_header(args, device: torch.device) -> str:
+    return (
+        f"nerf benchmark: profile {args.profile}, device {device} ({_where(device)}), seed {args.seed}, "
+        f"torch {torch.__version__}; train: median of {args.steps} Adam steps of {args.batch} rays "
+        f"after 1 warm-up; render: {args.render_rays} rays in chunks of {args.chunk}, 1 timed pass "
+        "after 1 warm-up"
+    )
+
+
+def run_nerf(args: argparse.Namespace) -> str:
+    """All measurements of `nerf`; returns the printed report (progress goes to stderr)."""
+    device = pick_device(args.device)
+    configs = nerf_model_configs(args.models, args.profile)
+    seed_everything(args.seed)
+    generator = torch.Generator().manual_seed(args.seed)
+    train_rays = benchmark_rays(args.batch, generator, device, shuffle=True)
+    target = torch.rand(args.batch, 3, generator=generator).to(device)
+    render_rays = benchmark_rays(args.render_rays, generator, device, shuffle=False)
+    rows = []
+    for i, (name, cfg) in enumerate(configs.items(), start=1):
+        print(f"[{i}/{len(configs)}] {name}: training, then rendering ...", file=sys.stderr, flush=True)
+        rows.append(bench_nerf_model(name, cfg, train_rays, target, render_rays, args, device))
+    return "\n".join([_nerf_header(args, device), format_nerf_table(rows), *nerf_footnotes(rows[0].name)])
+
+
+def _check_denoise(args: argparse.Namespace) -> str | None:
+    if min(args.width, args.height, args.repeats) < 1 or args.warmup < 0:
+        return "--width, --height and --repeats must be >= 1, --warmup >= 0"
+    return None
+
+
+def _check_nerf(args: argparse.Namespace) -> str | None:
+    if min(args.batch, args.steps, args.render_rays, args.chunk) < 1:
+        return "--batch, --steps, --render-rays and --chunk must be >= 1"
+    return None
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m src.bench", description=__doc__.split("\n\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -290,16 +541,33 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--autocast", choices=sorted(AUTOCAST_DTYPES), default="none", help="mixed precision")
     d.add_argument("--oidn", action=argparse.BooleanOptionalAction, default=True, help="also time OIDN")
     d.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
+    d.set_defaults(run=run_denoise, check=_check_denoise)
+
+    n = commands.add_parser("nerf", help="training and rendering rays/s of NeRF, mip-NeRF and Ref-NeRF")
+    n.add_argument("--models", default="nerf,mipnerf,refnerf", help="comma-separated; the first is the peer")
+    n.add_argument(
+        "--profile", default="cpu", help="cpu (default, as in src.run) | smoke | paper (published sizes: GPU)"
+    )
+    n.add_argument("--batch", type=int, default=1024, help="rays per training step")
+    n.add_argument("--steps", type=int, default=5, help="timed training steps (median; after 1 untimed)")
+    n.add_argument(
+        "--render-rays", type=int, default=4096, help="rays rendered (1 timed pass after 1 untimed)"
+    )
+    n.add_argument("--chunk", type=int, default=4096, help="rays per forward pass when rendering")
+    n.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
+    n.add_argument("--seed", type=int, default=0, help="seed of the random weights, rays and samples")
+    n.set_defaults(run=run_nerf, check=_check_nerf)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    if min(args.width, args.height, args.repeats) < 1 or args.warmup < 0:
-        print("bench: --width, --height and --repeats must be >= 1, --warmup >= 0", file=sys.stderr)
+    problem = args.check(args)
+    if problem:
+        print(f"bench: {problem}", file=sys.stderr)
         return 2
     try:
-        print(run_denoise(args))
+        print(args.run(args))
     except (NrbenchError, HydraException) as err:  # a bad config value or an unknown model name
         print(f"bench: {' '.join(str(err).split())}", file=sys.stderr)
         return 2

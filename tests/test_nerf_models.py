@@ -108,9 +108,9 @@ def test_refnerf_directional_input():
 def test_profiles_shrink_the_model(name):
     paper = count_parameters(build_nerf_model(model_cfg(name)))
     cpu_cfg, smoke_cfg = model_cfg(name, "cpu"), model_cfg(name, "smoke")
-    assert (cpu_cfg["width"], cpu_cfg["depth"], cpu_cfg["skip_layer"]) == (64, 4, 2)
-    assert cpu_cfg["num_coarse_samples"] == 32 and cpu_cfg["num_fine_samples"] == (
-        64 if name == "nerf" else 32
+    assert (cpu_cfg["width"], cpu_cfg["depth"], cpu_cfg["skip_layer"]) == (32, 4, 2)
+    assert cpu_cfg["num_coarse_samples"] == 24 and cpu_cfg["num_fine_samples"] == (
+        48 if name == "nerf" else 24
     )
     assert (smoke_cfg["width"], smoke_cfg["depth"], smoke_cfg["num_coarse_samples"]) == (16, 2, 8)
     cpu = count_parameters(build_nerf_model(cpu_cfg))

@@ -1,0 +1,73 @@
+"""`python -m src.bench nerf`: the table of training / rendering throughput of the NeRF-family models."""
+
+import re
+
+import pytest
+
+from src.bench import main as bench_main
+from src.bench import nerf_model_configs
+from src.errors import ConfigError
+from tests.conftest import one_line_error
+
+SMOKE = ["--profile", "smoke", "--steps", "1", "--batch", "64", "--render-rays", "256", "--chunk", "128"]
+COLUMNS = (
+    "model",
+    "params",
+    "FLOP/ray",
+    "train rays/s",
+    "train ratio",
+    "train GFLOP/s",
+    "render rays/s",
+    "render ratio",
+    "render GFLOP/s",
+    "note",
+)
+
+
+def _number(cell: str) -> float:
+    return float(cell.replace(",", ""))
+
+
+def table_rows(out: str) -> list[dict[str, str]]:
+    """The table's rows as {column: cell}: from the header line to the first footnote."""
+    lines = out.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("model "))
+    assert re.split(r"\s{2,}", lines[start].strip()) == list(COLUMNS), lines[start]
+    rows = []
+    for line in lines[start + 1 :]:
+        if line.startswith("FLOP/ray:"):  # the footnotes follow the table
+            break
+        cells = re.split(r"\s{2,}", line.strip())
+        assert len(cells) == len(COLUMNS), line
+        rows.append(dict(zip(COLUMNS, cells, strict=True)))
+    return rows
+
+
+def test_nerf_bench_prints_one_row_per_model_relative_to_the_first(capsys):
+    code = bench_main(["nerf", "--models", "nerf,mipnerf", *SMOKE])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = table_rows(captured.out)
+    assert [r["model"] for r in rows] == ["nerf", "mipnerf"]
+    for r in rows:
+        for column in ("params", "FLOP/ray", "train rays/s", "render rays/s"):
+            assert _number(r[column]) > 0, (column, r)
+        for column in ("train ratio", "train GFLOP/s", "render ratio", "render GFLOP/s"):
+            assert _number(r[column]) >= 0, (column, r)  # 2 decimals: a load spike can round one to 0
+    assert rows[0]["train ratio"] == "1.00" and rows[0]["render ratio"] == "1.00"
+    # The smoke sizes (conf/model_profile/*_smoke.yaml), not the paper's: NeRF fine level = 8 + 8 samples.
+    assert rows[0]["note"] == "8+16 samples" and rows[1]["note"] == "8+8 samples"
+    assert "profile smoke" in captured.out and "3 x the forward FLOPs" in captured.out
+    assert "[2/2] mipnerf" in captured.err  # progress, one line per model, on stderr
+
+
+@pytest.mark.parametrize("bad", ["nosuchnerf", "kpcn"])  # absent, and a config that is not a NeRF
+def test_nerf_bench_unknown_model_is_a_one_line_error_before_any_timing(capsys, bad):
+    code = bench_main(["nerf", "--models", f"nerf,{bad}", *SMOKE])
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    # One line, naming the model; nothing was timed first (no progress line for `nerf`).
+    assert captured.err.count("\n") == 1 and bad in captured.err, captured.err
+    with pytest.raises(ConfigError) as err:
+        nerf_model_configs(f"nerf,{bad}", "smoke")
+    one_line_error(err, bad, "--models", "mipnerf")
