@@ -22,7 +22,8 @@ shared machine does not bias their ratio.
 `nerf` times the NeRF-family models (random weights, seeded) as ``python -m src.run task=nerf
 model=<name> profile=<profile>`` builds them, and prints per model: parameters, MLP forward FLOPs per ray
 (`nerf_mlp_flops_per_ray`), training rays/s (Adam steps on one random batch of `--batch` rays, loss,
-backward and optimiser step included; one untimed warm-up step, then `--steps` timed ones), rendering
+backward and optimiser step included; one untimed warm-up step, then the median of `--steps` timed
+ones, so that a load spike on a shared machine does not decide it), rendering
 rays/s (`render_rays_chunked` on `--render-rays` rays; one untimed warm-up pass, then one timed pass),
 each model's time per ray relative to the first model's (measured in the same run) and the achieved
 GFLOP/s (a training step counted as 3 x the forward FLOPs, rendering as 1 x). The rays are those of
