@@ -32,6 +32,16 @@ def one_line_error(excinfo, *needles):
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def stop_at(step):
+    """A training `on_step` hook that interrupts (as Ctrl-C would) once `step` is done."""
+
+    def on_step(current):
+        if current == step:
+            raise KeyboardInterrupt
+
+    return on_step
+
+
 def smoke_config(data_dir, run_dir, overrides=()):
     """The smoke-profile config with data, run outputs and MLflow under temporary directories
     (composed outside a Hydra app, so the `${hydra:...}` paths are given explicitly)."""

@@ -20,7 +20,7 @@ from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
 from src.train.trainer import Trainer, train_denoiser
-from tests.conftest import ROOT, one_line_error, smoke_config
+from tests.conftest import ROOT, one_line_error, smoke_config, stop_at
 
 
 def _untracked(data, run_dir, *overrides):
@@ -64,14 +64,6 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
     )
 
 
-def _stop_at(step):
-    def on_step(current):
-        if current == step:
-            raise KeyboardInterrupt
-
-    return on_step
-
-
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):
     straight = _untracked(smoke_data, tmp_path / "a", "model=resnet", "task.train.epochs=3")
     with job_run(straight, run_name="a", tags={}) as tracker:
@@ -80,7 +72,7 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_
     steps_per_epoch = reference.pos.step // 3
     interrupted = _untracked(smoke_data, tmp_path / "b", "model=resnet", "task.train.epochs=3")
     with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
-        train_denoiser(interrupted, tracker, on_step=_stop_at(steps_per_epoch + 1))  # inside epoch 2
+        train_denoiser(interrupted, tracker, on_step=stop_at(steps_per_epoch + 1))  # inside epoch 2
     resumed = _untracked(
         smoke_data,
         tmp_path / "c",

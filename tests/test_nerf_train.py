@@ -14,7 +14,7 @@ from src.stages import evaluate, render, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint
 from src.train.nerf_trainer import NerfTrainer, train_nerf
-from tests.conftest import one_line_error, smoke_config
+from tests.conftest import one_line_error, smoke_config, stop_at
 
 
 def _cfg(data, run_dir, *overrides):
@@ -84,14 +84,6 @@ def test_report_has_one_column_group_per_scene(trained, nerf_data, tmp_path):
     assert (tmp_path / "reports" / "nerf" / "image_grid.png").is_file()
 
 
-def _stop_at(step):
-    def on_step(current):
-        if current == step:
-            raise KeyboardInterrupt
-
-    return on_step
-
-
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_path):
     common = ["model=mipnerf", "task.train.max_steps=12", "tracking.enabled=false"]
     straight = _cfg(nerf_data, tmp_path / "a", *common)
@@ -100,7 +92,7 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_p
         reference.fit()
     interrupted = _cfg(nerf_data, tmp_path / "b", *common)
     with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
-        train_nerf(interrupted, tracker, on_step=_stop_at(7))
+        train_nerf(interrupted, tracker, on_step=stop_at(7))
     resumed = _cfg(nerf_data, tmp_path / "c", *common, f"task.train.resume={tmp_path}/b/checkpoints")
     with job_run(resumed, run_name="c", tags={}) as tracker:
         summary = train_nerf(resumed, tracker)

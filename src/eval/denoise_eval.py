@@ -31,7 +31,7 @@ from src.models.denoise.models import infer_tiled
 from src.models.denoise.summary import count_parameters
 from src.models.registry import build_denoiser
 from src.provenance import provenance
-from src.train.checkpoint import check_model_config, load_checkpoint
+from src.train.checkpoint import load_weights
 from src.train.device import pick_device
 
 log = logging.getLogger(__name__)
@@ -46,10 +46,7 @@ def load_denoiser(cfg: DictConfig, device: torch.device) -> Denoiser:
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
     model = build_denoiser(model_cfg)
     if model.learned:
-        path = cfg.task.eval.checkpoint
-        state = load_checkpoint(path)
-        check_model_config(state, model_cfg, path)
-        model.load_state_dict(state["model"])
+        load_weights(model, model_cfg, cfg.task.eval.checkpoint)
     return model.to(device).eval()
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from src.data.blender import generate_rays
@@ -28,21 +28,16 @@ from src.metrics.image import image_metrics, lpips_variant
 from src.models.denoise.summary import count_parameters
 from src.models.nerf.models import NerfModelBase, build_nerf_model, render_rays_chunked
 from src.provenance import provenance
-from src.train.checkpoint import check_model_config, load_checkpoint
+from src.train.checkpoint import load_weights
 from src.train.device import pick_device
 from src.train.nerf_trainer import load_split, scene_dir
 
 
 def load_nerf(cfg: DictConfig, device: torch.device) -> NerfModelBase:
     """The model of `task.eval.checkpoint`, checked against `cfg.model`."""
-    from omegaconf import OmegaConf
-
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    path = str(cfg.task.eval.checkpoint)
-    state = load_checkpoint(path)
-    check_model_config(state, model_cfg, path)
     model = build_nerf_model(model_cfg)
-    model.load_state_dict(state["model"])
+    load_weights(model, model_cfg, str(cfg.task.eval.checkpoint))
     return model.to(device).eval()
 
 

@@ -63,3 +63,43 @@ def check_model_config(
     if diff:
         pairs = ", ".join(f"model.{k}: {saved.get(k)!r} in checkpoint vs {wanted.get(k)!r}" for k in diff)
         raise DataError(f"{path}: checkpoint built for a different model ({pairs})")
+
+
+def load_weights(model: torch.nn.Module, model_cfg: dict[str, Any], path: str | os.PathLike[str]) -> dict:
+    """Load checkpoint `path`'s weights into `model` after checking it was built for `model_cfg`;
+    returns the checkpoint."""
+    state = load_checkpoint(path)
+    check_model_config(state, model_cfg, path)
+    model.load_state_dict(state["model"])
+    return state
+
+
+def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **extra: Any) -> dict[str, Any]:
+    """What both training loops checkpoint: model config, model, optimiser, position, training time,
+    torch RNG (the data order and sample jitter draw from it), MLflow run id and the curves so far.
+
+    `trainer` has `model_cfg`, `model`, `optimizer`, `train_seconds`, `tracker` and `curves`."""
+    return {
+        **extra,
+        "model_config": trainer.model_cfg,
+        "model": trainer.model.state_dict(),
+        "optimizer": trainer.optimizer.state_dict(),
+        "epoch": epoch,
+        "batch_in_epoch": batch_in_epoch,
+        "step": step,
+        "train_seconds": trainer.train_seconds,
+        "torch_rng": torch.get_rng_state(),
+        "mlflow_run_id": trainer.tracker.run_id,
+        "curves": trainer.curves,
+    }
+
+
+def restore_training_state(trainer: Any, path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Load checkpoint `path` into `trainer` (checked against its model config): model, optimiser, torch
+    RNG, training time and curves; returns the checkpoint for the caller's position fields."""
+    state = load_weights(trainer.model, trainer.model_cfg, path)
+    trainer.optimizer.load_state_dict(state["optimizer"])
+    torch.set_rng_state(state["torch_rng"])
+    trainer.train_seconds = float(state.get("train_seconds", 0.0))
+    trainer.curves = list(state.get("curves", []))
+    return state

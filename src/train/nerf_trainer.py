@@ -27,7 +27,13 @@ from tqdm import tqdm
 from src.data.blender import RayBatcher, load_blender_split, rays_for_pixels
 from src.models.denoise.summary import count_parameters
 from src.models.nerf.models import build_nerf_model
-from src.train.checkpoint import FINAL_NAME, LAST_NAME, check_model_config, load_checkpoint, save_checkpoint
+from src.train.checkpoint import (
+    FINAL_NAME,
+    LAST_NAME,
+    restore_training_state,
+    save_checkpoint,
+    training_state,
+)
 from src.train.curves import write_curves
 from src.train.device import pick_device, seed_everything
 from src.train.schedules import log_linear_lr
@@ -54,6 +60,12 @@ def load_split(cfg: DictConfig, split: str, max_images: int | None = None):
 def mse_to_psnr(mse: float) -> float:
     """PSNR in dB of a mean squared error on [0, 1] images."""
     return -10.0 * math.log10(max(mse, 1e-12))
+
+
+def split_metrics(split: str, values: dict[str, float]) -> dict[str, float]:
+    """`{split}_psnr` and `{split}_loss_<component>` metric names for a step's or validation's values."""
+    metrics = {f"{split}_psnr": values["psnr"]}
+    return metrics | {f"{split}_loss_{k}": v for k, v in values.items() if k != "psnr"}
 
 
 def _model_config(cfg: DictConfig) -> dict[str, Any]:
@@ -110,19 +122,8 @@ class NerfTrainer:
 
     # -- checkpoints ---------------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        return {
-            "task": "nerf",
-            "model_config": self.model_cfg,
-            "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "epoch": 0,
-            "batch_in_epoch": self.step,
-            "step": self.step,
-            "train_seconds": self.train_seconds,
-            "torch_rng": torch.get_rng_state(),
-            "mlflow_run_id": self.tracker.run_id,
-            "curves": self.curves,
-        }
+        # One position counter: the step (a NeRF run has no epochs over a fixed batch order).
+        return training_state(self, 0, self.step, self.step, task="nerf")
 
     def save(self, name: str = LAST_NAME) -> Path:
         path = self.checkpoint_dir / name
@@ -130,14 +131,7 @@ class NerfTrainer:
         return path
 
     def restore(self, path: str) -> None:
-        state = load_checkpoint(path)
-        check_model_config(state, self.model_cfg, path)
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        torch.set_rng_state(state["torch_rng"])
-        self.step = int(state["step"])
-        self.train_seconds = float(state.get("train_seconds", 0.0))
-        self.curves = list(state.get("curves", []))
+        self.step = int(restore_training_state(self, path)["step"])
         log.info("resumed from %s at step %d", path, self.step)
 
     # -- loop ----------------------------------------------------------------------------------------
@@ -180,9 +174,7 @@ class NerfTrainer:
         means = {k: v / n for k, v in totals.items()}
         return {**means, "psnr": mse_to_psnr(squared / n)}
 
-    def _log(self, split: str, values: dict[str, float]) -> dict[str, float]:
-        metrics = {f"{split}_psnr": values["psnr"]}
-        metrics |= {f"{split}_loss_{k}": v for k, v in values.items() if k != "psnr"}
+    def _log(self, metrics: dict[str, float]) -> dict[str, float]:
         self.tracker.log_metrics(metrics, step=self.step)
         return metrics
 
@@ -192,7 +184,7 @@ class NerfTrainer:
         max_steps = int(t.max_steps)
         bar = tqdm(total=max_steps, initial=self.step, desc=f"train {self.model_cfg['name']}", unit="step")
         if self.step == 0:  # the curves start at the initialisation
-            self.curves.append({"step": 0, **self._log("val", self.validate())})
+            self.curves.append({"step": 0, **self._log(split_metrics("val", self.validate()))})
         try:
             while self.step < max_steps:
                 start = time.perf_counter()
@@ -201,10 +193,11 @@ class NerfTrainer:
                 self.step += 1
                 bar.update(1)
                 bar.set_postfix(loss=f"{values['loss']:.4f}", psnr=f"{values['psnr']:.2f}")
+                train_metrics = split_metrics("train", values)
                 if self.step % int(t.log_every) == 0:
-                    self._log("train", values)
+                    self._log(train_metrics)
                 if self.step % int(t.val_every) == 0 or self.step == max_steps:
-                    row = self._log("val", self.validate()) | self._log("train", values)
+                    row = self._log(split_metrics("val", self.validate())) | train_metrics
                     self.curves.append({"step": self.step, **row})
                     write_curves(t.curves_file, self.curves)
                 if self.step % int(t.checkpoint_every) == 0:

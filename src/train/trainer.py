@@ -32,9 +32,9 @@ from src.models.registry import build_denoiser
 from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,
-    check_model_config,
-    load_checkpoint,
+    restore_training_state,
     save_checkpoint,
+    training_state,
 )
 from src.train.curves import write_curves
 from src.train.device import pick_device, seed_everything
@@ -104,18 +104,7 @@ class Trainer:
 
     # -- checkpoints ---------------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        return {
-            "model_config": self.model_cfg,
-            "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(),
-            "epoch": self.pos.epoch,
-            "batch_in_epoch": self.pos.batch_in_epoch,
-            "step": self.pos.step,
-            "train_seconds": self.train_seconds,
-            "torch_rng": torch.get_rng_state(),
-            "mlflow_run_id": self.tracker.run_id,
-            "curves": self.curves,
-        }
+        return training_state(self, self.pos.epoch, self.pos.batch_in_epoch, self.pos.step)
 
     def save(self, name: str = LAST_NAME) -> Path:
         path = self.checkpoint_dir / name
@@ -123,14 +112,8 @@ class Trainer:
         return path
 
     def restore(self, path: str) -> None:
-        state = load_checkpoint(path)
-        check_model_config(state, self.model_cfg, path)
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        torch.set_rng_state(state["torch_rng"])
+        state = restore_training_state(self, path)
         self.pos = Position(state["epoch"], state["batch_in_epoch"], state["step"])
-        self.train_seconds = float(state.get("train_seconds", 0.0))
-        self.curves = list(state.get("curves", []))
         log.info("resumed from %s at epoch %d, batch %d, step %d", path, *vars(self.pos).values())
 
     # -- loop ----------------------------------------------------------------------------------------
