@@ -55,7 +55,10 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> dict[str, dict]:
+    """Run the selected stages; returns each stage's summary by stage name (a sweeper reads its
+    objective from it, e.g. `train.val_loss_color`)."""
+    results: dict[str, dict] = {}
     try:
         stages = stages_to_run(cfg)
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
@@ -63,10 +66,11 @@ def main(cfg: DictConfig) -> None:
         with _tracked_run(cfg, in_run) as tracker:
             for name in in_run:
                 log.info("stage %s", name)
-                STAGES[name](cfg, tracker)
+                results[name] = STAGES[name](cfg, tracker)
         for name in (s for s in stages if s in AFTER_RUN):
             log.info("stage %s", name)
-            STAGES[name](cfg, None)
+            results[name] = STAGES[name](cfg, None)
+        return results
     except NrbenchError as err:
         # One line for the user; the traceback adds nothing for a bad input or config value.
         log.error("%s", err)

@@ -3,6 +3,7 @@ forty `python -m src.run` processes; run with `pytest -m slow`)."""
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -61,8 +62,20 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
         assert (report / "index.html").is_file() and (report / "comparison.md").is_file()
         table = (report / "comparison.csv").read_text()
         assert all(m.split("-")[0] in table for m in names)
-    assert "denoise_eval@kpcn" in _dvc(repo, "metrics", "show")
+    shown = json.loads(_dvc(repo, "metrics", "show", "--json"))
+    assert "runs/denoise/kpcn/eval/metrics.json" in shown[""]["data"]
 
     again = _dvc(repo, "repro")
     assert "Running stage" not in again, again
     assert "up to date" in _dvc(repo, "status")
+
+    # One model's config changes: its train/eval stages and the report rerun, no other model's.
+    profile = repo / "conf" / "model_profile" / "dpcn_smoke.yaml"
+    profile.write_text(profile.read_text() + "task:\n  train:\n    lr: 2.0e-4\n")
+    changed = _dvc(repo, "repro")
+    ran = set(re.findall(r"Running stage '([^']+)'", changed))
+    assert {"denoise_train@dpcn", "denoise_eval@dpcn", "denoise_report"} <= ran, ran
+    assert not {s for s in ran if re.match(r"(denoise|nerf)_(train|eval)", s)} - {
+        "denoise_train@dpcn",
+        "denoise_eval@dpcn",
+    }, ran

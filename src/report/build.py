@@ -4,6 +4,7 @@ selects, written to `<report.out_dir>/<report.name>/`:
     comparison.{md,tex,csv}           quality metrics per compared row (mean ± std over seeds)
     comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
     cost.{md,tex,csv}                 parameters, training time, iterations, inference time
+    losses.{md,tex,csv}               final validation and training loss per component (learned models)
     learning_curves.png, image_grid.png, index.html (self-contained)
 
 Every file is written atomically. When no run matches, `DataError` names the filter that matched
@@ -27,6 +28,7 @@ from src.report.tables import (
     axis_label,
     comparison_table,
     cost_table,
+    loss_table,
     per_value_table,
     to_csv,
     to_latex,
@@ -79,10 +81,12 @@ def build_report(cfg: Any) -> dict[str, Any]:
 
     comparison = per_value_table(runs, str(columns_by), axes) if columns_by else comparison_table(runs, axes)
     per_spp = comparison_table(runs, axes, group_by="spp")
-    cost = cost_table(runs, axes)
-    tables = {"comparison": comparison, "cost": cost}
+    tables = {"comparison": comparison, "cost": cost_table(runs, axes)}
     if per_spp.attrs.get("metrics"):
         tables["comparison_per_spp"] = per_spp
+    losses = loss_table(runs, [*axes, *([str(columns_by)] if columns_by else [])])
+    if losses.attrs.get("metrics"):
+        tables["losses"] = losses
 
     name = str(config_value(rc, "name", "report"))
     out_dir = Path(str(config_value(rc, "out_dir", "reports"))).expanduser() / name
@@ -103,7 +107,12 @@ def build_report(cfg: Any) -> dict[str, Any]:
             files[path.name] = path
 
     compared = ", ".join(axis_label(a) for a in axes)
-    headings = {"comparison": "Quality", "comparison_per_spp": "Quality per spp", "cost": "Cost"}
+    headings = {
+        "comparison": "Quality",
+        "comparison_per_spp": "Quality per spp",
+        "cost": "Cost",
+        "losses": "Final losses (validation, then training)",
+    }
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     page = render_html(
         title=f"nrbench report: {name}",

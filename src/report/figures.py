@@ -61,14 +61,17 @@ def _output_kind(kinds: set[str]) -> str | None:
 
 
 def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
-    """One label per run: its axis values joined by `/`, plus `seed=N` where labels would repeat."""
+    """One label per run: its axis values joined by `/` (`key=value` for an axis other than a name, e.g.
+    `whiten=True`), plus `seed=N` where labels would repeat."""
     axes = list(axes or DEFAULT_AXES)
     base = []
     for _, run in runs.iterrows():
-        values = [run.get(param_column(a)) for a in axes]
-        base.append(
-            "/".join("-" if v is None or (isinstance(v, float) and np.isnan(v)) else str(v) for v in values)
-        )
+        parts = []
+        for axis in axes:
+            v = run.get(param_column(axis))
+            text = "-" if v is None or (isinstance(v, float) and np.isnan(v)) else str(v)
+            parts.append(text if axis.endswith(".name") else f"{axis.rsplit('.', 1)[-1]}={text}")
+        base.append("/".join(parts))
     counts = pd.Series(base).value_counts()
     out = []
     for label, (_, run) in zip(base, runs.iterrows(), strict=True):

@@ -147,6 +147,23 @@ def per_value_table(
     return table.drop(columns=counts)
 
 
+_LOSS_KEY = re.compile(r"^metrics\.(val|train)_loss_(\w+)$")
+
+
+def loss_metrics(runs: pd.DataFrame) -> dict[str, MetricSpec]:
+    """`"val <component>"`, then `"train <component>"`, for every per-epoch (or per-validation) loss the
+    runs logged (`val_loss_<c>`, `train_loss_<c>`; MLflow keeps the last value): the final losses the
+    seed thesis compares its ablations on (e.g. the specular loss with and without whitening)."""
+    found = [m.groups() for c in runs.columns if (m := _LOSS_KEY.match(c))]
+    ordered = sorted(found, key=lambda split_component: (split_component[0] != "val", split_component[1]))
+    return {f"{split} {c}": (f"{split}_loss_{c}", False, "{:.4g}") for split, c in ordered}
+
+
+def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
+    """Final validation and training losses per component (`loss_metrics`), mean ± std over seeds."""
+    return _aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
+
+
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training time, iterations and inference time (per image and per megapixel)."""
     return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)

@@ -12,6 +12,7 @@ import contextlib
 import json
 import logging
 import math
+import os
 import re
 import time
 from collections.abc import Iterator, Mapping
@@ -65,7 +66,9 @@ _FORMATS: dict[str, str] = {
 
 
 def quiet_mlflow_logs() -> None:
-    """Silence the database-migration chatter MLflow prints when it opens or creates a SQLite store."""
+    """Silence the database-migration chatter MLflow prints when it opens or creates a SQLite store,
+    and its per-artifact download progress bars (one per run and file when a report reads curves)."""
+    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
     for name in ("alembic", "mlflow.store.db.utils", "mlflow.store.tracking.sqlalchemy_store"):
         logging.getLogger(name).setLevel(logging.WARNING)
 

@@ -1,0 +1,1 @@
+"""nrbench's Optuna sweeper for Hydra (see optuna_sweeper.py)."""

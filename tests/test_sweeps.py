@@ -1,0 +1,201 @@
+"""Sweeps (conf/sweep, linked as sweeps/): every study and launcher config composes, the Optuna sweeper's
+search space and objective, and real smoke sweeps that end in a report with one row per setting."""
+
+import csv
+import os
+import subprocess
+import sys
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.utils import get_class
+from omegaconf import OmegaConf
+
+from hydra_plugins.nrbench_optuna_sweeper.optuna_sweeper import (
+    OptunaSweeper,
+    distribution,
+    objective_value,
+    search_space,
+)
+from src.errors import ConfigError
+from tests.conftest import CONF_DIR, ROOT, one_line_error
+
+STUDIES = {"denoisers", "shared_vs_separate", "whitening", "nerf_variants", "lr_search"}
+GROUPS = {"model", "task", "dataset"}
+
+
+def compose_sweep(name, overrides=()):
+    """The job config of `python -m src.run -m +sweep=<name> [overrides]`, with its `hydra` section."""
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose("config", overrides=[f"+sweep={name}", *overrides], return_hydra_config=True)
+
+
+def swept(cfg):
+    """(key, values-or-sweep) of the sweeper's `params`, parsed as Hydra parses them."""
+    params = [f"{k}={v}" for k, v in cfg.hydra.sweeper.params.items()]
+    return {o.get_key_element(): o for o in OverridesParser.create().parse_overrides(params)}
+
+
+def test_every_study_has_one_sweep_file_under_sweeps():
+    assert {p.stem for p in (ROOT / "sweeps").glob("*.yaml")} == STUDIES
+    assert (ROOT / "sweeps").resolve() == (ROOT / "conf" / "sweep").resolve()
+
+
+@pytest.mark.parametrize("profile", ["smoke", "cpu", "paper"])
+@pytest.mark.parametrize("name", sorted(STUDIES))
+def test_sweep_composes_with_its_report_and_every_swept_value(name, profile):
+    cfg = compose_sweep(name, [f"profile={profile}"])
+    assert cfg.report.name == f"sweeps/{name}"
+    assert str(cfg.hydra.sweep.dir).startswith(f"multirun/sweeps/{name}/")
+    for axis in cfg.report.axes:
+        assert OmegaConf.select(cfg, str(axis)) is not None, axis
+    for key, override in swept(cfg).items():
+        if key in GROUPS:  # each choice of a config group composes as a job would
+            for choice in override.sweep_string_iterator():
+                job = compose_sweep(name, [f"profile={profile}", f"{key}={choice}"])
+                assert job[key].name == choice
+        else:
+            assert OmegaConf.select(cfg, key) is not None, key
+
+
+@pytest.mark.parametrize("name", sorted(STUDIES - {"lr_search"}))
+def test_grid_studies_run_several_training_seeds_on_fixed_data(name):
+    cfg = compose_sweep(name)
+    seeds = list(swept(cfg)["seed"].sweep_string_iterator())
+    assert len(seeds) >= 3
+    assert cfg.data_seed == 0 and "data_seed" not in swept(cfg)  # the data stay; only training varies
+
+
+def test_ablations_fix_what_the_seed_thesis_fixed():
+    shared = compose_sweep("shared_vs_separate")
+    whitening = compose_sweep("whitening")
+    assert shared.model.name == whitening.model.name == "resnet"
+    assert list(swept(shared)["model.shared"].sweep_iterator()) == [True, False]
+    assert whitening.model.shared is False
+    assert list(swept(whitening)["model.whiten"].sweep_iterator()) == [True, False]
+    nerf = compose_sweep("nerf_variants")
+    assert nerf.task.name == "nerf" and nerf.report.columns_by == "task.scene"
+    assert set(swept(nerf)["task.scene"].sweep_string_iterator()) == set(nerf.dataset.scenes)
+
+
+def test_lr_search_uses_the_optuna_sweeper_on_a_validation_loss():
+    cfg = compose_sweep("lr_search")
+    sweeper = cfg.hydra.sweeper
+    assert get_class(sweeper._target_).__name__ == OptunaSweeper.__name__
+    assert sweeper.objective.startswith("train.val_") and sweeper.direction == "minimize"
+    distributions, fixed = search_space([f"{k}={v}" for k, v in sweeper.params.items()])
+    assert set(distributions) == {"task.train.lr", "task.train.batch_size"} and fixed == []
+    assert distributions["task.train.lr"].log
+
+
+@pytest.mark.parametrize(
+    ("launcher", "target", "values"),
+    [
+        ("parallel", "JoblibLauncher", {"n_jobs": 2}),
+        ("slurm", "SlurmLauncher", {"gpus_per_node": 1, "max_num_timeout": 3}),
+    ],
+)
+def test_launcher_configs_compose_and_name_their_plugin(launcher, target, values):
+    cfg = compose_sweep("whitening", [f"hydra/launcher={launcher}"])
+    assert get_class(cfg.hydra.launcher._target_).__name__ == target
+    assert {k: cfg.hydra.launcher[k] for k in values} == values
+
+
+def test_tracking_uri_follows_mlflow_tracking_uri(monkeypatch):
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "http://mlflow.cluster:5000")
+    cfg = compose_sweep("denoisers", [f"paths.root={ROOT}"])
+    assert cfg.tracking.uri == "http://mlflow.cluster:5000"
+
+
+# ------------------------------------------------------------------------------ Optuna sweeper
+
+
+def _override(text):
+    return OverridesParser.create().parse_overrides([text])[0]
+
+
+def test_hydra_sweep_syntax_becomes_optuna_distributions():
+    log_float = distribution(_override("lr=tag(log, interval(1e-5, 1e-2))"))
+    assert (log_float.low, log_float.high, log_float.log) == (1e-5, 1e-2, True)
+    integer = distribution(_override("blocks=int(interval(2, 8))"))
+    assert (integer.low, integer.high, integer.log) == (2, 8, False)
+    assert type(integer).__name__ == "IntDistribution"
+    stepped = distribution(_override("blocks=range(2, 9, 2)"))
+    assert (stepped.low, stepped.high, stepped.step) == (2, 8, 2)
+    assert distribution(_override("bs=8,16,32")).choices == (8, 16, 32)
+    assert distribution(_override("loss=choice(l1, l2)")).choices == ("l1", "l2")
+
+
+def test_search_space_keeps_fixed_values_and_lets_the_command_line_win():
+    distributions, fixed = search_space(["lr=interval(0.1, 1.0)", "seed=3", "bs=8,16", "bs=32"])
+    assert set(distributions) == {"lr"} and fixed == ["seed=3", "bs=32"]
+
+
+def test_objective_is_read_from_the_job_result_with_a_clear_error():
+    result = {"train": {"val_loss_color": 0.25}, "eval": {}}
+    assert objective_value(result, "train.val_loss_color") == 0.25
+    with pytest.raises(ConfigError) as err:
+        objective_value(result, "train.val_loss_specular")
+    one_line_error(err, "hydra.sweeper.objective=train.val_loss_specular", "val_loss_color")
+    with pytest.raises(ConfigError) as err:
+        objective_value({"train": {"v": float("nan")}}, "train.v")
+    one_line_error(err, "nan")
+
+
+def test_bad_sweeper_settings_name_the_key():
+    good = {"objective": "train.x", "n_trials": 2, "n_jobs": 1, "seed": 0}
+    with pytest.raises(ConfigError) as err:
+        OptunaSweeper(direction="down", sampler="tpe", **good)
+    one_line_error(err, "hydra.sweeper.direction=down")
+    with pytest.raises(ConfigError) as err:
+        OptunaSweeper(direction="minimize", sampler="grid", **good)
+    one_line_error(err, "hydra.sweeper.sampler=grid")
+
+
+# ------------------------------------------------------------------------------ real smoke sweeps
+
+
+def sweep(args, data, out):
+    """`python -m src.run -m ...` at the smoke profile on the shared smoke dataset; outputs under `out`."""
+    env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{out}/mlflow.db"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "src.run",
+        "-m",
+        *args,
+        "profile=smoke",
+        f"hydra.sweep.dir={out}/sweep",
+        f"tracking.artifact_root={out}/mlartifacts",
+        f"report.out_dir={out}/reports",
+    ]
+    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result.stdout
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp_path):
+    sweep(["+sweep=whitening", "seed=0,1", "hydra/launcher=parallel"], smoke_data, tmp_path)
+    report = tmp_path / "reports" / "sweeps" / "whitening"
+    rows = read_csv(report / "comparison.csv")
+    assert sorted(r["model.whiten"] for r in rows) == ["False", "True"]
+    assert all(r["runs"] == "2" and float(r["PSNR std"]) >= 0 for r in rows)  # mean ± std over 2 seeds
+    losses = read_csv(report / "losses.csv")
+    assert len(losses) == 2 and {"val specular", "train specular"} <= set(losses[0])
+    assert (report / "learning_curves.png").is_file() and (report / "index.html").is_file()
+
+
+def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_path):
+    out = sweep(["+sweep=lr_search", "hydra.sweeper.n_trials=2"], smoke_data, tmp_path)
+    trials = read_csv(tmp_path / "sweep" / "optuna_trials.csv")
+    assert len(trials) == 2 and {t["state"] for t in trials} == {"COMPLETE"}
+    best = OmegaConf.load(tmp_path / "sweep" / "optuna_best.yaml")
+    assert best.value == min(float(t["value"]) for t in trials) and "optuna: best" in out
+    rows = read_csv(tmp_path / "reports" / "sweeps" / "lr_search" / "comparison.csv")
+    assert len(rows) == 2 and {"lr", "batch_size"} <= {k.rsplit(".", 1)[-1] for k in rows[0]}
