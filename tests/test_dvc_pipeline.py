@@ -70,12 +70,13 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
     assert "up to date" in _dvc(repo, "status")
 
     # One model's config changes: its train/eval stages and the report rerun, no other model's.
-    profile = repo / "conf" / "model_profile" / "dpcn_smoke.yaml"
+    profile = repo / "conf" / "model_profile" / "resnet_smoke.yaml"
     profile.write_text(profile.read_text() + "task:\n  train:\n    lr: 2.0e-4\n")
     changed = _dvc(repo, "repro")
     ran = set(re.findall(r"Running stage '([^']+)'", changed))
-    assert {"denoise_train@dpcn", "denoise_eval@dpcn", "denoise_report"} <= ran, ran
+    assert {"denoise_train@resnet", "denoise_eval@resnet", "denoise_report"} <= ran, ran
+    assert "nerf_report" not in ran, ran
     assert not {s for s in ran if re.match(r"(denoise|nerf)_(train|eval)", s)} - {
-        "denoise_train@dpcn",
-        "denoise_eval@dpcn",
+        "denoise_train@resnet",
+        "denoise_eval@resnet",
     }, ran

@@ -93,7 +93,7 @@ def test_lr_search_uses_the_optuna_sweeper_on_a_validation_loss():
     ("launcher", "target", "values"),
     [
         ("parallel", "JoblibLauncher", {"n_jobs": 2}),
-        ("slurm", "SlurmLauncher", {"gpus_per_node": 1, "max_num_timeout": 3}),
+        ("slurm", "SlurmLauncher", {"gpus_per_node": 1, "max_num_timeout": 0}),
     ],
 )
 def test_launcher_configs_compose_and_name_their_plugin(launcher, target, values):
