@@ -13,11 +13,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
 from src.data.kpcn_preprocess import WhiteningStats
-from src.errors import ConfigError, require
+from src.errors import ConfigError
+from src.models import config_readers as read
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import OUTPUTS, TwoBranchDenoiser
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
@@ -28,42 +28,14 @@ COLOR_CHANNELS = 3
 Whitening = Mapping[str, WhiteningStats] | None
 
 
-def _as_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    if isinstance(model_cfg, DictConfig):
-        return OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[return-value]
-    if not isinstance(model_cfg, Mapping):
-        raise ConfigError(f"model: expected a mapping, got {type(model_cfg).__name__}")
-    return dict(model_cfg)
-
-
-def _get(cfg: Mapping[str, Any], key: str) -> Any:
-    return require(cfg, key, "model", f"architecture {cfg.get('architecture')!r}")
-
-
-def _int(cfg: Mapping[str, Any], key: str, minimum: int = 1, odd: bool = False) -> int:
-    value = _get(cfg, key)
-    # bool is an int subclass: `width: true` is a typo, not 1.
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum or (odd and value % 2 == 0):
-        kind = "an odd integer" if odd else "an integer"
-        raise ConfigError(f"model.{key}: expected {kind} >= {minimum}, got {value!r}")
-    return value
-
-
-def _bool(cfg: Mapping[str, Any], key: str) -> bool:
-    value = _get(cfg, key)
-    if not isinstance(value, bool):
-        raise ConfigError(f"model.{key}: expected true or false, got {value!r}")
-    return value
-
-
 def _output(cfg: Mapping[str, Any]) -> tuple[str, int | None, int]:
     """(output, kernel_size, network output channels) from model.output / model.kernel_size."""
-    output = _get(cfg, "output")
+    output = read.value(cfg, "output")
     if output not in OUTPUTS:
         raise ConfigError(f"model.output: unknown {output!r}; expected one of {list(OUTPUTS)}")
     if output == "direct":
         return output, None, COLOR_CHANNELS
-    k = _int(cfg, "kernel_size", odd=True)
+    k = read.integer(cfg, "kernel_size", odd=True)
     return output, k, k * k
 
 
@@ -71,14 +43,14 @@ def _two_branch(cfg: Mapping[str, Any], make_net: Callable[[int], nn.Module], wh
     """One network (shared) or two, around the common output/whitening options."""
     output, kernel_size, out_channels = _output(cfg)
     diffuse = make_net(out_channels)
-    specular = diffuse if _bool(cfg, "shared") else make_net(out_channels)
+    specular = diffuse if read.boolean(cfg, "shared") else make_net(out_channels)
     return TwoBranchDenoiser(
         diffuse,
         specular,
         output=output,
-        in_channels=_int(cfg, "in_channels"),
+        in_channels=read.integer(cfg, "in_channels"),
         kernel_size=kernel_size,
-        whiten=_bool(cfg, "whiten"),
+        whiten=read.boolean(cfg, "whiten"),
         whitening=whitening,
     )
 
@@ -86,10 +58,10 @@ def _two_branch(cfg: Mapping[str, Any], make_net: Callable[[int], nn.Module], wh
 def _conv_stack(cfg: Mapping[str, Any], whitening: Whitening) -> Denoiser:
     def make(out_channels: int) -> nn.Module:
         return ConvStack(
-            in_channels=_int(cfg, "in_channels"),
-            width=_int(cfg, "width"),
-            depth=_int(cfg, "depth"),
-            conv_kernel=_int(cfg, "conv_kernel", odd=True),
+            in_channels=read.integer(cfg, "in_channels"),
+            width=read.integer(cfg, "width"),
+            depth=read.integer(cfg, "depth"),
+            conv_kernel=read.integer(cfg, "conv_kernel", odd=True),
             out_channels=out_channels,
         )
 
@@ -99,11 +71,11 @@ def _conv_stack(cfg: Mapping[str, Any], whitening: Whitening) -> Denoiser:
 def _residual(cfg: Mapping[str, Any], whitening: Whitening) -> Denoiser:
     def make(out_channels: int) -> nn.Module:
         return ResidualKernelNet(
-            in_channels=_int(cfg, "in_channels"),
-            width=_int(cfg, "width"),
-            blocks=_int(cfg, "blocks", minimum=0),
-            conv_kernel=_int(cfg, "conv_kernel", odd=True),
-            predictor_width=_int(cfg, "predictor_width"),
+            in_channels=read.integer(cfg, "in_channels"),
+            width=read.integer(cfg, "width"),
+            blocks=read.integer(cfg, "blocks", minimum=0),
+            conv_kernel=read.integer(cfg, "conv_kernel", odd=True),
+            predictor_width=read.integer(cfg, "predictor_width"),
             out_channels=out_channels,
         )
 
@@ -138,8 +110,8 @@ def build_denoiser(model_cfg: Mapping[str, Any], whitening: Whitening = None) ->
     buffers of learned models with `whiten: true`; without it they start at mean 0 / std 1 (to be filled
     by a checkpoint load). Non-learned filters ignore it.
     """
-    cfg = _as_dict(model_cfg)
-    architecture = _get(cfg, "architecture")
+    cfg = read.as_dict(model_cfg)
+    architecture = read.value(cfg, "architecture")
     if architecture not in BUILDERS:
         raise ConfigError(f"model.architecture: unknown {architecture!r}; expected one of {list(BUILDERS)}")
     try:

@@ -22,10 +22,10 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
 from torch import Tensor, nn
 
-from src.errors import ConfigError, DataError, require
+from src.errors import ConfigError, DataError
+from src.models import config_readers as read
 from src.models.denoise.summary import count_parameters
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
@@ -258,59 +258,9 @@ class RefNeRF(NerfModelBase):
 # --- building from the config ---------------------------------------------------------------------------
 
 
-def _as_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
-    if isinstance(model_cfg, DictConfig):
-        return OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[return-value]
-    if not isinstance(model_cfg, Mapping):
-        raise ConfigError(f"model: expected a mapping, got {type(model_cfg).__name__}")
-    return dict(model_cfg)
-
-
-def _get(cfg: Mapping[str, Any], key: str) -> Any:
-    return require(cfg, key, "model", f"model {cfg.get('name')!r}")
-
-
-def _int(cfg: Mapping[str, Any], key: str, minimum: int = 1) -> int:
-    value = _get(cfg, key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"model.{key}: expected an integer >= {minimum}, got {value!r}")
-    return value
-
-
-def _optional_int(cfg: Mapping[str, Any], key: str) -> int | None:
-    """An integer >= 0 or null (the skip-layer keys: null or 0 disables the skip)."""
-    value = cfg.get(key)
-    return None if value is None else _int(cfg, key, minimum=0)
-
-
-def _float(cfg: Mapping[str, Any], key: str, minimum: float | None = None) -> float:
-    value = _get(cfg, key)
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float)
-        or (minimum is not None and value < minimum)
-    ):
-        bound = "" if minimum is None else f" >= {minimum}"
-        raise ConfigError(f"model.{key}: expected a number{bound}, got {value!r}")
-    return float(value)
-
-
-def _bool(cfg: Mapping[str, Any], key: str) -> bool:
-    value = _get(cfg, key)
-    if not isinstance(value, bool):
-        raise ConfigError(f"model.{key}: expected true or false, got {value!r}")
-    return value
-
-
-def _choice(cfg: Mapping[str, Any], key: str, allowed: Sequence[str]) -> str:
-    value = _get(cfg, key)
-    if value not in allowed:
-        raise ConfigError(f"model.{key}: unknown {value!r}; expected one of {list(allowed)}")
-    return value
-
-
 def _degrees(cfg: Mapping[str, Any], prefix: str) -> tuple[int, int]:
-    lo, hi = _int(cfg, f"{prefix}_min_deg", minimum=0), _int(cfg, f"{prefix}_max_deg", minimum=0)
+    lo = read.integer(cfg, f"{prefix}_min_deg", minimum=0)
+    hi = read.integer(cfg, f"{prefix}_max_deg", minimum=0)
     if hi <= lo:
         raise ConfigError(f"model.{prefix}_max_deg: expected > {prefix}_min_deg ({lo}), got {hi}")
     return lo, hi
@@ -319,8 +269,8 @@ def _degrees(cfg: Mapping[str, Any], prefix: str) -> tuple[int, int]:
 def _base_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
     padding = cfg.get("resample_padding")
     if padding is not None:
-        padding = _float(cfg, "resample_padding", minimum=0.0)
-    background = _get(cfg, "background")
+        padding = read.number(cfg, "resample_padding", minimum=0.0)
+    background = read.value(cfg, "background")
     if (
         not isinstance(background, list | tuple)
         or len(background) != 3
@@ -328,41 +278,41 @@ def _base_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
     ):
         raise ConfigError(f"model.background: expected 3 numbers (RGB), got {background!r}")
     return {
-        "num_coarse_samples": _int(cfg, "num_coarse_samples"),
-        "num_fine_samples": _int(cfg, "num_fine_samples"),
+        "num_coarse_samples": read.integer(cfg, "num_coarse_samples"),
+        "num_fine_samples": read.integer(cfg, "num_fine_samples"),
         "resample_padding": padding,
-        "lindisp": _bool(cfg, "lindisp"),
+        "lindisp": read.boolean(cfg, "lindisp"),
         "background": tuple(float(c) for c in background),
-        "coarse_loss_mult": _float(cfg, "coarse_loss_mult", minimum=0.0),
+        "coarse_loss_mult": read.number(cfg, "coarse_loss_mult", minimum=0.0),
     }
 
 
 def _trunk_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
     return {
-        "depth": _int(cfg, "depth"),
-        "width": _int(cfg, "width"),
-        "skip_layer": _optional_int(cfg, "skip_layer"),
-        "bottleneck_width": _int(cfg, "bottleneck_width"),
-        "view_depth": _int(cfg, "view_depth", minimum=0),
-        "view_width": _int(cfg, "view_width"),
-        "view_skip_layer": _optional_int(cfg, "view_skip_layer"),
-        "density_activation": _choice(cfg, "density_activation", list(ACTIVATIONS)),
-        "density_bias": _float(cfg, "density_bias"),
-        "rgb_padding": _float(cfg, "rgb_padding", minimum=0.0),
+        "depth": read.integer(cfg, "depth"),
+        "width": read.integer(cfg, "width"),
+        "skip_layer": read.optional_integer(cfg, "skip_layer"),
+        "bottleneck_width": read.integer(cfg, "bottleneck_width"),
+        "view_depth": read.integer(cfg, "view_depth", minimum=0),
+        "view_width": read.integer(cfg, "view_width"),
+        "view_skip_layer": read.optional_integer(cfg, "view_skip_layer"),
+        "density_activation": read.choice(cfg, "density_activation", list(ACTIVATIONS)),
+        "density_bias": read.number(cfg, "density_bias"),
+        "rgb_padding": read.number(cfg, "rgb_padding", minimum=0.0),
     }
 
 
 def _levels(cfg: Mapping[str, Any], make: Callable[[], nn.Module]) -> tuple[nn.Module, nn.Module | None]:
     """(coarse MLP, fine MLP or None when `single_mlp`)."""
     coarse = make()
-    return coarse, (None if _bool(cfg, "single_mlp") else make())
+    return coarse, (None if read.boolean(cfg, "single_mlp") else make())
 
 
 def _build_nerf(cfg: Mapping[str, Any], cls: type[NeRF]) -> NeRF:
     pos_deg, view_deg = _degrees(cfg, "pos"), _degrees(cfg, "view")
     integrated = issubclass(cls, MipNeRF)
-    pos_identity = False if integrated else _bool(cfg, "pos_identity")  # the IPE has no identity term
-    view_identity = _bool(cfg, "view_identity")
+    pos_identity = False if integrated else read.boolean(cfg, "pos_identity")  # the IPE has no identity term
+    view_identity = read.boolean(cfg, "view_identity")
     pos_dim = 3 * (2 * (pos_deg[1] - pos_deg[0]) + pos_identity)
     view_dim = 3 * (2 * (view_deg[1] - view_deg[0]) + view_identity)
     mlp_kwargs = _trunk_kwargs(cfg)
@@ -380,7 +330,7 @@ def _build_nerf(cfg: Mapping[str, Any], cls: type[NeRF]) -> NeRF:
 
 def _build_refnerf(cfg: Mapping[str, Any]) -> RefNeRF:
     pos_deg = _degrees(cfg, "pos")
-    deg_view = _int(cfg, "deg_view")
+    deg_view = read.integer(cfg, "deg_view")
     if deg_view > 5:
         raise ConfigError(f"model.deg_view: expected an integer in [1, 5] (l <= 16), got {deg_view}")
     kwargs = _trunk_kwargs(cfg)
@@ -388,16 +338,16 @@ def _build_refnerf(cfg: Mapping[str, Any]) -> RefNeRF:
         min_deg_point=pos_deg[0],
         max_deg_point=pos_deg[1],
         deg_view=deg_view,
-        roughness_bias=_float(cfg, "roughness_bias"),
+        roughness_bias=read.number(cfg, "roughness_bias"),
     )
     coarse, fine = _levels(cfg, lambda: RefNerfMLP(**kwargs))
     return RefNeRF(
         coarse,
         fine,
-        orientation_loss_mult=_float(cfg, "orientation_loss_mult", minimum=0.0),
-        pred_normal_loss_mult=_float(cfg, "pred_normal_loss_mult", minimum=0.0),
-        orientation_normals=_choice(cfg, "orientation_normals", ORIENTATION_NORMALS),
-        orientation_stop_grad=_bool(cfg, "orientation_stop_grad"),
+        orientation_loss_mult=read.number(cfg, "orientation_loss_mult", minimum=0.0),
+        pred_normal_loss_mult=read.number(cfg, "pred_normal_loss_mult", minimum=0.0),
+        orientation_normals=read.choice(cfg, "orientation_normals", ORIENTATION_NORMALS),
+        orientation_stop_grad=read.boolean(cfg, "orientation_stop_grad"),
         **_base_kwargs(cfg),
     )
 
@@ -412,8 +362,8 @@ BUILDERS: dict[str, Callable[[Mapping[str, Any]], NerfModelBase]] = {
 def build_nerf_model(model_cfg: Mapping[str, Any]) -> NerfModelBase:
     """The model `model_cfg["name"]` names (nerf | mipnerf | refnerf), from its conf/model/*.yaml group
     (DictConfig or dict). A missing or invalid key is a one-line `ConfigError` naming `model.<key>`."""
-    cfg = _as_dict(model_cfg)
-    name = _get(cfg, "name")
+    cfg = read.as_dict(model_cfg)
+    name = read.value(cfg, "name")
     if name not in BUILDERS:
         raise ConfigError(f"model.name: unknown {name!r}; expected one of {list(BUILDERS)}")
     return BUILDERS[name](cfg)
@@ -468,7 +418,7 @@ def nerf_mlp_flops_per_ray(model: NerfModelBase) -> dict[str, int]:
 
 def nerf_model_summary(model: NerfModelBase, model_cfg: Mapping[str, Any]) -> str:
     """Architecture, parameter counts (total and per MLP), samples per ray and MLP FLOPs per ray."""
-    cfg = _as_dict(model_cfg)
+    cfg = read.as_dict(model_cfg)
     lines = [
         f"model: {cfg.get('name', model.name)} (family {cfg.get('family', 'nerf')}, learned True)",
         str(model),
