@@ -314,3 +314,4 @@ def test_sweep_callback_end_to_end(store):
     table_lines = out[out.index("== MLflow sweep") :].splitlines()[1:4]
     assert "relMSE" in table_lines[0] and "job" in table_lines[0]
     assert "model=b" in table_lines[1] and "model=a" in table_lines[2] and "1,234" in table_lines[1]
+    assert "+x=1" not in table_lines[1]  # shared by every job: not what tells the rows apart

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import mlflow
+import pandas as pd
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
@@ -60,6 +61,16 @@ def resolved_section(config: DictConfig, key: str) -> DictConfig:
         raise ConfigError(f"{key}: cannot resolve it in the sweep's launcher ({err.msg})") from None
     finally:
         holder.cfg = previous
+
+
+def varying_overrides(jobs: pd.Series) -> pd.Series:
+    """Each job's overrides less those every job shares (the sweep's own command line), so the column
+    shows what tells the rows apart."""
+    parts = jobs.fillna("").astype(str).str.split()
+    if len(parts) < 2:
+        return jobs
+    common = set.intersection(*(set(p) for p in parts))
+    return parts.map(lambda p: " ".join(o for o in p if o not in common))
 
 
 def sweep_dir(config: DictConfig) -> Path:
@@ -128,6 +139,8 @@ class MlflowSweepCallback(Callback):
         client = MlflowClient(tracking_uri=record["tracking_uri"])
         parent_id = record["run_id"]
         table = comparison_table(parent_id, columns=SWEEP_COLUMNS)
+        if not table.empty:
+            table["job"] = varying_overrides(table["job"])
         failed = table["status"].isin(_BAD_CHILD_STATUSES).any() if not table.empty else False
         text = format_table(table)
         name = record.get("run_name", parent_id)
