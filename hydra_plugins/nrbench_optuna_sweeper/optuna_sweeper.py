@@ -138,7 +138,9 @@ class OptunaSweeper(Sweeper):
         self.launcher = Plugins.instance().instantiate_launcher(
             hydra_context=hydra_context, task_function=task_function, config=config
         )
-        self.sweep_dir = Path(str(config.hydra.sweep.dir))
+        from src.tracking.callbacks import sweep_dir  # lazy: mlflow is not needed at plugin scan
+
+        self.sweep_dir = sweep_dir(config)  # relative to the launch dir, as the sweep callback resolves it
 
     def _study(self) -> optuna.Study:
         import optuna
@@ -196,6 +198,10 @@ class OptunaSweeper(Sweeper):
             f"({len(complete)}/{len(study.trials)} trials complete) -> {self.sweep_dir / RESULTS_FILE}",
             flush=True,
         )
-        best_yaml = {"objective": self.objective, "direction": self.direction, "value": best.value}
-        best_yaml["params"] = best.params
-        atomic_write_text(self.sweep_dir / BEST_FILE, OmegaConf.to_yaml(OmegaConf.create(best_yaml)))
+        best_record = {
+            "objective": self.objective,
+            "direction": self.direction,
+            "value": best.value,
+            "params": best.params,
+        }
+        atomic_write_text(self.sweep_dir / BEST_FILE, OmegaConf.to_yaml(OmegaConf.create(best_record)))

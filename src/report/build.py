@@ -69,8 +69,10 @@ def build_report(cfg: Any) -> dict[str, Any]:
 
     axes = [str(a) for a in (config_value(rc, "axes") or ["model.name"])]
     columns_by = config_value(rc, "columns_by")
+    # What tells the runs apart besides the seed: the compared axes, and the column key (e.g. the scene).
+    row_keys = [*axes, *([str(columns_by)] if columns_by else [])]
     warnings: list[str] = []
-    differing = differing_params(runs, [*axes, *([str(columns_by)] if columns_by else [])])
+    differing = differing_params(runs, row_keys)
     if differing:
         msg = (
             f"the compared runs also differ in {', '.join(differing)} (besides "
@@ -84,7 +86,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
     tables = {"comparison": comparison, "cost": cost_table(runs, axes)}
     if per_spp.attrs.get("metrics"):
         tables["comparison_per_spp"] = per_spp
-    losses = loss_table(runs, [*axes, *([str(columns_by)] if columns_by else [])])
+    losses = loss_table(runs, row_keys)
     if losses.attrs.get("metrics"):
         tables["losses"] = losses
 
@@ -97,8 +99,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
         files[f"{stem}.csv"] = atomic_write_text(out_dir / f"{stem}.csv", to_csv(table, notes=warnings))
 
     crop_size, zoom = _crop(cfg)
-    labelled_by = [*axes, *([str(columns_by)] if columns_by else [])]
-    curves = learning_curves(runs, out_dir / "learning_curves.png", labelled_by)
+    curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
     n_images = int(config_value(rc, "images", 3))
     grid_runs = _first_value_only(runs, columns_by)
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
