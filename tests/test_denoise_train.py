@@ -15,6 +15,8 @@ from omegaconf import OmegaConf
 from src.data.denoise_dataset import FullImageDataset
 from src.errors import DataError
 from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
+from src.io.exr import read_exr
+from src.metrics.image import relmse
 from src.models.registry import build_denoiser
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
@@ -62,6 +64,29 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
     assert (
         len(list((eval_dir / "images").glob("*.exr"))) == len(list((eval_dir / "strips").glob("*.png"))) > 0
     )
+    _check_eval_values(cfg, eval_dir, run.data.metrics)
+
+
+def _check_eval_values(cfg, eval_dir, logged):
+    """The eval numbers are the denoised image's, averaged honestly: metrics.json's means are the means of
+    per_image.csv, MLflow logged those means, the noisy input scores differently, and one image's relMSE
+    recomputed from the written EXR and the prepared reference equals its row."""
+    means = json.loads((eval_dir / "metrics.json").read_text())["mean"]
+    rows = pd.read_csv(eval_dir / "per_image.csv")
+    assert len(rows) == len(FullImageDataset(cfg.paths.prepared, "test")) > 1
+    for key in ("psnr", "ssim", "relmse", "smape", "noisy_relmse", "ms_per_mpixel"):
+        assert means[key] == pytest.approx(rows[key].mean(), rel=1e-12), key
+        assert logged[f"eval_{key}"] == pytest.approx(means[key], rel=1e-12), key
+    assert (rows["relmse"] != rows["noisy_relmse"]).all() and (rows["psnr"] != rows["noisy_psnr"]).all()
+    item = FullImageDataset(cfg.paths.prepared, "test")[0]
+    name = f"{item['scene']}-{int(item['spp']):05d}spp"
+    written = read_exr(eval_dir / "images" / f"{name}.exr", ["R", "G", "B"])
+    denoised = np.stack([written[c] for c in "RGB"], axis=-1)
+    reference = item["reference"].permute(1, 2, 0).numpy()
+    row = rows[(rows["scene"] == item["scene"]) & (rows["spp"] == int(item["spp"]))].iloc[0]
+    assert relmse(denoised, reference, cfg.metrics.relmse_eps) == pytest.approx(row["relmse"], rel=1e-6)
+    noisy = item["color"].permute(1, 2, 0).numpy()
+    assert relmse(noisy, reference, cfg.metrics.relmse_eps) == pytest.approx(row["noisy_relmse"], rel=1e-6)
 
 
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):

@@ -64,8 +64,15 @@ def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
     assert curves["val_loss_fine"].iloc[-1] < curves["val_loss_fine"].iloc[0]
     metrics = json.loads((run_dir / "eval" / "metrics.json").read_text())
     assert metrics["images"] == 2 and metrics["scene"] == "materials"
-    for key in ("psnr", "ssim", "lpips", "ms_per_image", "rays_per_s"):
+    rows = pd.read_csv(run_dir / "eval" / "per_image.csv")
+    assert list(rows["view"]) == ["materials-r_0", "materials-r_1"]
+    for key in ("psnr", "ssim", "lpips", "mse", "ms_per_image", "rays_per_s"):
         assert np.isfinite(metrics["mean"][key]), key
+        assert metrics["mean"][key] == pytest.approx(rows[key].mean(), rel=1e-12), key
+    # metrics.tonemap is `clip` for NeRF and the render is clipped, so PSNR is -10 log10(MSE) per view.
+    np.testing.assert_allclose(rows["psnr"], -10 * np.log10(rows["mse"]), rtol=1e-9)
+    # The rays/s figure is the view's pixel count over its render time.
+    np.testing.assert_allclose(rows["rays_per_s"], 24 * 16 / (rows["ms_per_image"] / 1e3), rtol=1e-9)
     pngs = {p.name for p in (run_dir / "eval" / "png").iterdir()}
     assert {"materials-r_0-rendered.png", "materials-r_0-reference.png"} <= pngs
     buffers = {p.name for p in (run_dir / "eval" / "buffers").iterdir()}
@@ -80,26 +87,64 @@ def test_report_has_one_column_group_per_scene(trained, nerf_data, tmp_path):
     table = pd.read_csv(tmp_path / "reports" / "nerf" / "comparison.csv", comment="#", index_col=0)
     assert {"PSNR materials", "PSNR busy", "SSIM materials"} <= set(table.columns)
     assert set(table.index) == {"nerf", "mipnerf", "refnerf"}
-    assert np.isnan(table.loc["mipnerf", "PSNR busy"]) and np.isfinite(table.loc["nerf", "PSNR busy"])
+    assert np.isnan(table.loc["mipnerf", "PSNR busy"])
+    # Every filled cell is that (model, scene) run's own eval mean: a swapped scene or model would differ.
+    for (model, scene), run_dir in trained.items():
+        means = json.loads((run_dir / "eval" / "metrics.json").read_text())["mean"]
+        for column, key in (("PSNR", "psnr"), ("SSIM", "ssim"), ("relMSE", "relmse"), ("FLIP", "flip")):
+            cell = table.loc[model, f"{column} {scene}"]  # the CSV keeps 10 significant digits
+            assert cell == pytest.approx(means[key], rel=1e-8), (model, scene, column)
     assert (tmp_path / "reports" / "nerf" / "image_grid.png").is_file()
+
+
+def _uninterrupted(nerf_data, run_dir, common):
+    cfg = _cfg(nerf_data, run_dir, *common)
+    with job_run(cfg, run_name="a", tags={}) as tracker:
+        reference = NerfTrainer(cfg, tracker)
+        reference.fit()
+    return reference
+
+
+def _resume_and_compare(nerf_data, tmp_path, common, reference):
+    """Resume the run in `tmp_path/b` into `tmp_path/c`: the same steps, weights and curves as `reference`
+    (trained in `tmp_path/a`)."""
+    resumed = _cfg(nerf_data, tmp_path / "c", *common, f"task.train.resume={tmp_path}/b/checkpoints")
+    with job_run(resumed, run_name="c", tags={}) as tracker:
+        summary = train_nerf(resumed, tracker)
+    assert summary["steps"] == reference.step
+    final = load_checkpoint(summary["checkpoint"])["model"]
+    for key, value in reference.model.state_dict().items():
+        assert torch.equal(final[key], value), key
+    pd.testing.assert_frame_equal(
+        pd.read_csv(tmp_path / "c" / "curves.csv"), pd.read_csv(tmp_path / "a" / "curves.csv")
+    )
 
 
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_path):
     common = ["model=mipnerf", "task.train.max_steps=12", "tracking.enabled=false"]
-    straight = _cfg(nerf_data, tmp_path / "a", *common)
-    with job_run(straight, run_name="a", tags={}) as tracker:
-        reference = NerfTrainer(straight, tracker)
-        reference.fit()
+    reference = _uninterrupted(nerf_data, tmp_path / "a", common)
     interrupted = _cfg(nerf_data, tmp_path / "b", *common)
     with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
-        train_nerf(interrupted, tracker, on_step=stop_at(7))
-    resumed = _cfg(nerf_data, tmp_path / "c", *common, f"task.train.resume={tmp_path}/b/checkpoints")
-    with job_run(resumed, run_name="c", tags={}) as tracker:
-        summary = train_nerf(resumed, tracker)
-    assert summary["steps"] == 12
-    final = load_checkpoint(summary["checkpoint"])["model"]
-    for key, value in reference.model.state_dict().items():
-        assert torch.equal(final[key], value), key
+        train_nerf(interrupted, tracker, on_step=stop_at(7))  # Ctrl-C: the handler checkpoints step 7
+    assert load_checkpoint(tmp_path / "b" / "checkpoints")["step"] == 7
+    _resume_and_compare(nerf_data, tmp_path, common, reference)
+
+
+def test_resume_after_a_crash_continues_from_the_periodic_checkpoint(nerf_data, tmp_path):
+    """A crash no handler sees (SIGKILL, OOM; here an exception the loop does not catch) after step 13
+    leaves the periodic checkpoint of step 10; resuming from it replays steps 11-14 exactly."""
+    common = ["model=nerf", "task.train.max_steps=14", "tracking.enabled=false"]
+    reference = _uninterrupted(nerf_data, tmp_path / "a", common)
+
+    def crash(step):
+        if step == 13:
+            raise SystemError("simulated crash")
+
+    interrupted = _cfg(nerf_data, tmp_path / "b", *common)
+    with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(SystemError):
+        train_nerf(interrupted, tracker, on_step=crash)
+    assert load_checkpoint(tmp_path / "b" / "checkpoints")["step"] == 10
+    _resume_and_compare(nerf_data, tmp_path, common, reference)
 
 
 def test_a_missing_scene_is_one_clear_line(nerf_data, tmp_path):
