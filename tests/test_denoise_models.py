@@ -166,6 +166,48 @@ def test_apply_kernel_rejects_mismatched_shapes():
         apply_kernel(torch.zeros(1, 9, 4, 4), torch.zeros(1, 3, 4, 4), 5)
 
 
+@pytest.mark.parametrize(
+    ("logits_shape", "image_shape", "k", "match"),
+    [
+        ((1, 16, 4, 4), (1, 3, 4, 4), 4, "odd"),  # even, with matching logits: must still be refused
+        ((1, 0, 4, 4), (1, 3, 4, 4), 0, "odd"),
+        ((1, 9, 4, 4), (1, 4, 4), 3, "N, C, H, W"),  # 3-D image, 4-D logits
+    ],
+)
+def test_apply_kernel_rejects_bad_kernel_sizes_and_ranks(logits_shape, image_shape, k, match):
+    with pytest.raises(ValueError, match=match):
+        apply_kernel(torch.zeros(logits_shape), torch.zeros(image_shape), k)
+
+
+def test_apply_kernel_default_order_on_cpu_is_offset(monkeypatch):
+    # Both orders give the same numbers (tested above); the CPU default is the cache-friendly one.
+    from src.models.denoise import kernels
+
+    used = []
+    for name, fn in list(kernels.ACCUMULATORS.items()):
+        monkeypatch.setitem(kernels.ACCUMULATORS, name, lambda *a, _n=name, _f=fn: used.append(_n) or _f(*a))
+    apply_kernel(torch.zeros(1, 9, 4, 4), torch.zeros(1, 3, 4, 4), 3)
+    assert used == ["offset"]
+
+
+def test_apply_kernel_upcasts_a_half_precision_image():
+    gen = torch.Generator().manual_seed(3)
+    logits = torch.randn(1, 9, 5, 6, generator=gen)
+    image = torch.rand(1, 3, 5, 6, generator=gen).half()  # float32 logits, float16 image
+    out = apply_kernel(logits, image, 3)
+    assert out.dtype == torch.float32
+    assert_close(out.double(), naive_apply_kernel(logits, image.float(), 3), rtol=1e-6, atol=1e-6)
+
+
+# Surviving mutants of src/models/denoise/kernels.py (bash scripts/mutation.sh kernels), all equivalent here:
+# - `"row" if image.device.type == "cuda" else "offset"` with "row"/"cuda" misspelt or the test forced
+#   False (5 mutants): only changes the choice on a CUDA device; the CPU default is pinned by
+#   test_apply_kernel_default_order_on_cpu_is_offset, and both orders give the same numbers.
+# - `F.pad(...) if r > 0 else image` -> `if r >= 0` / `if (r > 0) or True`: replicate padding by 0 pixels
+#   (k = 1) is a no-op.
+# - `image.shape[-2:]` -> `image.shape[+2:]`: the same two dimensions of a 4-D tensor.
+
+
 # --- models --------------------------------------------------------------------------------------
 
 

@@ -172,3 +172,89 @@ def test_whitening_stats_streaming_and_json(tmp_path):
     back = load_whitening_stats(tmp_path / "w.json")["diffuse_in"]
     np.testing.assert_array_equal(back.mean, stats.mean)
     np.testing.assert_array_equal(back.std, stats.std)
+
+
+# --- mutation-testing additions (scripts/mutation.sh) ----------------------------------------------------
+
+
+def test_rebuild_color_is_differentiable_for_torch_outputs():
+    # Training calls it on network outputs: it must stay in torch (numpy would drop the graph).
+    d = torch.tensor([[[0.5, 1.0, 2.0]]], dtype=torch.float64, requires_grad=True)
+    s = torch.tensor([[[0.1, 0.0, 1.0]]], dtype=torch.float64, requires_grad=True)
+    albedo = torch.tensor([[[0.2, 0.4, 0.8]]], dtype=torch.float64)
+    c = rebuild_color(d, s, albedo, EPS)
+    c.sum().backward()
+    np.testing.assert_allclose(d.grad.numpy(), albedo.numpy() + EPS)  # dc/dd' = albedo + eps
+    np.testing.assert_allclose(s.grad.numpy(), np.exp(s.detach().numpy()))  # dc/ds' = exp(s')
+
+
+def test_normalize_depth_below_one_and_degenerate_inputs():
+    d = np.array([[[0.1], [0.5]]], dtype=np.float32)  # max 0.5 < 1: still scaled up to 1
+    nd, nv = normalize_depth(d, np.full_like(d, 0.01))
+    np.testing.assert_allclose(nd, d / 0.5)
+    np.testing.assert_allclose(nv, 0.01 / 0.25)
+    zd, zv = normalize_depth(np.zeros((2, 3, 1), np.float32), np.ones((2, 3, 1), np.float32))
+    assert zd.shape == zv.shape == (2, 3, 1) and zd.dtype == zv.dtype == np.float32
+    empty = np.zeros((0, 3, 1), np.float32)
+    ed, ev = normalize_depth(empty, empty)  # no max() of an empty array
+    assert ed.shape == ev.shape == (0, 3, 1)
+
+
+def test_network_inputs_return_the_baseline_guides_and_name_the_image():
+    b = synthetic_buffers()
+    x = make_network_inputs(b, EPS)
+    np.testing.assert_array_equal(x["normal"], b["normal"])
+    np.testing.assert_allclose(x["depth"], b["depth"] / b["depth"].max(), rtol=1e-6)
+    bad = dict(b)
+    bad["depth"] = b["depth"][..., 0]  # (H, W): a missing channel axis is a DataError, not an IndexError
+    with pytest.raises(DataError, match="noisy image: buffer 'depth'"):
+        make_network_inputs(bad, EPS)
+
+
+def test_targets_are_float32_and_name_the_reference():
+    noisy, ref = synthetic_buffers(seed=1), synthetic_buffers(seed=2)
+    ref64 = {k: v.astype(np.float64) for k, v in ref.items()}
+    t = make_targets(ref64, noisy["albedo"], EPS)
+    assert t["diffuse_target"].dtype == t["specular_target"].dtype == np.float32
+    with pytest.raises(DataError, match="reference image: buffer 'specular'"):
+        make_targets({"diffuse": ref["diffuse"]}, noisy["albedo"], EPS)
+
+
+def test_whitening_stats_accumulate_in_float64_and_skip_nothing():
+    rng = np.random.default_rng(3)
+    # float32 input with a large offset: float32 accumulation would be off by ~1e-4 relative
+    parts = [(1e4 + rng.normal(size=(n, 2))).astype(np.float32) for n in (0, 1, 999, 1)]
+    stats = compute_whitening_stats(iter(parts), std_eps=1e-6)
+    flat = np.concatenate(parts).astype(
+        np.float64
+    )  # the single-row parts count too; the empty one is skipped
+    np.testing.assert_allclose(stats.mean, flat.mean(0), rtol=1e-13)
+    np.testing.assert_allclose(stats.std, flat.std(0), rtol=1e-9)
+
+
+def test_float64_buffers_give_the_same_bits_as_float32_ones():
+    # Buffers are cast to float32 first: where they come from (EXR half/float, a float64 array) does not
+    # change a single value of the network inputs or targets.
+    b32 = synthetic_buffers()
+    b64 = {k: v.astype(np.float64) for k, v in b32.items()}
+    x32, x64 = make_network_inputs(b32, EPS), make_network_inputs(b64, EPS)
+    for k in x32:
+        np.testing.assert_array_equal(x64[k], x32[k])
+    t32, t64 = make_targets(b32, x32["albedo"], EPS), make_targets(b64, x32["albedo"], EPS)
+    for k in t32:
+        np.testing.assert_array_equal(t64[k], t32[k])
+
+
+# Surviving mutants (bash scripts/mutation.sh kpcn), each equivalent for the reason given:
+# - _grad_names (3): INPUT_CHANNELS is built at import, before mutmut switches a mutant on; the channel
+#   names are checked by test_network_inputs_have_28_documented_channels.
+# - normalize_depth `else 0.0` -> `else 1.0`: only reached for an empty depth, where depth / 1 is the same
+#   empty array as zeros_like (test_normalize_depth_below_one_and_degenerate_inputs).
+# - make_network_inputs / whiten `astype(..., copy=False)` -> copy=True/None/default: copying or not
+#   changes no value.
+# - WhiteningStats.from_dict dtype=float64 -> None/default: JSON numbers load as Python floats, which
+#   numpy stores as float64 anyway.
+# - RunningMoments.__init__ n = 0 -> None/1, m2 = None -> "": overwritten by the first non-empty update
+#   (`self.mean is None` decides), and finalize refuses to run before one.
+# - RunningMoments.update reshape(-1, C) -> reshape(-2, C) and whiten shape[axis] = -1 -> -2: numpy
+#   treats any negative size as "infer this dimension".

@@ -1,11 +1,25 @@
 """Image metrics (src/metrics/image.py) against closed forms and an independent SSIM implementation."""
 
+import warnings
+
 import numpy as np
 import pytest
 from numpy.lib.stride_tricks import sliding_window_view
 
 from src.errors import ConfigError, DataError
-from src.metrics.image import image_metrics, mse, psnr, relmse, smape, ssim, tonemap
+from src.metrics.flip import flip
+from src.metrics.image import (
+    image_metrics,
+    lpips_model,
+    lpips_variant,
+    mse,
+    psnr,
+    relmse,
+    smape,
+    ssim,
+    tonemap,
+)
+from src.metrics.lpips import lpips_distance
 from tests.conftest import compose_config, one_line_error
 
 
@@ -124,3 +138,140 @@ def test_image_metrics_from_the_real_config():
     same = image_metrics(reference, reference, cfg)
     assert same["psnr"] == float("inf") and same["ssim"] == pytest.approx(1.0)
     assert same["relmse"] == same["smape"] == same["mse"] == 0.0
+
+
+# --- mutation-testing additions (scripts/mutation.sh): every setting must reach the number it changes ---
+
+
+def small_pair(seed=3, shape=(16, 20, 3)):
+    rng = np.random.default_rng(seed)
+    reference = rng.uniform(0, 2, shape)
+    return np.clip(reference + rng.normal(0, 0.2, shape), 0, None), reference
+
+
+def test_defaults_are_the_documented_conventions():
+    x, y = small_pair()
+    np.testing.assert_array_equal(tonemap(x), tonemap(x, "clip_gamma", 2.2))
+    assert tonemap(x.astype(np.float32)).dtype == np.float64  # computed in float64
+    assert relmse(x, y) == relmse(x, y, 0.01)
+    assert smape(x, y) == smape(x, y, 0.01)
+
+
+def test_psnr_data_range_and_no_warning_on_identical_images():
+    y = np.full((8, 10, 3), 0.5)
+    assert psnr(y + 0.1, y, data_range=2.0) == pytest.approx(20.0 + 20 * np.log10(2.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # identical images must not reach skimage's division by zero
+        assert psnr(y, y) == float("inf")
+
+
+def test_ssim_parameters_reach_skimage():
+    rng = np.random.default_rng(4)
+    x = rng.uniform(0, 1, (15, 17, 3))
+    y = np.clip(x + rng.normal(0, 0.1, x.shape), 0, 1)
+    # sigma 1.0 spans 9 pixels in skimage; k1, k2 away from their defaults
+    expected = reference_ssim(x, y, win_size=9, sigma=1.0, k1=0.02, k2=0.05, data_range=1.0)
+    assert ssim(x, y, win_size=9, sigma=1.0, k1=0.02, k2=0.05) == pytest.approx(expected, rel=1e-9)
+    # an image exactly one window wide has one valid window position
+    square = x[:11, :11]
+    assert ssim(square, y[:11, :11]) == pytest.approx(reference_ssim(square, y[:11, :11]), rel=1e-9)
+
+
+def test_relmse_largest_allowed_crop():
+    x, y = small_pair(shape=(10, 12, 3))
+    # crop 4 of a 10-pixel side leaves 2 rows: allowed (2 * crop < 10)
+    expected = np.mean((x[4:-4, 4:-4] - y[4:-4, 4:-4]) ** 2 / (y[4:-4, 4:-4] ** 2 + 0.01))
+    assert relmse(x, y, 0.01, crop=4) == pytest.approx(expected)
+
+
+def test_nonfinite_reference_is_named():
+    bad = np.zeros((16, 20, 3))
+    bad[0, 0, 0] = np.inf
+    with pytest.raises(DataError) as excinfo:
+        mse(np.zeros((16, 20, 3)), bad)
+    one_line_error(excinfo, "reference image has 1 NaN/Inf")
+    with pytest.raises(DataError) as excinfo:
+        mse(bad, np.zeros((16, 20, 3)))
+    one_line_error(excinfo, "image metrics: denoised image has 1 NaN/Inf")
+
+
+def metrics_dict(**overrides):
+    cfg = {
+        "tonemap": "reinhard_gamma",
+        "gamma": 2.0,
+        "relmse_eps": 0.5,
+        "relmse_crop": 1,
+        "smape_eps": 0.3,
+        "ssim": {"win_size": 9, "sigma": 1.0, "k1": 0.02, "k2": 0.05},
+        "lpips": {"enabled": True, "trunk_weights": None, "lin_weights": None, "seed": 0},
+        "flip": {"enabled": True, "mode": "ldr"},
+    }
+    return {**cfg, **overrides}
+
+
+def test_image_metrics_passes_every_setting_through():
+    """Non-default values for every key of the metrics section, each checked against a direct call."""
+    x, y = small_pair()
+    cfg = metrics_dict()
+    m = image_metrics(x, y, cfg)
+    x_ldr, y_ldr = tonemap(x, "reinhard_gamma", 2.0), tonemap(y, "reinhard_gamma", 2.0)
+    assert m["psnr"] == pytest.approx(psnr(x_ldr, y_ldr))
+    assert m["ssim"] == pytest.approx(ssim(x_ldr, y_ldr, win_size=9, sigma=1.0, k1=0.02, k2=0.05))
+    assert m["relmse"] == pytest.approx(relmse(x, y, 0.5, 1))
+    assert m["smape"] == pytest.approx(smape(x, y, 0.3))
+    assert m["mse"] == pytest.approx(mse(x, y))
+    assert m["lpips"] == pytest.approx(lpips_distance(lpips_model(cfg["lpips"]), x_ldr, y_ldr))
+    assert m["flip"] == pytest.approx(flip(x_ldr, y_ldr, "ldr"))
+    hdr = image_metrics(x, y, metrics_dict(flip={"enabled": True, "mode": "hdr"}, lpips={"enabled": False}))
+    assert hdr["flip"] == pytest.approx(flip(x, y, "hdr")) and hdr["flip"] != pytest.approx(m["flip"])
+    assert "lpips" not in hdr
+    # a section without `enabled: true` is off
+    off = image_metrics(x, y, metrics_dict(flip={"mode": "hdr"}, lpips={"seed": 0}))
+    assert set(off) == {"psnr", "ssim", "relmse", "smape", "mse"}
+
+
+def test_lpips_variant_names_the_model_that_is_used():
+    assert (
+        lpips_variant(metrics_dict())
+        == lpips_model({"seed": 0}).variant
+        == "vgg16-random(seed=0)+lin-uniform"
+    )
+    seedless = "vgg16-random(seed=0)+lin-uniform"  # the seed defaults to 0
+    assert lpips_variant(metrics_dict(lpips={"enabled": True})) == lpips_model({}).variant == seedless
+    assert lpips_model({"seed": 1}).variant == "vgg16-random(seed=1)+lin-uniform"
+    assert lpips_variant(metrics_dict(lpips={"enabled": False})) is None
+    assert lpips_variant({"flip": {"enabled": True}}) is None
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "name"),
+    [
+        (None, "gamma", "metrics.gamma"),
+        ("ssim", "k2", "metrics.ssim.k2"),
+        ("flip", "mode", "metrics.flip.mode"),
+    ],
+)
+def test_missing_metric_settings_name_their_full_key(section, key, name):
+    cfg = metrics_dict(lpips={"enabled": False})
+    if section is None:
+        del cfg[key]
+    else:
+        cfg[section] = {k: v for k, v in cfg[section].items() if k != key}
+    with pytest.raises(ConfigError) as excinfo:
+        image_metrics(*small_pair(), cfg)
+    one_line_error(excinfo, name)
+
+
+# Surviving mutants of src/metrics/image.py (bash scripts/mutation.sh metrics), all equivalent here:
+# - _check_pair: one of x, y left un-cast (dtype=None / default, 4 mutants): the other one is float64 and
+#   every metric combines the two (x - y, skimage's float conversion), so numpy computes in float64 anyway.
+# - psnr `float("inf")` -> `float("INF")`: the same value.
+# - ssim `win_size=win_size` -> None / dropped: with gaussian_weights skimage derives the window from sigma,
+#   and _check_ssim_window has already required win_size to be exactly that footprint.
+# - ssim `use_sample_covariance=False` -> None: falsy, the same population covariance.
+# - _enabled: `hasattr(cfg, "get") or True` (dict and DictConfig both have get); `.get("enabled", False)`
+#   -> None / no default (`not None` is `not False`).
+# - lpips_model: the trunk_weights / lin_weights keys and their str() (14 mutants) only matter when a
+#   weights file is configured; the pretrained VGG16 / LPIPS files are not available offline here, and
+#   every test runs the documented default (null: seeded random trunk, uniform linear weights).
+# - image_metrics `flip(x, y, mode)` -> `flip(x, y)` in the hdr branch: "hdr" is flip's default mode.

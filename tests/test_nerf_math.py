@@ -373,3 +373,151 @@ def test_resample_tdist_sorted():
         assert bool((t >= tdist[:, :1]).all() and (t <= tdist[:, -1:]).all())
     # The merged NeRF set keeps every coarse endpoint.
     assert bool(torch.isin(tdist, nerf).all())
+
+
+# --- mutation-testing additions (scripts/mutation.sh) ----------------------------------------------------
+# Every function here is batched over leading dimensions and keeps the dtype/device of its inputs; the
+# three tests below check both for all of them at once (a `dim=-1` written as `dim=1`, a reduction over
+# every ray, a tensor created on the default device or in the default dtype...), then a few closed forms
+# that the Monte Carlo tests above cannot resolve.
+
+BATCH = (2, 4)  # a (2, 4, ...) batch must equal the same 8 rays computed as a flat (8, ...) batch
+
+
+def nerf_calls(make, s=5):
+    """name -> (function of the tensors, tensors): every public function of the NeRF math modules."""
+    rays = int(math.prod(BATCH))
+    tdist = torch.sort(2 + 4 * make(rays, s + 1), dim=-1).values
+    dirs = make(rays, 3) - 0.5
+    unit = l2_normalize(dirs)
+    w = make(rays, s) ** 2
+    return {
+        "pos_enc": (lambda x: pos_enc(x, 0, 4), [dirs]),
+        "ipe": (lambda m, v: integrated_pos_enc(m, v, 1, 4), [dirs, 0.1 * w[:, :3]]),
+        "cast_rays_diag": (
+            lambda t, o, d, r: cast_rays(t, o, d, r, diag=True),
+            [tdist, dirs, dirs, w[:, :1]],
+        ),
+        "cast_rays_full": (
+            lambda t, o, d, r: cast_rays(t, o, d, r, diag=False),
+            [tdist, dirs, dirs, w[:, :1]],
+        ),
+        "alpha": (compute_alpha_weights, [w, tdist, dirs]),
+        "render": (
+            lambda rgb, wt, t: volumetric_rendering(
+                rgb.unflatten(-1, (s, 3)), 0.3 * wt, t, 0.5 * rgb[..., :3]
+            ),
+            [make(rays, s * 3), w, tdist],
+        ),
+        "blur": (lambda wt: blur_weights(wt, 0.01), [w]),
+        "stratified": (
+            lambda n, f: stratified_samples(n, f, 6, True, generator=gen(1)),
+            [2 + make(rays, 1), 5 + make(rays, 1)],
+        ),
+        "stratified_lindisp": (
+            lambda n, f: stratified_samples(n, f, 6, False, lindisp=True),
+            [2 + make(rays, 1), 5 + make(rays, 1)],
+        ),
+        "pdf": (lambda b, wt: sample_pdf(b, wt, 7, True, generator=gen(2)), [tdist, w]),
+        "pdf_det": (lambda b, wt: sample_pdf(b, wt, 7, False), [tdist, w]),
+        "resample_mip": (lambda t, wt: resample_tdist(t, wt, 7, True, 0.01, generator=gen(3)), [tdist, w]),
+        "resample_nerf": (lambda t, wt: resample_tdist(t, wt, 7, True, None, generator=gen(3)), [tdist, w]),
+        "sph": (lambda u: complex_sph_harm(u, [(0, 0), (2, 1), (4, 4), (3, 0)]), [unit]),
+        "real_sph": (lambda u: real_sph_harm(u, 3), [unit]),
+        "ide": (lambda u, k: integrated_dir_enc(u, k, 3), [unit, w[:, :1]]),
+        "reflect": (reflect, [unit, l2_normalize(dirs.flip(-1))]),
+    }
+
+
+def flat_outputs(out):
+    if isinstance(out, dict):
+        return [out[k] for k in sorted(out)]
+    return list(out) if isinstance(out, tuple) else [out]
+
+
+def test_nerf_math_is_batched_over_leading_dimensions():
+    g = gen(20)
+    make = lambda *shape: torch.rand(*shape, generator=g, dtype=F64)  # noqa: E731
+    for name, (fn, args) in nerf_calls(make).items():
+        flat = flat_outputs(fn(*args))
+        batched = flat_outputs(fn(*(a.unflatten(0, BATCH) for a in args)))
+        for f, b in zip(flat, batched, strict=True):
+            assert b.shape == (*BATCH, *f.shape[1:]), name
+            assert_within(b.flatten(0, 1), f, 1e-12)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.float64])
+def test_nerf_math_keeps_dtype_and_device(dtype):
+    """On the meta device (shapes only): a tensor made on the CPU or in float32 inside any function fails
+    to combine with the inputs or changes the output's dtype."""
+    make = lambda *shape: torch.rand(*shape, dtype=F64).to("meta", dtype)  # noqa: E731
+    for name, (fn, args) in nerf_calls(make).items():
+        for out in flat_outputs(fn(*args)):
+            assert (out.device.type, out.dtype) == ("meta", dtype), name
+
+
+def test_random_sampling_follows_the_generator():
+    """Seeded draws are reproducible (they use the given generator) and actually random when asked."""
+    near, far = torch.full((3, 1), 2.0), torch.full((3, 1), 6.0)
+    tdist = stratified_samples(near, far, 8, randomized=False)
+    w = torch.rand(3, 8, generator=gen(21))
+    for fn in (
+        lambda r, g: stratified_samples(near, far, 8, r, generator=g),
+        lambda r, g: sample_pdf(tdist, w, 8, r, generator=g),
+        lambda r, g: resample_tdist(tdist, w, 8, r, 0.01, generator=g),
+        lambda r, g: resample_tdist(tdist, w, 8, r, None, generator=g),
+    ):
+        torch.manual_seed(0)
+        a = fn(True, gen(5))
+        b = fn(True, gen(5))  # the global RNG has moved on: equal only if the generator is used
+        assert torch.equal(a, b)
+        assert not torch.equal(a, fn(False, None))
+
+
+def test_defaults_of_pos_enc_and_cast_rays():
+    x = torch.tensor([[0.3, -1.2, 2.0]], dtype=F64)
+    assert torch.equal(pos_enc(x, 0, 2), pos_enc(x, 0, 2, append_identity=True))
+    tdist = torch.tensor([[1.0, 2.0, 4.0]], dtype=F64)
+    assert cast_rays(tdist, x, x, torch.ones(1, 1, dtype=F64))[1].shape == (1, 2, 3)  # diagonal by default
+
+
+def test_frustum_of_a_short_direction_vector():
+    # ||d|| < 1: the lifted covariance must use ||d||^2 itself (it is clamped only near 0).
+    d = torch.tensor([0.3, 0.0, -0.4], dtype=F64)  # ||d||^2 = 0.25
+    t0, t1, radius = 1.0, 2.0, 0.1
+    _, cov = cast_rays(
+        torch.tensor([[t0, t1]], dtype=F64),
+        torch.zeros(1, 3, dtype=F64),
+        d[None],
+        torch.tensor([[radius]], dtype=F64),
+        diag=False,
+    )
+    _, var_t, var_r = paper_frustum_moments(t0, t1, radius)
+    d_outer = torch.outer(d, d)
+    assert_within(cov[0, 0], var_t * d_outer + var_r * (torch.eye(3, dtype=F64) - d_outer / 0.25), 1e-12)
+
+
+def test_volumetric_depth_of_partial_and_last_interval_weights():
+    tdist = torch.tensor([[1.0, 2.0, 4.0, 8.0]], dtype=F64)
+    rgb = torch.zeros(1, 3, 3, dtype=F64)
+    bg = torch.zeros(3, dtype=F64)
+    out = volumetric_rendering(rgb, torch.tensor([[0.2, 0.3, 0.0]], dtype=F64), tdist, bg)
+    assert out["depth"].item() == pytest.approx((0.2 * 1.5 + 0.3 * 3.0) / 0.5)  # normalised by acc = 0.5
+    last = volumetric_rendering(rgb, torch.tensor([[0.0, 0.0, 1.0]], dtype=F64), tdist, bg)
+    assert last["depth"].item() == pytest.approx(6.0)  # the last midpoint, inside [t_0, t_S]
+
+
+def test_sample_pdf_skips_an_empty_first_bin():
+    bins = torch.tensor([[0.0, 1.0, 2.0, 3.0]])
+    samples = sample_pdf(bins, torch.tensor([[0.0, 1.0, 1.0]]), 5, randomized=False)
+    assert samples[0, 0].item() == pytest.approx(1.0)  # u = 0 maps to the start of the mass, not to 0
+    assert bool((samples >= 1.0).all())
+
+
+def test_real_sph_harm_closed_form_and_ide_degrees():
+    x, y, z = 0.48, -0.6, 0.64
+    feats = real_sph_harm(torch.tensor([[x, y, z]], dtype=F64), 1)[0]
+    c0, c1 = 0.5 / math.sqrt(math.pi), math.sqrt(3 / (4 * math.pi))
+    # [Y_0^0, Y_1^0, sqrt(2) Re Y_1^1, sqrt(2) Im Y_1^1] with the Condon-Shortley phase
+    assert_within(feats, torch.tensor([c0, c1 * z, -c1 * x, -c1 * y], dtype=F64), 1e-12)
+    assert ide_degrees(1) == [(1, 0), (1, 1)]
