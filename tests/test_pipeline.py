@@ -1,11 +1,17 @@
 """What the DVC pipeline relies on: a machine-independent per-model params file, and evaluation of a
 trained checkpoint logging into the MLflow run that trained it."""
 
+import shutil
+
+import pytest
+from mlflow.tracking import MlflowClient
+
 from src.provenance import result_config
-from src.run import _run_to_continue
+from src.run import _run_to_continue, _tracked_run
 from src.stages import train
 from src.tracking.mlflow_tracking import job_run
-from tests.conftest import smoke_config
+from src.train.trainer import train_denoiser
+from tests.conftest import smoke_config, stop_at
 
 
 def test_result_config_leaves_out_paths_and_tracking_only(tmp_path):
@@ -28,3 +34,41 @@ def test_eval_of_a_trained_checkpoint_continues_its_training_run(smoke_data, tmp
     assert _run_to_continue(cfg, ["train", "eval"]) is None  # a fresh training starts a new run
     baseline = smoke_config(smoke_data, tmp_path, ["model=oidn"])
     assert _run_to_continue(baseline, ["eval"]) is None
+
+
+def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, caplog):
+    common = ["model=resnet", "task.train.epochs=2"]
+    first_cfg = smoke_config(smoke_data, tmp_path / "a", common)
+    with _tracked_run(first_cfg, ["train"]) as tracker, pytest.raises(KeyboardInterrupt):
+        train_denoiser(first_cfg, tracker, on_step=stop_at(3))
+    first = tracker.run_id
+    # Keep a copy of the interrupted checkpoint for the stale-run case below.
+    shutil.copytree(tmp_path / "a" / "checkpoints", tmp_path / "copy")
+
+    resumed_cfg = smoke_config(
+        smoke_data, tmp_path / "a", [*common, f"task.train.resume={tmp_path}/a/checkpoints"]
+    )
+    assert _run_to_continue(resumed_cfg, ["train", "eval"]) == first
+    with _tracked_run(resumed_cfg, ["train"]) as tracker:
+        summary = train_denoiser(resumed_cfg, tracker)
+    assert tracker.run_id == first
+    client = MlflowClient()
+    run = client.get_run(first)
+    assert run.info.status == "FINISHED"
+    # One run holds the whole training: per-step losses from before and after the interrupt, once each.
+    steps = [m.step for m in client.get_metric_history(first, "train_step_loss_diffuse")]
+    assert steps == list(range(1, summary["steps"] + 1))
+    assert [m.step for m in client.get_metric_history(first, "epoch")] == [
+        summary["steps"] // 2,
+        summary["steps"],
+    ]
+
+    # The checkpoint's run was deleted since: training goes on, into a new run, with a warning.
+    client.delete_run(first)
+    stale_cfg = smoke_config(smoke_data, tmp_path / "b", [*common, f"task.train.resume={tmp_path}/copy"])
+    assert _run_to_continue(stale_cfg, ["train"]) == first
+    with _tracked_run(stale_cfg, ["train"]) as tracker:
+        train_denoiser(stale_cfg, tracker)
+    assert tracker.run_id != first
+    assert client.get_run(tracker.run_id).info.status == "FINISHED"
+    assert f"MLflow run {first} (to resume) is not in" in caplog.text
