@@ -67,8 +67,8 @@ def _log_run(
         "eval_ms_per_mpixel": 40.0,
     }
     history = [
-        Metric(f"{split}_loss_{c}", 1.0 / (step + seed + 1), 0, step)
-        for split in ("train", "val")
+        Metric(f"{split}_loss_{c}", scale / (step + seed + 1), 0, step)
+        for split, scale in (("train", 1.0), ("val", 2.0))
         for c in ("diffuse", "specular", "color")
         for step in (10, 20, 30)
     ]
@@ -231,7 +231,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert any("task.train.lr" in r.getMessage() for r in caplog.records)
     assert len(summary["warnings"]) == 1 and "task.train.lr" in summary["warnings"][0]
     names = {p.name for p in out.iterdir()}
-    for stem in ("comparison", "cost", "comparison_per_spp"):
+    for stem in ("comparison", "cost", "comparison_per_spp", "losses"):
         assert {f"{stem}.md", f"{stem}.tex", f"{stem}.csv"} <= names
     assert {"learning_curves.png", "image_grid.png", "index.html"} <= names
     assert not [n for n in names if n.startswith(".")]  # no temporary files left
@@ -239,6 +239,12 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
         assert "task.train.lr" in (out / name).read_text(), name  # the warning is visible everywhere
     csv = pd.read_csv(out / "comparison.csv", comment="#")
     assert len(csv) == 3
+    # Final (step 30) losses, mean over kpcn's two seeds: 1 / (30 + seed + 1) (twice that for validation);
+    # validation columns first.
+    losses = pd.read_csv(out / "losses.csv", comment="#", index_col=0)
+    assert list(losses.columns[:2]) == ["val color", "val color std"]
+    assert losses.loc["kpcn", "train specular"] == pytest.approx((1 / 31 + 1 / 32) / 2)
+    assert losses.loc["resnet", "val diffuse"] == pytest.approx(2 / 31)
 
     with Image.open(out / "image_grid.png") as grid:
         # 2 images: (noisy + 3 models + reference) columns, full row and a 4x zoomed 16-px crop row
