@@ -43,6 +43,25 @@ def table_rows(out: str) -> list[dict[str, str]]:
     return rows
 
 
+def _check_derived_columns(rows):
+    """ratio = the first row's rays/s / this row's; GFLOP/s = factor x FLOP/ray x rays/s / 1e9, with
+    factor 3 for a training step (forward + backward) and 1 for rendering; within the printed rounding
+    (rays/s to 1, ratio and GFLOP/s to 0.01)."""
+    for phase, factor in (("train", 3), ("render", 1)):
+        first = _number(rows[0][f"{phase} rays/s"])
+        for r in rows:
+            rate, flops = _number(r[f"{phase} rays/s"]), _number(r["FLOP/ray"])
+            ratio_tol = 0.005 + first / rate * (0.5 / first + 0.5 / rate)
+            assert _number(r[f"{phase} ratio"]) == pytest.approx(first / rate, abs=ratio_tol), (phase, r)
+            gflops_tol = 0.005 + factor * flops * 0.5 / 1e9
+            assert _number(r[f"{phase} GFLOP/s"]) == pytest.approx(
+                factor * flops * rate / 1e9, abs=gflops_tol
+            ), (
+                phase,
+                r,
+            )
+
+
 def test_nerf_bench_prints_one_row_per_model_relative_to_the_first(capsys):
     code = bench_main(["nerf", "--models", "nerf,mipnerf", *SMOKE])
     captured = capsys.readouterr()
@@ -55,6 +74,7 @@ def test_nerf_bench_prints_one_row_per_model_relative_to_the_first(capsys):
         for column in ("train ratio", "train GFLOP/s", "render ratio", "render GFLOP/s"):
             assert _number(r[column]) >= 0, (column, r)  # 2 decimals: a load spike can round one to 0
     assert rows[0]["train ratio"] == "1.00" and rows[0]["render ratio"] == "1.00"
+    _check_derived_columns(rows)
     # The smoke sizes (conf/model_profile/*_smoke.yaml), not the paper's: NeRF fine level = 8 + 8 samples.
     assert rows[0]["note"] == "8+16 samples" and rows[1]["note"] == "8+8 samples"
     assert "profile smoke" in captured.out and "3 x the forward FLOPs" in captured.out
