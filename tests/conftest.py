@@ -29,6 +29,19 @@ def one_line_error(excinfo, *needles):
     return msg
 
 
+def one_line_cli_error(result, *needles):
+    """A `python -m src.run` that failed on bad input: exit status 2, no traceback, and exactly one
+    ERROR line, naming every needle; returns that line."""
+    output = result.stdout + result.stderr
+    assert result.returncode == 2, output[-3000:]
+    assert "Traceback" not in output, output[-3000:]
+    errors = [line for line in output.splitlines() if "ERROR" in line]
+    assert len(errors) == 1, errors
+    for needle in needles:
+        assert needle in errors[0], (needle, errors[0])
+    return errors[0]
+
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

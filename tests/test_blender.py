@@ -115,7 +115,10 @@ def test_downscale_averages_premultiplied_colour_and_scales_focal(tmp_path):
     with pytest.raises(DataError) as err:
         load_blender_split(tmp_path, "train", downscale=4)
     one_line_error(err, "r_0.png", "6x4", "downscale=4")
-    assert downscale_rgba(images[0].astype(np.float32), 1) is not None
+    # factor 1 leaves the pixels as they are, even the colour stored under zero alpha
+    rgba = np.random.default_rng(0).random((H, W, 4), dtype=np.float32)
+    rgba[0, 0, 3] = 0.0
+    np.testing.assert_array_equal(downscale_rgba(rgba, 1), rgba)
 
 
 def test_rays_go_through_pixel_centres_in_camera_row_column_order():
@@ -255,8 +258,9 @@ def test_ray_batches_are_a_function_of_seed_and_step():
     for key, value in expected.items():
         torch.testing.assert_close(a[key], value)
     assert set(a["cam"].tolist()) == {0, 1, 2}
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError) as err:
         batcher.batch(-1)
+    one_line_error(err, "step must be >= 0, got -1")
 
 
 def test_precrop_samples_only_the_image_centre_during_warm_up():

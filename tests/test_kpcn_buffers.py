@@ -134,9 +134,10 @@ def test_bad_values_error_then_repair(tmp_path, caplog, channel, value, needles)
     )
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
-    one_line_error(excinfo, "bad.exr", *needles)
-
     kind = "negative" if np.isfinite(value) else "nonfinite"
+    fix = "negative=clamp" if kind == "negative" else "nonfinite=zero"
+    one_line_error(excinfo, "bad.exr", *needles, f"repair with task.preprocess.repair.{fix}")
+
     policy = RepairPolicy(negative="clamp") if kind == "negative" else RepairPolicy(nonfinite="zero")
     with caplog.at_level(logging.WARNING, logger="src.data.kpcn_buffers"):
         loaded, report = load_kpcn_exr(path, repair=policy)
@@ -203,20 +204,22 @@ def test_aliases_map_differently_named_files(tmp_path):
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path, aliases={"normal.R": "N.x"})
     one_line_error(excinfo, "xyz.exr", "'N.x' (alias of 'normal.R', buffer 'normal')")
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError) as excinfo:
         load_kpcn_exr(path, aliases={"normal.W": "normal.X"})
+    one_line_error(excinfo, "aliases", "'normal.W'")
 
 
 def test_repair_policy_validates_and_is_frozen():
     assert RepairPolicy() == RepairPolicy(nonfinite="error", negative="error", firefly_clamp=None)
-    for kwargs in (
-        {"nonfinite": "zeros"},
-        {"negative": "abs"},
-        {"firefly_clamp": 0.0},
-        {"firefly_clamp": np.inf},
+    for (key, value), expected in (
+        (("nonfinite", "zeros"), "expected 'error' or 'zero'"),
+        (("negative", "abs"), "expected 'error' or 'clamp'"),
+        (("firefly_clamp", 0.0), "expected null or a positive number"),
+        (("firefly_clamp", np.inf), "expected null or a positive number"),
     ):
-        with pytest.raises(ConfigError):
-            RepairPolicy(**kwargs)
+        with pytest.raises(ConfigError) as excinfo:
+            RepairPolicy(**{key: value})
+        one_line_error(excinfo, f"task.preprocess.repair.{key}={value!r}", expected)
     with pytest.raises(AttributeError):
         RepairPolicy().negative = "clamp"
 

@@ -13,6 +13,7 @@ from src.data.shards import SHARD_KEYS, preprocess_dataset, save_tensors
 from src.data.splits import group_dataset, parse_exr_name, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
+from tests.conftest import one_line_error
 
 FRACTIONS = {"train": 0.5, "val": 0.25, "test": 0.25}
 
@@ -21,8 +22,9 @@ def test_parse_exr_name():
     assert parse_exr_name("/x/cornell-0003-00016spp.exr") == ("cornell-0003", 16)
     assert parse_exr_name("a-04096spp.exr") == ("a", 4096)
     for bad in ("cornell.exr", "cornell-16.exr", "-00016spp.exr", "c-00016spp.png", "c-00000spp.exr"):
-        with pytest.raises(DataError):
-            parse_exr_name(bad)
+        with pytest.raises(DataError) as excinfo:
+            parse_exr_name(f"/x/{bad}")
+        one_line_error(excinfo, bad, "expected a file name like '<scene>-00016spp.exr'")
 
 
 def test_split_scenes_disjoint_covering_deterministic():
@@ -34,19 +36,26 @@ def test_split_scenes_disjoint_covering_deterministic():
     assert len(s["train"]) > len(s["val"])
     three = split_scenes(["a", "b", "c"], {"train": 0.9, "val": 0.05, "test": 0.05}, 0)
     assert all(len(v) == 1 for v in three.values())
-    with pytest.raises(ConfigError, match="at least 3"):
+    with pytest.raises(ConfigError) as excinfo:
         split_scenes(["a", "b"], FRACTIONS, 0)
-    with pytest.raises(ConfigError):
+    one_line_error(excinfo, "task.preprocess.split", "at least 3 scenes", "got 2: ['a', 'b']")
+    with pytest.raises(ConfigError) as excinfo:
         split_scenes(names, {"train": 1.0, "val": 0.0, "test": 0.0}, 0)
+    one_line_error(excinfo, "task.preprocess.split=", "'val': 0.0", "expected every fraction finite and > 0")
+    with pytest.raises(ConfigError) as excinfo:
+        split_scenes(names, {"train": 1.0, "valid": 0.5, "test": 0.5}, 0)
+    one_line_error(excinfo, "task.preprocess.split", "'valid'", "expected the keys ['train', 'val', 'test']")
 
 
 def test_group_dataset(tmp_path):
-    with pytest.raises(DataError, match="no"):
+    with pytest.raises(DataError) as excinfo:
         group_dataset(tmp_path)
+    one_line_error(excinfo, str(tmp_path), "no '<scene>-<NNNNN>spp.exr' files found")
     for name in ("a-b-00004spp.exr", "a-b-00064spp.exr", "c-00008spp.exr", "notes.txt"):
         (tmp_path / name).touch()
-    with pytest.raises(DataError, match="single sample count"):
+    with pytest.raises(DataError) as excinfo:
         group_dataset(tmp_path)
+    one_line_error(excinfo, "'c'", "single sample count")
     (tmp_path / "c-01024spp.exr").touch()
     g = group_dataset(tmp_path)
     assert list(g) == ["a-b", "c"] and list(g["c"]) == [8, 1024]
@@ -131,8 +140,9 @@ def test_preprocess_dataset_end_to_end(tmp_path):
     test = FullImageDataset(out, "test")
     assert len(test) == 2 and test[0]["scene"] == splits["test"][0] and test[0]["color"].shape == (3, 24, 40)
     assert len(FullImageDataset(out, "val")) == 2
-    with pytest.raises(DataError, match="index"):
+    with pytest.raises(DataError) as excinfo:
         PatchShardDataset(out, "test")
+    one_line_error(excinfo, str(out / "patches" / "test"), "index")
 
     # whitening: train patches only; held-out scenes scaled wildly change nothing
     stats = load_whitening_stats(out / "whitening.json")

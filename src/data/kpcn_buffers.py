@@ -44,6 +44,10 @@ VARIANCE_BUFFERS = tuple(b for b in KPCN_BUFFERS if b.endswith("Variance"))
 _CHANNEL_BUFFER = {ch: b for b, chans in KPCN_BUFFERS.items() for ch in chans}
 
 
+#: Where a RepairPolicy comes from in the config (its errors name these keys).
+REPAIR_KEY = "task.preprocess.repair"
+
+
 @dataclass(frozen=True)
 class RepairPolicy:
     """What to do with bad values instead of failing; everything off (= fail) by default.
@@ -61,14 +65,14 @@ class RepairPolicy:
 
     def __post_init__(self) -> None:
         if self.nonfinite not in ("error", "zero"):
-            raise ConfigError(f"RepairPolicy.nonfinite={self.nonfinite!r}; expected 'error' or 'zero'")
+            raise ConfigError(f"{REPAIR_KEY}.nonfinite={self.nonfinite!r}; expected 'error' or 'zero'")
         if self.negative not in ("error", "clamp"):
-            raise ConfigError(f"RepairPolicy.negative={self.negative!r}; expected 'error' or 'clamp'")
+            raise ConfigError(f"{REPAIR_KEY}.negative={self.negative!r}; expected 'error' or 'clamp'")
         if self.firefly_clamp is not None and not (
             np.isfinite(self.firefly_clamp) and self.firefly_clamp > 0
         ):
             raise ConfigError(
-                f"RepairPolicy.firefly_clamp={self.firefly_clamp!r}; expected a positive number"
+                f"{REPAIR_KEY}.firefly_clamp={self.firefly_clamp!r}; expected null or a positive number"
             )
 
 
@@ -140,7 +144,7 @@ def _repair_channel(
             n_nan = int(np.isnan(arr).sum())
             raise DataError(
                 f"{path}: channel {_label(ch, file_ch)} has {int(bad.sum())} non-finite values "
-                f"({n_nan} NaN, {int(bad.sum()) - n_nan} Inf); repair with RepairPolicy(nonfinite='zero')"
+                f"({n_nan} NaN, {int(bad.sum()) - n_nan} Inf); repair with {REPAIR_KEY}.nonfinite=zero"
             )
         arr[bad] = 0.0
         report.add("nonfinite", file_ch, int(bad.sum()))
@@ -151,7 +155,7 @@ def _repair_channel(
                 what = "variance" if buf in VARIANCE_BUFFERS else "radiance"
                 raise DataError(
                     f"{path}: channel {_label(ch, file_ch)} has {int(neg.sum())} negative {what} values "
-                    f"(min {arr.min():g}); repair with RepairPolicy(negative='clamp')"
+                    f"(min {arr.min():g}); repair with {REPAIR_KEY}.negative=clamp"
                 )
             arr[neg] = 0.0
             report.add("negative", file_ch, int(neg.sum()))

@@ -57,6 +57,10 @@ def group_dataset(raw_dir: str | os.PathLike[str]) -> dict[str, dict[int, Path]]
     return {s: dict(sorted(groups[s].items())) for s in sorted(groups)}
 
 
+#: Where the split fractions come from in the config (their errors name this key).
+SPLIT_KEY = "task.preprocess.split"
+
+
 def split_scenes(
     scene_names: Iterable[str], fractions: Mapping[str, float], seed: int
 ) -> dict[str, list[str]]:
@@ -68,12 +72,14 @@ def split_scenes(
     """
     names = sorted(set(scene_names))
     if set(fractions) != set(SPLITS):
-        raise ConfigError(f"split fractions must have keys {list(SPLITS)}, got {sorted(fractions)}")
+        raise ConfigError(f"{SPLIT_KEY}: expected the keys {list(SPLITS)}, got {sorted(fractions)}")
     f = np.array([float(fractions[s]) for s in SPLITS])
     if (f <= 0).any() or not np.isfinite(f).all():
-        raise ConfigError(f"split fractions must all be > 0, got {dict(fractions)}")
+        raise ConfigError(f"{SPLIT_KEY}={dict(fractions)}: expected every fraction finite and > 0")
     if len(names) < 3:
-        raise ConfigError(f"need at least 3 scenes to split into train/val/test, got {len(names)}: {names}")
+        raise ConfigError(
+            f"{SPLIT_KEY}: need at least 3 scenes to split into train/val/test, got {len(names)}: {names}"
+        )
     f = f / f.sum()
     n = len(names)
     n_val, n_test = (max(1, round(x * n)) for x in f[1:])
