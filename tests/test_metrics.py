@@ -1,6 +1,7 @@
 """Image metrics (src/metrics/image.py) against closed forms and an independent SSIM implementation."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -262,6 +263,36 @@ def test_missing_metric_settings_name_their_full_key(section, key, name):
     one_line_error(excinfo, name)
 
 
+def test_lpips_model_passes_the_configured_weights_and_caches_per_setting(monkeypatch):
+    # The pretrained VGG16 / LPIPS files cannot be downloaded here, so a stand-in records what the
+    # configured paths and seed become.
+    from src.metrics import image
+
+    made = []
+
+    class RecordingLPIPS:
+        def __init__(self, trunk_weights, lin_weights, seed):
+            made.append((trunk_weights, lin_weights, seed))
+
+        def float(self):
+            return self
+
+        def cpu(self):
+            return self
+
+    monkeypatch.setattr(image, "LPIPS", RecordingLPIPS)
+    monkeypatch.setattr(image, "_LPIPS_CACHE", {})
+    first = image.lpips_model(
+        {"trunk_weights": Path("/w/vgg16.pth"), "lin_weights": "/w/vgg.pth", "seed": "3"}
+    )
+    assert made == [("/w/vgg16.pth", "/w/vgg.pth", 3)]
+    again = image.lpips_model({"trunk_weights": "/w/vgg16.pth", "lin_weights": Path("/w/vgg.pth"), "seed": 3})
+    assert again is first and len(made) == 1  # the same setting, however spelt: built once
+    image.lpips_model({})
+    image.lpips_model({"trunk_weights": None, "lin_weights": None, "seed": 1})
+    assert made[1:] == [(None, None, 0), (None, None, 1)]
+
+
 # Surviving mutants of src/metrics/image.py (bash scripts/mutation.sh metrics), all equivalent here:
 # - _check_pair: one of x, y left un-cast (dtype=None / default, 4 mutants): the other one is float64 and
 #   every metric combines the two (x - y, skimage's float conversion), so numpy computes in float64 anyway.
@@ -271,7 +302,4 @@ def test_missing_metric_settings_name_their_full_key(section, key, name):
 # - ssim `use_sample_covariance=False` -> None: falsy, the same population covariance.
 # - _enabled: `hasattr(cfg, "get") or True` (dict and DictConfig both have get); `.get("enabled", False)`
 #   -> None / no default (`not None` is `not False`).
-# - lpips_model: the trunk_weights / lin_weights keys and their str() (14 mutants) only matter when a
-#   weights file is configured; the pretrained VGG16 / LPIPS files are not available offline here, and
-#   every test runs the documented default (null: seeded random trunk, uniform linear weights).
 # - image_metrics `flip(x, y, mode)` -> `flip(x, y)` in the hdr branch: "hdr" is flip's default mode.
