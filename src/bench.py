@@ -55,6 +55,7 @@ from src.errors import ConfigError, NrbenchError
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.summary import count_parameters, flops_per_pixel, random_batch
+from src.models.instantiate import build_method
 from src.models.nerf.models import (
     BUILDERS,
     NerfModelBase,
@@ -63,7 +64,6 @@ from src.models.nerf.models import (
     nerf_mlp_flops_per_ray,
     render_rays_chunked,
 )
-from src.models.registry import build_denoiser
 from src.render.multiview import look_at_c2w, sphere_position
 from src.train.device import pick_device, seed_everything
 
@@ -178,7 +178,7 @@ def conv_baseline(height: int, width: int, tile: int, device: torch.device, time
 def bench_model(name: str, cfg: Mapping[str, Any], batch, tile: int, device: torch.device, timer, seed: int):
     """Rows for one model: itself, and for kernel models its networks alone (timed interleaved)."""
     torch.manual_seed(seed)
-    model: Denoiser = build_denoiser(cfg).to(device).eval()
+    model: Denoiser = build_method(cfg).to(device).eval()
     flops = flops_per_pixel(model)
     params = count_parameters(model)
     runs = [lambda: infer_tiled(model, batch, tile)]
@@ -186,7 +186,7 @@ def bench_model(name: str, cfg: Mapping[str, Any], batch, tile: int, device: tor
         net = NetworkOnly(model)
         runs.append(lambda: infer_tiled(net, batch, tile))
     seconds = timer(runs)
-    note = ", ".join(f"{key} {cfg[key]}" for key in ("architecture", "output") if key in cfg)
+    note = cfg["_target_"].rsplit(".", 1)[-1] + (f", output {cfg['output']}" if "output" in cfg else "")
     rows = [Row(name, seconds[0], flops["total"], params, note)]
     if len(seconds) > 1:
         rows.append(Row(f"{name} (net only)", seconds[1], flops["conv"], params, "no apply_kernel"))
@@ -196,7 +196,7 @@ def bench_model(name: str, cfg: Mapping[str, Any], batch, tile: int, device: tor
 def bench_oidn(profile: str, batch, timer) -> Row:
     """OIDN on the full frame (it is never tiled), or a row saying why it cannot run here."""
     try:
-        model = build_denoiser(load_model_config("oidn", profile))
+        model = build_method(load_model_config("oidn", profile))
         seconds = timer([lambda: infer_tiled(model, batch, 0)])[0]
         return Row("oidn", seconds, note="pyoidn, full frame")
     except Exception as err:  # import failure, missing native library, unsupported device...

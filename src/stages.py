@@ -212,9 +212,9 @@ def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
         print(nerf_model_summary(build_nerf_model(model_cfg), model_cfg))
         return {}
     from src.models.denoise.summary import model_summary
-    from src.models.registry import build_denoiser
+    from src.models.instantiate import build_method
 
-    print(model_summary(build_denoiser(model_cfg), model_cfg))
+    print(model_summary(build_method(model_cfg), model_cfg))
     return {}
 
 

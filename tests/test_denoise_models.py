@@ -8,12 +8,12 @@ import torch.nn.functional as F
 
 from src.bench import main as bench_main
 from src.data.kpcn_preprocess import INPUT_CHANNELS, WhiteningStats
-from src.errors import ConfigError
+from src.errors import ConfigError, DataError
 from src.models.denoise.kernels import apply_kernel
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import count_parameters, flops_per_pixel, model_summary, random_batch
-from src.models.registry import build_denoiser
+from src.models.instantiate import build_method
 from tests.conftest import compose_config, one_line_error
 
 C_IN = len(INPUT_CHANNELS)
@@ -49,13 +49,13 @@ def paper_model(name: str, **overrides):
     cfg = compose_config(
         [f"model={name}", "profile=paper", *(f"model.{k}={v}" for k, v in overrides.items())]
     )
-    return build_denoiser(cfg.model), cfg.model
+    return build_method(cfg.model), cfg.model
 
 
 def tiny_cfg(**overrides):
     cfg = {
         "name": "tiny",
-        "architecture": "conv_stack",
+        "_target_": "src.models.denoise.models.conv_stack_denoiser",
         "output": "kernel",
         "kernel_size": 3,
         "shared": False,
@@ -212,7 +212,7 @@ def test_apply_kernel_upcasts_a_half_precision_image():
 
 
 def test_shared_branches_run_one_network_once_on_both():
-    model = build_denoiser(tiny_cfg(shared=True, whiten=False))
+    model = build_method(tiny_cfg(shared=True, whiten=False))
     calls = []
     model.diffuse_net.register_forward_hook(lambda m, i, o: calls.append(i[0].shape[0]))
     batch = random_batch(5, 6, batch_size=2, generator=torch.Generator().manual_seed(0))
@@ -225,7 +225,7 @@ def test_shared_branches_run_one_network_once_on_both():
 
 
 def test_direct_output_is_the_network_output():
-    model = build_denoiser(tiny_cfg(output="direct", whiten=False))
+    model = build_method(tiny_cfg(output="direct", whiten=False))
     batch = random_batch(4, 5, generator=torch.Generator().manual_seed(0))
     out = model(batch)
     assert set(out) == {"diffuse", "specular"} and out["diffuse"].shape == (1, 3, 4, 5)
@@ -240,7 +240,7 @@ def _stats(seed: int) -> WhiteningStats:
 def test_whitening_buffers_are_applied_and_persist_through_state_dict():
     stats = {"diffuse_in": _stats(1), "specular_in": _stats(2)}
     torch.manual_seed(0)
-    model = build_denoiser(tiny_cfg(output="direct"), whitening=stats)
+    model = build_method(tiny_cfg(output="direct"), whitening=stats)
     assert {"diffuse_mean", "diffuse_std", "specular_mean", "specular_std"} <= set(model.state_dict())
     batch = random_batch(4, 5, generator=torch.Generator().manual_seed(0))
     whitened = (batch["diffuse_in"] - torch.tensor(stats["diffuse_in"].mean).float().view(1, -1, 1, 1)) / (
@@ -248,7 +248,7 @@ def test_whitening_buffers_are_applied_and_persist_through_state_dict():
     )
     assert_close(model(batch)["diffuse"], model.diffuse_net(whitened))
     # A fresh model without stats starts at identity whitening; loading the checkpoint restores them.
-    fresh = build_denoiser(tiny_cfg(output="direct"))
+    fresh = build_method(tiny_cfg(output="direct"))
     assert torch.all(fresh.diffuse_mean == 0) and torch.all(fresh.diffuse_std == 1)
     fresh.load_state_dict(model.state_dict())
     assert_close(fresh(batch)["specular"], model(batch)["specular"])
@@ -257,12 +257,12 @@ def test_whitening_buffers_are_applied_and_persist_through_state_dict():
 def test_whitening_of_the_wrong_length_is_a_config_error():
     bad = {"diffuse_in": WhiteningStats(np.zeros(3), np.ones(3)), "specular_in": _stats(0)}
     with pytest.raises(ConfigError) as excinfo:
-        build_denoiser(tiny_cfg(), whitening=bad)
+        build_method(tiny_cfg(), whitening=bad)
     one_line_error(excinfo, "diffuse_in", "28")
 
 
 def test_halo_and_tiled_inference_equal_one_full_frame_pass():
-    model = build_denoiser(tiny_cfg(kernel_size=5)).eval()
+    model = build_method(tiny_cfg(kernel_size=5)).eval()
     assert model.halo == 2 * 1 + 2  # 2 conv layers of 3x3 + the 5x5 kernel radius
     batch = random_batch(13, 17, batch_size=2, generator=torch.Generator().manual_seed(3))
     with torch.inference_mode():
@@ -278,13 +278,40 @@ def test_residual_network_halo_and_shape():
     assert net(torch.zeros(1, C_IN, 5, 7)).shape == (1, 9, 5, 7)
 
 
-# --- registry ------------------------------------------------------------------------------------
+# --- building from config -----------------------------------------------------------------------
 
 
-def test_unknown_architecture_is_a_one_line_config_error():
+@pytest.mark.parametrize(
+    ("overrides", "needles"),
+    [
+        ({"_target_": None}, ["model._target_", "dotted path", "None"]),
+        ({"_target_": "src.models.denoise.nope.Net"}, ["model._target_", "cannot import", "nope"]),
+        ({"_target_": "src.models.denoise.models.BRANCHES"}, ["model._target_", "not a class or function"]),
+        ({"widht": 4}, ["model.widht", "not an argument of conv_stack_denoiser", "'width'"]),
+        ({"width": True}, ["model.width", "expected int", "True"]),
+        ({"output": "x"}, ["model.output", "expected Literal['direct', 'kernel']", "'x'"]),
+    ],
+)
+def test_bad_model_configs_are_one_line_errors_naming_the_key(overrides, needles):
     with pytest.raises(ConfigError) as excinfo:
-        build_denoiser(tiny_cfg(architecture="foo"))
-    one_line_error(excinfo, "model.architecture", "foo", "conv_stack", "residual")
+        build_method(tiny_cfg(**overrides))
+    one_line_error(excinfo, *needles)
+
+
+def test_a_missing_argument_is_named():
+    cfg = tiny_cfg()
+    del cfg["depth"]
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(cfg)
+    one_line_error(excinfo, "model.depth", "missing", "conv_stack_denoiser")
+
+
+@pytest.mark.parametrize("name", ["dpcn", "kpcn", "resnet", "cross_bilateral", "oidn"])
+@pytest.mark.parametrize("profile", ["smoke", "cpu", "paper"])
+def test_every_denoiser_config_instantiates(name, profile):
+    cfg = compose_config([f"model={name}", f"profile={profile}"]).model
+    model = build_method(cfg)
+    assert model.learned == cfg.learned and callable(model)
 
 
 @pytest.mark.parametrize(
@@ -298,14 +325,14 @@ def test_unknown_architecture_is_a_one_line_config_error():
 )
 def test_invalid_keys_name_the_key(overrides, key):
     with pytest.raises(ConfigError) as excinfo:
-        build_denoiser(tiny_cfg(**overrides))
+        build_method(tiny_cfg(**overrides))
     one_line_error(excinfo, key)
 
 
-def test_registry_accepts_dictconfig():
+def test_build_method_accepts_dictconfig():
     model, cfg = paper_model("resnet", blocks=1, width=8, predictor_width=8)
     assert isinstance(model, TwoBranchDenoiser) and model.halo == (2 + 2) * 1 + 10
-    assert count_parameters(model) > 0 and cfg.architecture == "residual"
+    assert count_parameters(model) > 0 and cfg._target_.endswith("residual_denoiser")
 
 
 # --- FLOPs and summary ---------------------------------------------------------------------------
@@ -318,7 +345,7 @@ def test_flops_per_pixel_of_a_conv_stack_matches_the_closed_form():
     net = ConvStack(c_in, width, depth, k, c_out)
     assert flops_per_pixel(net, in_channels=c_in) == {"total": closed, "conv": closed, "kernel": 0}
     # A two-branch kernel model: both branches' convs plus their kernel applications (k_kernel = 3).
-    model = build_denoiser(tiny_cfg(width=6, depth=3, conv_kernel=5, kernel_size=3))
+    model = build_method(tiny_cfg(width=6, depth=3, conv_kernel=5, kernel_size=3))
     flops = flops_per_pixel(model)
     per_branch_conv = 2 * (c_in * 6 * 25 + 6 * 6 * 25 + 6 * 9 * 25)
     assert flops["conv"] == 2 * per_branch_conv
@@ -327,7 +354,7 @@ def test_flops_per_pixel_of_a_conv_stack_matches_the_closed_form():
 
 
 def test_model_summary_reports_parameters_and_flops():
-    model = build_denoiser(tiny_cfg())
+    model = build_method(tiny_cfg())
     text = model_summary(model, tiny_cfg())
     assert f"parameters: {count_parameters(model):,}" in text
     assert "FLOPs per pixel" in text and "kernel application" in text and "1280x720" in text
@@ -357,3 +384,26 @@ def test_bench_runs_on_a_tiny_frame_and_prints_the_ratios(capsys):
     for needle in ("dpcn", "kpcn (net only)", "resnet", "oidn", "conv2d 100->100 5x5", "KPCN / DPCN time"):
         assert needle in out, (needle, out)
     assert "FLOP ratio KPCN / DPCN" in out and "kernel-application overhead, kpcn" in out
+
+
+def test_a_checkpoint_from_before_target_configs_still_loads(tmp_path):
+    # Checkpoints written before `model._target_` named the builder carry `model.architecture` instead.
+    from src.train.checkpoint import load_weights, save_checkpoint
+
+    cfg = tiny_cfg(whiten=False)
+    trained = build_method(cfg)
+    legacy = {k: v for k, v in cfg.items() if k != "_target_"} | {"architecture": "conv_stack"}
+    state = {"model_config": legacy, "model": trained.state_dict(), "optimizer": {}}
+    save_checkpoint(tmp_path / "old.pt", state | {"epoch": 1, "batch_in_epoch": 0, "step": 5})
+    fresh = build_method(cfg)
+    load_weights(fresh, cfg, tmp_path / "old.pt")
+    for key, value in trained.state_dict().items():
+        assert torch.equal(fresh.state_dict()[key], value), key
+    # ...but not into a different network: the one-line error names what changed.
+    with pytest.raises(DataError) as excinfo:
+        load_weights(
+            build_method(tiny_cfg(whiten=False, width=5)),
+            tiny_cfg(whiten=False, width=5),
+            tmp_path / "old.pt",
+        )
+    one_line_error(excinfo, "old.pt", "model.width: 4 in checkpoint vs 5")

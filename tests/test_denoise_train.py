@@ -17,7 +17,7 @@ from src.errors import DataError
 from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
 from src.io.exr import read_exr
 from src.metrics.image import relmse
-from src.models.registry import build_denoiser
+from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
@@ -147,7 +147,7 @@ def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_pa
 def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
     cfg = _untracked(smoke_data, smoke_data / "run", f"model={model}")
     torch.manual_seed(0)
-    denoiser = build_denoiser(OmegaConf.to_container(cfg.model)).eval()
+    denoiser = build_method(OmegaConf.to_container(cfg.model)).eval()
     item = FullImageDataset(cfg.paths.prepared, "test")[0]
     batch = {k: v[None] for k, v in item.items() if isinstance(v, torch.Tensor)}
     eps = cfg.task.preprocess.eps_albedo

@@ -8,6 +8,7 @@ from scipy import ndimage
 from src.errors import ConfigError
 from src.models.filters.cross_bilateral import CrossBilateralFilter
 from src.models.filters.oidn import OIDNDenoiser
+from src.models.instantiate import build_method
 from tests.conftest import compose_config, one_line_error
 
 HUGE = 1e8  # a feature sigma so large that the feature has no influence on the weights
@@ -81,15 +82,16 @@ def test_output_shape_dtype_and_halo():
 
 def test_cross_bilateral_from_the_real_config_and_missing_key():
     cfg = compose_config(["model=cross_bilateral"]).model
-    filt = CrossBilateralFilter.from_config(cfg)
-    assert filt.halo == cfg.radius
+    filt = build_method(cfg)
+    assert isinstance(filt, CrossBilateralFilter) and filt.halo == cfg.radius
+    assert filt.sigmas["depth"] == cfg.sigma_depth
     partial = {k: v for k, v in cfg.items() if k != "sigma_depth"}
     with pytest.raises(ConfigError) as excinfo:
-        CrossBilateralFilter.from_config(partial)
-    one_line_error(excinfo, "model.sigma_depth")
+        build_method(partial)
+    one_line_error(excinfo, "model.sigma_depth", "missing")
     with pytest.raises(ConfigError) as excinfo:
-        CrossBilateralFilter.from_config({**cfg, "sigma_color": 0.0})
-    one_line_error(excinfo, "model.sigma_color")
+        build_method({**cfg, "sigma_color": 0.0})
+    one_line_error(excinfo, "model.sigma_color", "> 0")
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
@@ -109,7 +111,7 @@ def test_oidn_reduces_error_on_a_noisy_gradient_and_keeps_shape():
     ramp = np.linspace(0.1, 0.9, w)[None, :] * np.linspace(0.5, 1.0, h)[:, None]
     reference = np.broadcast_to(ramp, (1, 3, h, w)).copy()
     noisy = np.clip(reference + rng.normal(0, 0.1, reference.shape), 0, None)
-    denoiser = OIDNDenoiser.from_config(compose_config(["model=oidn"]).model)
+    denoiser = build_method(compose_config(["model=oidn"]).model)
     out = denoiser(make_batch(noisy))["color"]
     assert out.shape == (1, 3, h, w) and out.dtype == torch.float32
     assert denoiser.halo is None and denoiser.learned is False
@@ -118,12 +120,14 @@ def test_oidn_reduces_error_on_a_noisy_gradient_and_keeps_shape():
     assert mse_out < 0.25 * mse_noisy, (mse_out, mse_noisy)
 
 
-def test_oidn_missing_key_and_bad_values():
+def test_oidn_defaults_and_bad_values():
     cfg = dict(compose_config(["model=oidn"]).model)
     del cfg["quality"]
+    assert build_method({**cfg, "quality": "fast"}).quality == "fast"
+    assert build_method(cfg).quality == "high"  # an omitted key takes the constructor's default
     with pytest.raises(ConfigError) as excinfo:
-        OIDNDenoiser.from_config(cfg)
-    one_line_error(excinfo, "model.quality")
+        build_method({**cfg, "hdr": "yes"})
+    one_line_error(excinfo, "model.hdr", "expected bool", "'yes'")
     with pytest.raises(ConfigError) as excinfo:
         OIDNDenoiser(quality="best")
     one_line_error(excinfo, "model.quality")

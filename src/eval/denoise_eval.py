@@ -29,7 +29,7 @@ from src.metrics.image import image_metrics, lpips_variant, tonemap
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.models.denoise.summary import count_parameters
-from src.models.registry import build_denoiser
+from src.models.instantiate import build_method
 from src.provenance import provenance
 from src.train.checkpoint import load_weights
 from src.train.device import pick_device
@@ -44,7 +44,7 @@ def load_denoiser(cfg: DictConfig, device: torch.device) -> Denoiser:
     """Build `cfg.model`; a learned model gets its weights (and whitening buffers) from
     `task.eval.checkpoint`, checked to match the configured architecture."""
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    model = build_denoiser(model_cfg)
+    model = build_method(model_cfg)
     if model.learned:
         load_weights(model, model_cfg, cfg.task.eval.checkpoint)
     return model.to(device).eval()

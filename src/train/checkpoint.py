@@ -53,11 +53,27 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     return state
 
 
+#: `model.architecture` of checkpoints written before methods were built from `model._target_`: the target
+#: that builds the same network, so that those checkpoints still load.
+LEGACY_TARGETS = {
+    "conv_stack": "src.models.denoise.models.conv_stack_denoiser",
+    "residual": "src.models.denoise.models.residual_denoiser",
+}
+
+
+def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's model config in today's keys (`architecture` -> `_target_`)."""
+    if "_target_" in model_config or model_config.get("architecture") not in LEGACY_TARGETS:
+        return model_config
+    old = {k: v for k, v in model_config.items() if k != "architecture"}
+    return {"_target_": LEGACY_TARGETS[model_config["architecture"]], **old}
+
+
 def check_model_config(
     state: dict[str, Any], model_cfg: dict[str, Any], path: str | os.PathLike[str]
 ) -> None:
     """The checkpoint was trained with the same architecture as `model_cfg` (ignoring the name)."""
-    saved = {k: v for k, v in state["model_config"].items() if k != "name"}
+    saved = {k: v for k, v in _upgraded(state["model_config"]).items() if k != "name"}
     wanted = {k: v for k, v in model_cfg.items() if k != "name"}
     diff = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
     if diff:

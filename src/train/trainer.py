@@ -28,7 +28,7 @@ from src.data.denoise_dataset import PatchShardDataset
 from src.data.kpcn_preprocess import load_whitening_stats
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.summary import count_parameters
-from src.models.registry import build_denoiser
+from src.models.instantiate import build_method
 from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,
@@ -92,8 +92,10 @@ class Trainer:
         self.model_cfg = model_config(cfg)
         seed_everything(int(cfg.seed))
         prepared = Path(cfg.paths.prepared)
-        whitening = load_whitening_stats(prepared / "whitening.json") if self.model_cfg["whiten"] else None
-        self.model = build_denoiser(self.model_cfg, whitening).to(self.device)
+        whitening = (
+            load_whitening_stats(prepared / "whitening.json") if self.model_cfg.get("whiten") else None
+        )
+        self.model = build_method(self.model_cfg, whitening=whitening).to(self.device)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=float(t.lr))
         self.train_data = PatchShardDataset(prepared, "train", seed=int(cfg.seed), shuffle=True)
         self.val_data = PatchShardDataset(prepared, "val", seed=int(cfg.seed), shuffle=False)

@@ -12,7 +12,8 @@ batches are never whitened outside.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import Literal
 
 import torch
 from torch import nn
@@ -21,9 +22,13 @@ from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
 from src.models.denoise.base import Batch, Denoiser
 from src.models.denoise.kernels import apply_kernel
+from src.models.denoise.networks import ConvStack, ResidualKernelNet
 
 BRANCHES = ("diffuse", "specular")
 OUTPUTS = ("direct", "kernel")
+#: Colour channels a direct-prediction network outputs (RGB of the transformed branch colour).
+COLOR_CHANNELS = 3
+Whitening = Mapping[str, WhiteningStats] | None
 
 
 class TwoBranchDenoiser(Denoiser):
@@ -116,6 +121,113 @@ class TwoBranchDenoiser(Denoiser):
         if self.output == "direct":
             return raw
         return {b: apply_kernel(raw[b], batch[f"{b}_t"], self.kernel_size) for b in BRANCHES}
+
+
+def _check_size(key: str, value: int, minimum: int = 1, odd: bool = False) -> int:
+    """A network size from `model.<key>`, or a one-line ConfigError naming the key."""
+    if value < minimum or (odd and value % 2 == 0):
+        kind = "an odd integer" if odd else "an integer"
+        raise ConfigError(f"model.{key}: expected {kind} >= {minimum}, got {value!r}")
+    return value
+
+
+def _two_branch(
+    make_net: Callable[[int], nn.Module],
+    *,
+    output: str,
+    kernel_size: int | None,
+    shared: bool,
+    whiten: bool,
+    in_channels: int,
+    whitening: Whitening,
+) -> TwoBranchDenoiser:
+    """One network (shared) or two, around the common output/whitening options (checked by
+    `TwoBranchDenoiser`; the kernel size first, as it sets the networks' output channels)."""
+    if output == "kernel":
+        out_channels = (
+            _check_size("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
+        )
+    else:
+        out_channels = COLOR_CHANNELS
+    diffuse = make_net(out_channels)
+    specular = diffuse if shared else make_net(out_channels)
+    return TwoBranchDenoiser(
+        diffuse,
+        specular,
+        output=output,
+        in_channels=in_channels,
+        kernel_size=kernel_size if output == "kernel" else None,
+        whiten=whiten,
+        whitening=whitening,
+    )
+
+
+def conv_stack_denoiser(
+    *,
+    in_channels: int,
+    width: int,
+    depth: int,
+    conv_kernel: int,
+    output: Literal["direct", "kernel"],
+    shared: bool,
+    whiten: bool,
+    kernel_size: int | None = None,
+    whitening: Whitening = None,
+) -> TwoBranchDenoiser:
+    """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch.
+
+    `whitening` ({"diffuse_in": stats, "specular_in": stats}, training split) initialises the whitening
+    buffers when `whiten`; the harness passes it (without it they start at mean 0 / std 1, to be filled
+    by a checkpoint load).
+    """
+    sizes = {
+        "in_channels": _check_size("in_channels", in_channels),
+        "width": _check_size("width", width),
+        "depth": _check_size("depth", depth),
+        "conv_kernel": _check_size("conv_kernel", conv_kernel, odd=True),
+    }
+    return _two_branch(
+        lambda out_channels: ConvStack(**sizes, out_channels=out_channels),
+        output=output,
+        kernel_size=kernel_size,
+        shared=shared,
+        whiten=whiten,
+        in_channels=in_channels,
+        whitening=whitening,
+    )
+
+
+def residual_denoiser(
+    *,
+    in_channels: int,
+    width: int,
+    blocks: int,
+    conv_kernel: int,
+    predictor_width: int,
+    output: Literal["direct", "kernel"],
+    shared: bool,
+    whiten: bool,
+    kernel_size: int | None = None,
+    whitening: Whitening = None,
+) -> TwoBranchDenoiser:
+    """Residual KPCN (Vogels et al. 2018 style): a `ResidualKernelNet` per branch, or one shared by both
+    (`shared`, an ablation of the seed thesis). `whitening` as for `conv_stack_denoiser`."""
+    sizes = {
+        "in_channels": _check_size("in_channels", in_channels),
+        "width": _check_size("width", width),
+        "blocks": _check_size("blocks", blocks, minimum=0),
+        "conv_kernel": _check_size("conv_kernel", conv_kernel, odd=True),
+        "predictor_width": _check_size("predictor_width", predictor_width),
+    }
+    return _two_branch(
+        lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels),
+        output=output,
+        kernel_size=kernel_size,
+        shared=shared,
+        whiten=whiten,
+        in_channels=in_channels,
+        whitening=whitening,
+    )
 
 
 def _tile_starts(size: int, tile: int) -> range:

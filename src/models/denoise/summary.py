@@ -130,8 +130,8 @@ def model_summary(
     flops = flops_per_pixel(model)
     width, height = frame
     frame_gflops = None if flops["total"] is None else flops["total"] * width * height / 1e9
-    name, architecture = model_cfg.get("name", "?"), model_cfg.get("architecture", "?")
-    lines = [f"model: {name} (architecture {architecture}, learned {bool(model.learned)})", str(model)]
+    name, target = model_cfg.get("name", "?"), model_cfg.get("_target_", "?")
+    lines = [f"model: {name} ({target}, learned {bool(model.learned)})", str(model)]
     lines += _parameter_lines(model)
     breakdown = ""
     if flops["conv"] is not None:

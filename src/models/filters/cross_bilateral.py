@@ -29,25 +29,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
 
 import torch
 import torch.nn.functional as F
 
-from src.errors import ConfigError, require
+from src.errors import ConfigError
 from src.models.denoise.base import Batch, Denoiser
 
-#: Keys `from_config` reads from the model config, in constructor order.
-CONFIG_KEYS = ("radius", "sigma_spatial", "sigma_color", "sigma_normal", "sigma_albedo", "sigma_depth")
 #: Guide buffers (batch key, channel count) besides the compressed colour, in guide channel order.
 FEATURE_BUFFERS = (("normal", 3), ("albedo", 3), ("depth", 1))
 #: Guide channels: compressed colour (3) + normal (3) + albedo (3) + depth (1).
 GUIDE_CHANNELS = 3 + sum(c for _, c in FEATURE_BUFFERS)
-
-
-def _require(model_cfg: Mapping[str, Any], key: str) -> Any:
-    """model_cfg[key], or a one-line ConfigError naming `model.<key>` when it is missing or null."""
-    return require(model_cfg, key, "model", "the cross-bilateral filter")
 
 
 def _scaled(x: torch.Tensor, sigma: float) -> torch.Tensor:
@@ -134,11 +126,6 @@ class CrossBilateralFilter(Denoiser):
                 raise ConfigError(f"model.sigma_{name} must be > 0, got {value!r}")
         self.radius = int(radius)
         self.sigmas = {k: float(v) for k, v in sigmas.items()}
-
-    @classmethod
-    def from_config(cls, model_cfg: Mapping[str, Any]) -> CrossBilateralFilter:
-        """Build from the `model:` config group (conf/model/cross_bilateral.yaml)."""
-        return cls(*(_require(model_cfg, key) for key in CONFIG_KEYS))
 
     @property
     def halo(self) -> int:

@@ -13,17 +13,12 @@ is `None`, meaning "do not tile": tiled inference must call this model on the fu
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 import torch
 
-from src.errors import ConfigError, EnvironmentSetupError, require
+from src.errors import ConfigError, EnvironmentSetupError
 from src.models.denoise.base import Batch, Denoiser
 
-#: Keys `from_config` reads from the model config, in constructor order.
-CONFIG_KEYS = ("hdr", "quality", "use_albedo", "use_normal", "clean_aux")
 #: Accepted values of `quality` (pyoidn also accepts "default" and the OIDN_QUALITY_* integers).
 QUALITIES = ("high", "balanced", "fast", "default")
 
@@ -76,11 +71,6 @@ class OIDNDenoiser(Denoiser):
         self.use_normal = bool(use_normal)
         self.clean_aux = bool(clean_aux)
         self._pyoidn = _import_pyoidn()
-
-    @classmethod
-    def from_config(cls, model_cfg: Mapping[str, Any]) -> OIDNDenoiser:
-        """Build from the `model:` config group (conf/model/oidn.yaml); a missing key is a ConfigError."""
-        return cls(*(require(model_cfg, key, "model", "the OIDN denoiser") for key in CONFIG_KEYS))
 
     @property
     def halo(self) -> None:

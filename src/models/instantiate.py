@@ -1,0 +1,145 @@
+"""Build a method (denoiser, filter; radiance fields next) from its `model:` config group.
+
+`model._target_` names the class or factory (any importable dotted path, in this repository or the
+user's own package); every other key of the group is one of its keyword arguments, so the constructor
+signature is the contract between a YAML file and its code (the lightning-hydra-template convention,
+built with `hydra.utils.instantiate`). A few keys are read by the harness itself and not passed on
+(`HARNESS_KEYS`). Before anything is built, the keys are checked against the signature, so that a typo,
+a missing value or a wrong type is a one-line `ConfigError` naming `model.<key>` rather than a
+`TypeError` deep inside Hydra: Hydra's own errors span several lines and name no config key.
+"""
+
+from __future__ import annotations
+
+import inspect
+import types
+import typing
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import hydra.utils
+from omegaconf import DictConfig, OmegaConf
+
+from src.errors import ConfigError
+
+#: Keys of a `model:` group that the harness reads (run names, whether to train, the task family); they are
+#: not arguments of the method.
+HARNESS_KEYS = ("name", "learned", "family")
+TARGET_KEY = "_target_"
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+def model_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """A plain resolved dict of a model config (DictConfig or mapping)."""
+    if isinstance(model_cfg, DictConfig):
+        return OmegaConf.to_container(model_cfg, resolve=True)  # type: ignore[return-value]
+    if not isinstance(model_cfg, Mapping):
+        raise ConfigError(f"model: expected a mapping, got {type(model_cfg).__name__}")
+    return dict(model_cfg)
+
+
+def resolve_target(model_cfg: Mapping[str, Any]) -> Callable[..., Any]:
+    """The class or factory `model._target_` names."""
+    target = model_cfg.get(TARGET_KEY)
+    if not isinstance(target, str) or not target:
+        raise ConfigError(
+            f"model.{TARGET_KEY}: expected the dotted path of the method's class or factory "
+            f"(e.g. src.models.denoise.models.conv_stack_denoiser), got {target!r}"
+        )
+    try:
+        found = hydra.utils.get_object(target)
+    except Exception as err:  # ImportError, AttributeError, or whatever the module raises on import
+        raise ConfigError(f"model.{TARGET_KEY}: cannot import {target!r} ({_one_line(err)})") from None
+    if not callable(found):
+        raise ConfigError(
+            f"model.{TARGET_KEY}: {target!r} is a {type(found).__name__}, not a class or function"
+        )
+    return found
+
+
+def _conforms(value: Any, hint: Any) -> bool:
+    """Whether a config value fits a plain type hint (int, float, bool, str, Literal, X | None, unions).
+
+    A bool is not an int here (`width: true` is a typo, not 1), an int is a float, and hints this does not
+    understand (tensors, mappings...) accept anything: the constructor checks those itself.
+    """
+    origin = typing.get_origin(hint)
+    if origin is typing.Literal:
+        return value in typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_conforms(value, arm) for arm in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if hint is bool:
+        return isinstance(value, bool)
+    if hint is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if hint is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is str:
+        return isinstance(value, str)
+    return True
+
+
+def _describe(hint: Any) -> str:
+    text = str(hint).replace("typing.", "").replace("NoneType", "None")
+    return text.removeprefix("<class '").removesuffix("'>")
+
+
+def check_arguments(target: Callable[..., Any], kwargs: Mapping[str, Any], provided: set[str]) -> None:
+    """Every key is an argument of `target`, of the annotated type; every required argument is given
+    (by the config, or by the harness in `provided`)."""
+    signature = inspect.signature(target)
+    params = signature.parameters
+    name = getattr(target, "__qualname__", repr(target))
+    takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    named = [k for k, p in params.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+    for key in kwargs:
+        if key not in params and not takes_any:
+            raise ConfigError(f"model.{key}: not an argument of {name}; expected one of {named}")
+    for key, param in params.items():
+        required = param.default is param.empty and param.kind not in (
+            param.VAR_POSITIONAL,
+            param.VAR_KEYWORD,
+        )
+        if required and key not in kwargs and key not in provided:
+            raise ConfigError(f"model.{key}: missing; {name} needs it")
+    try:
+        hints = typing.get_type_hints(target.__init__ if inspect.isclass(target) else target)
+    except Exception:  # annotations that do not resolve: leave the checks to the constructor
+        hints = {}
+    for key, value in kwargs.items():
+        if key in hints and not _conforms(value, hints[key]):
+            raise ConfigError(f"model.{key}: expected {_describe(hints[key])}, got {value!r}")
+
+
+def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
+    """The method `model._target_` names, called with the group's other keys as keyword arguments.
+
+    `context` holds what the harness knows at run time (e.g. `whitening`, the training split's input
+    statistics); each item is passed only to a method whose signature asks for it by name.
+    """
+    cfg = model_dict(model_cfg)
+    target = resolve_target(cfg)
+    kwargs = {k: v for k, v in cfg.items() if k not in HARNESS_KEYS and k != TARGET_KEY}
+    params = inspect.signature(target).parameters
+    wanted = {k: v for k, v in context.items() if k in params}
+    check_arguments(target, kwargs, set(wanted))
+    # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra; the method itself is called
+    # directly, so that run-time objects (statistics, tensors) reach it as they are, not as OmegaConf nodes.
+    kwargs = {k: _build_nested(v) for k, v in kwargs.items()}
+    try:
+        return target(**kwargs, **wanted)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as err:  # a value the constructor rejects (e.g. an even conv kernel)
+        raise ConfigError(f"model ({cfg.get('name', cfg[TARGET_KEY])}): {_one_line(err)}") from None
+
+
+def _build_nested(value: Any) -> Any:
+    if isinstance(value, dict) and TARGET_KEY in value:
+        return hydra.utils.instantiate(value, _convert_="all")
+    return value
