@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import mlflow
+import pandas as pd
 import pytest
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -20,6 +21,7 @@ from hydra_plugins.nrbench_optuna_sweeper.optuna_sweeper import (
     search_space,
 )
 from src.errors import ConfigError
+from src.train.checkpoint import load_checkpoint
 from tests.conftest import CONF_DIR, ROOT, one_line_error
 
 STUDIES = {"denoisers", "shared_vs_separate", "whitening", "nerf_variants", "lr_search"}
@@ -213,3 +215,22 @@ def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_pat
     assert best.value == min(float(t["value"]) for t in trials) and "optuna: best" in out
     rows = read_csv(tmp_path / "reports" / "sweeps" / "lr_search" / "comparison.csv")
     assert len(rows) == 2 and {"lr", "batch_size"} <= {k.rsplit(".", 1)[-1] for k in rows[0]}
+
+
+def test_a_users_own_denoiser_runs_beside_a_builtin_one(smoke_data, tmp_path):
+    """README "Add your own method": one module (tests/plugins/toy_denoiser.py) and one YAML
+    (tests/conf/model/toy.yaml) outside src/ are trained, evaluated and reported beside DPCN by one
+    multirun."""
+    sweep(["model=dpcn,toy", "hydra.searchpath=[file://tests/conf]"], smoke_data, tmp_path)
+    table = pd.read_csv(tmp_path / "reports" / "denoise" / "comparison.csv", comment="#", index_col=0)
+    assert sorted(table.index) == ["dpcn", "toy"]
+    assert (table["PSNR"] > 0).all() and (table["runs"] == 1).all()
+    checkpoints = [load_checkpoint(p) for p in (tmp_path / "sweep").glob("*/checkpoints/final.pt")]
+    by_name = {c["model_config"]["name"]: c for c in checkpoints}
+    assert set(by_name) == {"dpcn", "toy"}
+    toy = by_name["toy"]
+    assert toy["step"] > 0
+    assert toy["model_config"]["_target_"] == "tests.plugins.toy_denoiser.ToyDenoiser"
+    assert set(toy["model"]) == {
+        f"nets.{b}.{i}.{w}" for b in ("diffuse", "specular") for i in (0, 2) for w in ("weight", "bias")
+    }
