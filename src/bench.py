@@ -56,14 +56,7 @@ from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.summary import count_parameters, flops_per_pixel, random_batch
 from src.models.instantiate import build_method
-from src.models.nerf.models import (
-    BUILDERS,
-    NerfModelBase,
-    RefNeRF,
-    build_nerf_model,
-    nerf_mlp_flops_per_ray,
-    render_rays_chunked,
-)
+from src.models.nerf.models import NerfModelBase, RefNeRF, nerf_mlp_flops_per_ray, render_rays_chunked
 from src.render.multiview import look_at_c2w, sphere_position
 from src.train.device import pick_device, seed_everything
 
@@ -79,8 +72,6 @@ NERF_CAMERA = {"radius": 4.0, "elevation_deg": 30.0, "azimuth_deg": 0.0, "camera
 NERF_NEAR, NERF_FAR = 2.0, 6.0
 #: Forward-FLOP multiplier of a training step (forward + backward ~ 2 x forward) and of rendering.
 TRAIN_FLOP_FACTOR, RENDER_FLOP_FACTOR = 3, 1
-#: The models `nerf` can time (conf/model names).
-NERF_MODELS = tuple(BUILDERS)
 
 
 @dataclass
@@ -333,14 +324,22 @@ class NerfRow:
         return self.render_seconds / self.render_rays
 
 
+def nerf_model_names() -> list[str]:
+    """The radiance fields `nerf` can time: the conf/model configs of `family: nerf`, a user's included."""
+    return sorted(
+        p.stem for p in (CONF_DIR / "model").glob("*.yaml") if OmegaConf.load(p).get("family") == "nerf"
+    )
+
+
 def parse_model_names(models: str) -> list[str]:
     """The comma-separated `--models` list; an unknown or missing name is a one-line `ConfigError`."""
     names = [m.strip() for m in models.split(",") if m.strip()]
-    expected = f"expected one of {list(NERF_MODELS)}"
+    nerf_models = nerf_model_names()
+    expected = f"expected one of {nerf_models}"
     if not names:
         raise ConfigError(f"--models: no model named in {models!r}; {expected}")
     for name in names:
-        if name not in NERF_MODELS:
+        if name not in nerf_models:
             raise ConfigError(f"--models: unknown NeRF model {name!r}; {expected}")
     return names
 
@@ -420,7 +419,7 @@ def bench_nerf_model(
 ) -> NerfRow:
     """Build `name` (seeded), then time its training steps and its rendering."""
     torch.manual_seed(args.seed)
-    model = build_nerf_model(cfg).to(device)
+    model = build_method(cfg).to(device)
     coarse, fine = model.samples_per_level()
     note = f"{coarse}+{fine} samples"
     if isinstance(model, RefNeRF):

@@ -207,9 +207,10 @@ def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     nothing."""
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
     if cfg.task.name == "nerf":
-        from src.models.nerf.models import build_nerf_model, nerf_model_summary
+        from src.models.instantiate import build_method
+        from src.models.nerf.models import nerf_model_summary
 
-        print(nerf_model_summary(build_nerf_model(model_cfg), model_cfg))
+        print(nerf_model_summary(build_method(model_cfg), model_cfg))
         return {}
     from src.models.denoise.summary import model_summary
     from src.models.instantiate import build_method

@@ -10,10 +10,10 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from src.models.denoise.summary import count_parameters
+from src.models.instantiate import build_method
 from src.models.nerf.fields import RefNerfMLP
 from src.models.nerf.models import (
     RefNeRF,
-    build_nerf_model,
     nerf_mlp_flops_per_ray,
     nerf_model_summary,
     render_rays_chunked,
@@ -76,7 +76,7 @@ def sphere_scene(n_side: int = 16, color=(0.9, 0.3, 0.2), radius: float = 1.0):
 @pytest.mark.parametrize("name", NAMES)
 def test_paper_parameter_counts(name):
     total, per_mlp, paper = PAPER_COUNTS[name]
-    model = build_nerf_model(model_cfg(name))
+    model = build_method(model_cfg(name))
     assert count_parameters(model) == total
     assert [count_parameters(m) for m in model.mlp_modules().values()] == per_mlp
     assert abs(total - paper) <= 0.1 * paper
@@ -85,7 +85,7 @@ def test_paper_parameter_counts(name):
 def test_nerf_mlp_layout_and_flops():
     """NeRF Fig. 7: 63 -> 256 x 8 with the input re-entering at the sixth layer (319 inputs), view layer
     256 + 27 -> 128. FLOPs per ray = 2 x MACs x samples (64 coarse, 64 + 128 fine)."""
-    model = build_nerf_model(model_cfg("nerf"))
+    model = build_method(model_cfg("nerf"))
     mlp = model.mlp_for(0)
     assert [layer.in_features for layer in mlp.trunk.layers] == [63, 256, 256, 256, 256, 319, 256, 256]
     assert mlp.view_mlp.layers[0].in_features == 256 + 27 and mlp.view_mlp.layers[0].out_features == 128
@@ -99,22 +99,22 @@ def test_nerf_mlp_layout_and_flops():
 
 
 def test_refnerf_directional_input():
-    mlp = build_nerf_model(model_cfg("refnerf")).mlp_for(0)
+    mlp = build_method(model_cfg("refnerf")).mlp_for(0)
     assert mlp.view_mlp.layers[0].in_features == 128 + 72 + 1  # bottleneck, IDE (deg_view 5), n' . d
     assert mlp.trunk.layers[0].in_features == 96  # IPE degrees 0..15
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_profiles_shrink_the_model(name):
-    paper = count_parameters(build_nerf_model(model_cfg(name)))
+    paper = count_parameters(build_method(model_cfg(name)))
     cpu_cfg, smoke_cfg = model_cfg(name, "cpu"), model_cfg(name, "smoke")
     assert (cpu_cfg["width"], cpu_cfg["depth"], cpu_cfg["skip_layer"]) == (32, 4, 2)
     assert cpu_cfg["num_coarse_samples"] == 24 and cpu_cfg["num_fine_samples"] == (
         48 if name == "nerf" else 24
     )
     assert (smoke_cfg["width"], smoke_cfg["depth"], smoke_cfg["num_coarse_samples"]) == (16, 2, 8)
-    cpu = count_parameters(build_nerf_model(cpu_cfg))
-    smoke = count_parameters(build_nerf_model(smoke_cfg))
+    cpu = count_parameters(build_method(cpu_cfg))
+    smoke = count_parameters(build_method(smoke_cfg))
     assert smoke < cpu < paper / 10
 
 
@@ -124,7 +124,7 @@ def test_profiles_shrink_the_model(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_forward_interface(name):
     torch.manual_seed(0)
-    model = build_nerf_model(model_cfg(name, "smoke"))
+    model = build_method(model_cfg(name, "smoke"))
     rays, target = sphere_scene(n_side=6)
     outputs = model(rays, randomized=True, generator=torch.Generator().manual_seed(0))
     assert len(outputs) == 2
@@ -147,7 +147,7 @@ def test_forward_interface(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_smoke_training_lowers_the_loss(name):
     torch.manual_seed(0)
-    model = build_nerf_model(model_cfg(name, "smoke"))
+    model = build_method(model_cfg(name, "smoke"))
     rays, target = sphere_scene()
     opt = torch.optim.Adam(model.parameters(), lr=1e-2)
     g = torch.Generator().manual_seed(0)
@@ -169,7 +169,7 @@ def test_smoke_training_lowers_the_loss(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_render_rays_chunked(name):
     torch.manual_seed(0)
-    model = build_nerf_model(model_cfg(name, "smoke"))
+    model = build_method(model_cfg(name, "smoke"))
     rays, _ = sphere_scene(n_side=18)  # 324 rays in chunks of 100 (the last one partial)
     out = render_rays_chunked(model, rays, chunk=100)
     assert set(out) == set(model.render_keys)
@@ -226,7 +226,7 @@ def test_refnerf_normal_losses_train_the_density():
     """With grad mode on, the normals keep their graph (double backprop): the predicted-normal loss alone
     reaches the spatial trunk's first layer. Under no_grad nothing keeps a graph."""
     torch.manual_seed(0)
-    model = build_nerf_model(model_cfg("refnerf", "smoke"))
+    model = build_method(model_cfg("refnerf", "smoke"))
     rays, _ = sphere_scene(n_side=4)
     outputs = model(rays, randomized=False)
     reg, stats = model.regularizers(outputs)
@@ -275,18 +275,26 @@ def test_refnerf_regularizers_closed_form():
 
 def test_summary():
     cfg = model_cfg("nerf")
-    text = nerf_model_summary(build_nerf_model(cfg), cfg)
+    text = nerf_model_summary(build_method(cfg), cfg)
     assert "parameters: 1,191,688 (coarse mlp 595,844, fine mlp 595,844)" in text
     assert "samples per ray: coarse 64, fine 192" in text
     assert "MLP FLOPs per ray" in text and "Linear(in_features=319, out_features=256" in text
     ref_cfg = model_cfg("refnerf", "smoke")
-    assert "density-gradient backward" in nerf_model_summary(build_nerf_model(ref_cfg), ref_cfg)
+    assert "density-gradient backward" in nerf_model_summary(build_method(ref_cfg), ref_cfg)
 
 
-def test_unknown_model_name_is_a_one_line_config_error():
+def test_a_misspelt_or_foreign_key_is_a_one_line_config_error():
     with pytest.raises(ConfigError) as excinfo:
-        build_nerf_model(dict(model_cfg("nerf", "smoke"), name="instant_ngp"))
-    one_line_error(excinfo, "model.name", "instant_ngp", "nerf", "mipnerf", "refnerf")
+        build_method(dict(model_cfg("mipnerf", "smoke"), pos_identity=True))  # the IPE has no identity term
+    one_line_error(excinfo, "model.pos_identity", "not an argument of mipnerf_model", "'view_identity'")
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(dict(model_cfg("refnerf", "smoke"), widht=8))
+    one_line_error(excinfo, "model.widht", "not an argument of refnerf_model", "'width'")
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(
+            dict(model_cfg("nerf", "smoke"), single_mlp="no")
+        )  # a shared option (FieldArgs) is typed
+    one_line_error(excinfo, "model.single_mlp", "expected bool", "'no'")
 
 
 @pytest.mark.parametrize(
@@ -300,5 +308,27 @@ def test_bad_config_values_name_the_key(key, value):
     else:
         cfg[key] = value
     with pytest.raises(ConfigError) as excinfo:
-        build_nerf_model(cfg)
+        build_method(cfg)
     one_line_error(excinfo, f"model.{key}")
+
+
+@pytest.mark.parametrize("name", ["nerf", "mipnerf", "refnerf"])
+@pytest.mark.parametrize("profile", ["smoke", "cpu", "paper"])
+def test_every_radiance_field_config_instantiates(name, profile):
+    model = build_method(model_cfg(name, profile, "task=nerf"))
+    assert model.name == name and model.samples_per_level()[0] > 0
+
+
+def test_a_checkpoint_from_before_target_configs_still_loads(tmp_path):
+    # Radiance-field checkpoints written before `model._target_` were built by `model.name`.
+    from src.train.checkpoint import load_weights, save_checkpoint
+
+    cfg = model_cfg("mipnerf", "smoke")
+    trained = build_method(cfg)
+    legacy = {k: v for k, v in cfg.items() if k != "_target_"}
+    state = {"model_config": legacy, "model": trained.state_dict(), "optimizer": {}}
+    save_checkpoint(tmp_path / "old.pt", state | {"epoch": 0, "batch_in_epoch": 0, "step": 3})
+    fresh = build_method(cfg)
+    load_weights(fresh, cfg, tmp_path / "old.pt")
+    for key, value in trained.state_dict().items():
+        assert torch.equal(fresh.state_dict()[key], value), key

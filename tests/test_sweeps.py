@@ -234,3 +234,26 @@ def test_a_users_own_denoiser_runs_beside_a_builtin_one(smoke_data, tmp_path):
     assert set(toy["model"]) == {
         f"nets.{b}.{i}.{w}" for b in ("diffuse", "specular") for i in (0, 2) for w in ("weight", "bias")
     }
+
+
+def test_a_users_own_radiance_field_runs_beside_nerf(smoke_data, tmp_path):
+    """The same for a radiance field: tests/plugins/toy_field.py (a `NerfModelBase` subclass) and
+    tests/conf/model/toy_field.yaml, trained, evaluated and reported beside NeRF on one scene."""
+    args = [
+        "task=nerf",
+        "task.scene=materials",
+        "model=nerf,toy_field",
+        "hydra.searchpath=[file://tests/conf]",
+    ]
+    sweep(args, smoke_data, tmp_path)
+    table = pd.read_csv(tmp_path / "reports" / "nerf" / "comparison.csv", comment="#", index_col=0)
+    assert sorted(table.index) == ["nerf", "toy_field"]
+    psnr = [c for c in table.columns if "PSNR" in c and "std" not in c]
+    assert psnr and (table[psnr] > 0).all().all()
+    toy = next(
+        c
+        for p in (tmp_path / "sweep").glob("*/checkpoints/final.pt")
+        if (c := load_checkpoint(p))["model_config"]["name"] == "toy_field"
+    )
+    assert toy["model_config"]["_target_"] == "tests.plugins.toy_field.ToyField" and toy["step"] > 0
+    assert set(toy["model"]) == {"mlps.0.0.weight", "mlps.0.0.bias", "mlps.0.2.weight", "mlps.0.2.bias"}

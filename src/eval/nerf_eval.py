@@ -26,7 +26,8 @@ from src.io.atomic import atomic_write_csv, atomic_write_json
 from src.io.images import write_png
 from src.metrics.image import image_metrics, lpips_variant
 from src.models.denoise.summary import count_parameters
-from src.models.nerf.models import NerfModelBase, build_nerf_model, render_rays_chunked
+from src.models.instantiate import build_method
+from src.models.nerf.models import NerfModelBase, render_rays_chunked
 from src.provenance import provenance
 from src.train.checkpoint import load_weights
 from src.train.device import pick_device
@@ -36,7 +37,7 @@ from src.train.nerf_trainer import load_split, scene_dir
 def load_nerf(cfg: DictConfig, device: torch.device) -> NerfModelBase:
     """The model of `task.eval.checkpoint`, checked against `cfg.model`."""
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    model = build_nerf_model(model_cfg)
+    model = build_method(model_cfg)
     load_weights(model, model_cfg, str(cfg.task.eval.checkpoint))
     return model.to(device).eval()
 

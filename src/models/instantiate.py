@@ -89,31 +89,59 @@ def _describe(hint: Any) -> str:
     return text.removeprefix("<class '").removesuffix("'>")
 
 
-def check_arguments(target: Callable[..., Any], kwargs: Mapping[str, Any], provided: set[str]) -> None:
-    """Every key is an argument of `target`, of the annotated type; every required argument is given
-    (by the config, or by the harness in `provided`)."""
-    signature = inspect.signature(target)
-    params = signature.parameters
-    name = getattr(target, "__qualname__", repr(target))
-    takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
-    named = [k for k, p in params.items() if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
-    for key in kwargs:
-        if key not in params and not takes_any:
-            raise ConfigError(f"model.{key}: not an argument of {name}; expected one of {named}")
-    for key, param in params.items():
-        required = param.default is param.empty and param.kind not in (
-            param.VAR_POSITIONAL,
-            param.VAR_KEYWORD,
-        )
-        if required and key not in kwargs and key not in provided:
-            raise ConfigError(f"model.{key}: missing; {name} needs it")
+def _arguments(target: Callable[..., Any]) -> tuple[dict[str, Any], set[str], bool]:
+    """(argument -> type hint, required arguments, whether any other keyword is accepted) of `target`.
+
+    `**kwargs: Unpack[SomeTypedDict]` (PEP 692) counts as the TypedDict's keys, so that options several
+    methods share can be declared and typed once (see `src.models.nerf.builders.FieldArgs`).
+    """
     try:
         hints = typing.get_type_hints(target.__init__ if inspect.isclass(target) else target)
     except Exception:  # annotations that do not resolve: leave the checks to the constructor
         hints = {}
+    accepted: dict[str, Any] = {}
+    required: set[str] = set()
+    takes_any = False
+    for key, param in inspect.signature(target).parameters.items():
+        if param.kind is param.VAR_POSITIONAL:
+            continue
+        if param.kind is param.VAR_KEYWORD:
+            hint = hints.get(key)
+            if typing.get_origin(hint) is typing.Unpack:
+                shared = typing.get_args(hint)[0]
+                accepted |= typing.get_type_hints(shared)
+                required |= set(shared.__required_keys__)
+            else:
+                takes_any = True
+            continue
+        accepted[key] = hints.get(key, typing.Any)
+        if param.default is param.empty:
+            required.add(key)
+    return accepted, required, takes_any
+
+
+def check_arguments(target: Callable[..., Any], kwargs: Mapping[str, Any], provided: set[str]) -> None:
+    """Every key is an argument of `target`, of the annotated type; every required argument is given
+    (by the config, or by the harness in `provided`)."""
+    accepted, required, takes_any = _arguments(target)
+    name = getattr(target, "__qualname__", repr(target))
+    for key in kwargs:
+        if key not in accepted and not takes_any:
+            raise ConfigError(f"model.{key}: not an argument of {name}; expected one of {sorted(accepted)}")
+    for key in sorted(required - set(kwargs) - provided):
+        raise ConfigError(f"model.{key}: missing; {name} needs it")
     for key, value in kwargs.items():
-        if key in hints and not _conforms(value, hints[key]):
-            raise ConfigError(f"model.{key}: expected {_describe(hints[key])}, got {value!r}")
+        if key in accepted and not _conforms(value, accepted[key]):
+            raise ConfigError(f"model.{key}: expected {_describe(accepted[key])}, got {value!r}")
+
+
+def at_least(key: str, value: float, minimum: float = 1, odd: bool = False) -> float:
+    """`value` of `model.<key>` if it is >= `minimum` (and odd, when asked), else a one-line ConfigError
+    naming the key: the range checks a method's builder adds to the type checks of `build_method`."""
+    if value < minimum or (odd and value % 2 == 0):
+        kind = "an odd number" if odd else "a number"
+        raise ConfigError(f"model.{key}: expected {kind} >= {minimum}, got {value!r}")
+    return value
 
 
 def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
@@ -125,8 +153,8 @@ def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
     cfg = model_dict(model_cfg)
     target = resolve_target(cfg)
     kwargs = {k: v for k, v in cfg.items() if k not in HARNESS_KEYS and k != TARGET_KEY}
-    params = inspect.signature(target).parameters
-    wanted = {k: v for k, v in context.items() if k in params}
+    accepted, _, takes_any = _arguments(target)
+    wanted = {k: v for k, v in context.items() if k in accepted or takes_any}
     check_arguments(target, kwargs, set(wanted))
     # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra; the method itself is called
     # directly, so that run-time objects (statistics, tensors) reach it as they are, not as OmegaConf nodes.

@@ -53,20 +53,28 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     return state
 
 
-#: `model.architecture` of checkpoints written before methods were built from `model._target_`: the target
-#: that builds the same network, so that those checkpoints still load.
+#: Checkpoints written before methods were built from `model._target_` named the builder by
+#: `model.architecture` (denoisers) or by `model.name` (radiance fields, `family: nerf`): the target that
+#: builds the same network, so that those checkpoints still load.
 LEGACY_TARGETS = {
     "conv_stack": "src.models.denoise.models.conv_stack_denoiser",
     "residual": "src.models.denoise.models.residual_denoiser",
 }
+LEGACY_NERF_TARGETS = {
+    name: f"src.models.nerf.builders.{name}_model" for name in ("nerf", "mipnerf", "refnerf")
+}
 
 
 def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
-    """A checkpoint's model config in today's keys (`architecture` -> `_target_`)."""
-    if "_target_" in model_config or model_config.get("architecture") not in LEGACY_TARGETS:
+    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`)."""
+    if "_target_" in model_config:
         return model_config
+    if model_config.get("family") == "nerf":
+        target = LEGACY_NERF_TARGETS.get(model_config.get("name"))
+    else:
+        target = LEGACY_TARGETS.get(model_config.get("architecture"))
     old = {k: v for k, v in model_config.items() if k != "architecture"}
-    return {"_target_": LEGACY_TARGETS[model_config["architecture"]], **old}
+    return model_config if target is None else {"_target_": target, **old}
 
 
 def check_model_config(

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from src.data.blender import RayBatcher, load_blender_split, rays_for_pixels
 from src.models.denoise.summary import count_parameters
-from src.models.nerf.models import build_nerf_model
+from src.models.instantiate import build_method
 from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,
@@ -81,7 +81,7 @@ class NerfTrainer:
         self.device = pick_device(cfg.device)
         seed_everything(int(cfg.seed))
         self.model_cfg = _model_config(cfg)
-        self.model = build_nerf_model(self.model_cfg).to(self.device)
+        self.model = build_method(self.model_cfg).to(self.device)
         self.optimizer = torch.optim.Adam(
             self.model.parameters(),
             lr=float(t.lr_init),

@@ -23,6 +23,7 @@ from src.errors import ConfigError, DataError
 from src.models.denoise.base import Batch, Denoiser
 from src.models.denoise.kernels import apply_kernel
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
+from src.models.instantiate import at_least
 
 BRANCHES = ("diffuse", "specular")
 OUTPUTS = ("direct", "kernel")
@@ -123,14 +124,6 @@ class TwoBranchDenoiser(Denoiser):
         return {b: apply_kernel(raw[b], batch[f"{b}_t"], self.kernel_size) for b in BRANCHES}
 
 
-def _check_size(key: str, value: int, minimum: int = 1, odd: bool = False) -> int:
-    """A network size from `model.<key>`, or a one-line ConfigError naming the key."""
-    if value < minimum or (odd and value % 2 == 0):
-        kind = "an odd integer" if odd else "an integer"
-        raise ConfigError(f"model.{key}: expected {kind} >= {minimum}, got {value!r}")
-    return value
-
-
 def _two_branch(
     make_net: Callable[[int], nn.Module],
     *,
@@ -144,9 +137,7 @@ def _two_branch(
     """One network (shared) or two, around the common output/whitening options (checked by
     `TwoBranchDenoiser`; the kernel size first, as it sets the networks' output channels)."""
     if output == "kernel":
-        out_channels = (
-            _check_size("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
-        )
+        out_channels = at_least("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
     else:
         out_channels = COLOR_CHANNELS
     diffuse = make_net(out_channels)
@@ -181,10 +172,10 @@ def conv_stack_denoiser(
     by a checkpoint load).
     """
     sizes = {
-        "in_channels": _check_size("in_channels", in_channels),
-        "width": _check_size("width", width),
-        "depth": _check_size("depth", depth),
-        "conv_kernel": _check_size("conv_kernel", conv_kernel, odd=True),
+        "in_channels": at_least("in_channels", in_channels),
+        "width": at_least("width", width),
+        "depth": at_least("depth", depth),
+        "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
     }
     return _two_branch(
         lambda out_channels: ConvStack(**sizes, out_channels=out_channels),
@@ -213,11 +204,11 @@ def residual_denoiser(
     """Residual KPCN (Vogels et al. 2018 style): a `ResidualKernelNet` per branch, or one shared by both
     (`shared`, an ablation of the seed thesis). `whitening` as for `conv_stack_denoiser`."""
     sizes = {
-        "in_channels": _check_size("in_channels", in_channels),
-        "width": _check_size("width", width),
-        "blocks": _check_size("blocks", blocks, minimum=0),
-        "conv_kernel": _check_size("conv_kernel", conv_kernel, odd=True),
-        "predictor_width": _check_size("predictor_width", predictor_width),
+        "in_channels": at_least("in_channels", in_channels),
+        "width": at_least("width", width),
+        "blocks": at_least("blocks", blocks, minimum=0),
+        "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
+        "predictor_width": at_least("predictor_width", predictor_width),
     }
     return _two_branch(
         lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels),

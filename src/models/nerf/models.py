@@ -1,4 +1,5 @@
-"""NeRF, mip-NeRF and Ref-NeRF behind one interface, their builder, chunked rendering and summary.
+"""NeRF, mip-NeRF and Ref-NeRF behind one interface, chunked rendering and summary (built from config by
+`builders.py`).
 
 Every model renders two levels (coarse, fine) of the same rays:
 
@@ -18,18 +19,18 @@ not normalised: t is then the camera depth), viewdirs (unit), radii (cone radius
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from src.errors import ConfigError, DataError
-from src.models import config_readers as read
 from src.models.denoise.summary import count_parameters
+from src.models.instantiate import model_dict
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
-from src.models.nerf.fields import ACTIVATIONS, NerfMLP, RefNerfMLP
+from src.models.nerf.fields import NerfMLP, RefNerfMLP
 from src.models.nerf.sampling import resample_tdist, stratified_samples
 from src.models.nerf.volume import compute_alpha_weights, volumetric_rendering
 
@@ -255,120 +256,6 @@ class RefNeRF(NerfModelBase):
         return total, {"orientation": float(orientation.detach()), "pred_normal": float(pred_normal.detach())}
 
 
-# --- building from the config ---------------------------------------------------------------------------
-
-
-def _degrees(cfg: Mapping[str, Any], prefix: str) -> tuple[int, int]:
-    lo = read.integer(cfg, f"{prefix}_min_deg", minimum=0)
-    hi = read.integer(cfg, f"{prefix}_max_deg", minimum=0)
-    if hi <= lo:
-        raise ConfigError(f"model.{prefix}_max_deg: expected > {prefix}_min_deg ({lo}), got {hi}")
-    return lo, hi
-
-
-def _base_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    padding = cfg.get("resample_padding")
-    if padding is not None:
-        padding = read.number(cfg, "resample_padding", minimum=0.0)
-    background = read.value(cfg, "background")
-    if (
-        not isinstance(background, list | tuple)
-        or len(background) != 3
-        or not all(isinstance(c, int | float) and not isinstance(c, bool) for c in background)
-    ):
-        raise ConfigError(f"model.background: expected 3 numbers (RGB), got {background!r}")
-    return {
-        "num_coarse_samples": read.integer(cfg, "num_coarse_samples"),
-        "num_fine_samples": read.integer(cfg, "num_fine_samples"),
-        "resample_padding": padding,
-        "lindisp": read.boolean(cfg, "lindisp"),
-        "background": tuple(float(c) for c in background),
-        "coarse_loss_mult": read.number(cfg, "coarse_loss_mult", minimum=0.0),
-    }
-
-
-def _trunk_kwargs(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "depth": read.integer(cfg, "depth"),
-        "width": read.integer(cfg, "width"),
-        "skip_layer": read.optional_integer(cfg, "skip_layer"),
-        "bottleneck_width": read.integer(cfg, "bottleneck_width"),
-        "view_depth": read.integer(cfg, "view_depth", minimum=0),
-        "view_width": read.integer(cfg, "view_width"),
-        "view_skip_layer": read.optional_integer(cfg, "view_skip_layer"),
-        "density_activation": read.choice(cfg, "density_activation", list(ACTIVATIONS)),
-        "density_bias": read.number(cfg, "density_bias"),
-        "rgb_padding": read.number(cfg, "rgb_padding", minimum=0.0),
-    }
-
-
-def _levels(cfg: Mapping[str, Any], make: Callable[[], nn.Module]) -> tuple[nn.Module, nn.Module | None]:
-    """(coarse MLP, fine MLP or None when `single_mlp`)."""
-    coarse = make()
-    return coarse, (None if read.boolean(cfg, "single_mlp") else make())
-
-
-def _build_nerf(cfg: Mapping[str, Any], cls: type[NeRF]) -> NeRF:
-    pos_deg, view_deg = _degrees(cfg, "pos"), _degrees(cfg, "view")
-    integrated = issubclass(cls, MipNeRF)
-    pos_identity = False if integrated else read.boolean(cfg, "pos_identity")  # the IPE has no identity term
-    view_identity = read.boolean(cfg, "view_identity")
-    pos_dim = 3 * (2 * (pos_deg[1] - pos_deg[0]) + pos_identity)
-    view_dim = 3 * (2 * (view_deg[1] - view_deg[0]) + view_identity)
-    mlp_kwargs = _trunk_kwargs(cfg)
-    coarse, fine = _levels(cfg, lambda: NerfMLP(pos_dim, view_dim, **mlp_kwargs))
-    return cls(
-        coarse,
-        fine,
-        pos_deg=pos_deg,
-        pos_identity=pos_identity,
-        view_deg=view_deg,
-        view_identity=view_identity,
-        **_base_kwargs(cfg),
-    )
-
-
-def _build_refnerf(cfg: Mapping[str, Any]) -> RefNeRF:
-    pos_deg = _degrees(cfg, "pos")
-    deg_view = read.integer(cfg, "deg_view")
-    if deg_view > 5:
-        raise ConfigError(f"model.deg_view: expected an integer in [1, 5] (l <= 16), got {deg_view}")
-    kwargs = _trunk_kwargs(cfg)
-    kwargs.update(
-        min_deg_point=pos_deg[0],
-        max_deg_point=pos_deg[1],
-        deg_view=deg_view,
-        roughness_bias=read.number(cfg, "roughness_bias"),
-    )
-    coarse, fine = _levels(cfg, lambda: RefNerfMLP(**kwargs))
-    return RefNeRF(
-        coarse,
-        fine,
-        orientation_loss_mult=read.number(cfg, "orientation_loss_mult", minimum=0.0),
-        pred_normal_loss_mult=read.number(cfg, "pred_normal_loss_mult", minimum=0.0),
-        orientation_normals=read.choice(cfg, "orientation_normals", ORIENTATION_NORMALS),
-        orientation_stop_grad=read.boolean(cfg, "orientation_stop_grad"),
-        **_base_kwargs(cfg),
-    )
-
-
-BUILDERS: dict[str, Callable[[Mapping[str, Any]], NerfModelBase]] = {
-    "nerf": lambda cfg: _build_nerf(cfg, NeRF),
-    "mipnerf": lambda cfg: _build_nerf(cfg, MipNeRF),
-    "refnerf": _build_refnerf,
-}
-
-
-def build_nerf_model(model_cfg: Mapping[str, Any]) -> NerfModelBase:
-    """The model `model_cfg["name"]` names (nerf | mipnerf | refnerf), from its conf/model/*.yaml group
-    (DictConfig or dict). A missing or invalid key is a one-line `ConfigError` naming `model.<key>`."""
-    cfg = read.as_dict(model_cfg)
-    name = read.value(cfg, "name")
-    if name not in BUILDERS:
-        raise ConfigError(f"model.name: unknown {name!r}; expected one of {list(BUILDERS)}")
-    return BUILDERS[name](cfg)
-
-
 # --- inference and reporting ------------------------------------------------------------------------------
 
 
@@ -418,7 +305,7 @@ def nerf_mlp_flops_per_ray(model: NerfModelBase) -> dict[str, int]:
 
 def nerf_model_summary(model: NerfModelBase, model_cfg: Mapping[str, Any]) -> str:
     """Architecture, parameter counts (total and per MLP), samples per ray and MLP FLOPs per ray."""
-    cfg = read.as_dict(model_cfg)
+    cfg = model_dict(model_cfg)
     lines = [
         f"model: {cfg.get('name', model.name)} (family {cfg.get('family', 'nerf')}, learned True)",
         str(model),
