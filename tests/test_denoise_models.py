@@ -1,5 +1,5 @@
 """Learned denoisers: parameter counts at paper size, kernel application against a brute-force reference,
-whitening buffers, shared branches, tiled inference, FLOP counting, the registry and the benchmark."""
+whitening buffers, shared branches, tiled inference, FLOP counting, building from config and the benchmark."""
 
 import numpy as np
 import pytest

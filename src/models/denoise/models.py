@@ -13,7 +13,7 @@ batches are never whitened outside.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Literal
+from typing import Literal, TypedDict, Unpack
 
 import torch
 from torch import nn
@@ -124,53 +124,49 @@ class TwoBranchDenoiser(Denoiser):
         return {b: apply_kernel(raw[b], batch[f"{b}_t"], self.kernel_size) for b in BRANCHES}
 
 
+class _TwoBranchRequired(TypedDict):
+    output: Literal["direct", "kernel"]  # direct: the network outputs colour; kernel: k*k kernel scores
+    shared: bool  # one network for both branches
+    whiten: bool  # per-channel input whitening with the training split's statistics
+
+
+class TwoBranchArgs(_TwoBranchRequired, total=False):
+    """Options of both two-branch denoisers (`TwoBranchDenoiser`), declared once for their builders.
+    (`total=False` rather than `NotRequired`: the latter is not seen under postponed annotations.)"""
+
+    kernel_size: int | None  # k, for output: kernel
+    # The training split's {"diffuse_in": stats, "specular_in": stats}, passed by the harness: initialises the
+    # whitening buffers (without it they start at mean 0 / std 1, to be filled by a checkpoint load).
+    whitening: Whitening
+
+
 def _two_branch(
-    make_net: Callable[[int], nn.Module],
-    *,
-    output: str,
-    kernel_size: int | None,
-    shared: bool,
-    whiten: bool,
-    in_channels: int,
-    whitening: Whitening,
+    make_net: Callable[[int], nn.Module], in_channels: int, branches: TwoBranchArgs
 ) -> TwoBranchDenoiser:
     """One network (shared) or two, around the common output/whitening options (checked by
     `TwoBranchDenoiser`; the kernel size first, as it sets the networks' output channels)."""
+    output, kernel_size = branches["output"], branches.get("kernel_size")
     if output == "kernel":
         out_channels = at_least("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
     else:
         out_channels = COLOR_CHANNELS
     diffuse = make_net(out_channels)
-    specular = diffuse if shared else make_net(out_channels)
+    specular = diffuse if branches["shared"] else make_net(out_channels)
     return TwoBranchDenoiser(
         diffuse,
         specular,
         output=output,
         in_channels=in_channels,
         kernel_size=kernel_size if output == "kernel" else None,
-        whiten=whiten,
-        whitening=whitening,
+        whiten=branches["whiten"],
+        whitening=branches.get("whitening"),
     )
 
 
 def conv_stack_denoiser(
-    *,
-    in_channels: int,
-    width: int,
-    depth: int,
-    conv_kernel: int,
-    output: Literal["direct", "kernel"],
-    shared: bool,
-    whiten: bool,
-    kernel_size: int | None = None,
-    whitening: Whitening = None,
+    *, in_channels: int, width: int, depth: int, conv_kernel: int, **branches: Unpack[TwoBranchArgs]
 ) -> TwoBranchDenoiser:
-    """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch.
-
-    `whitening` ({"diffuse_in": stats, "specular_in": stats}, training split) initialises the whitening
-    buffers when `whiten`; the harness passes it (without it they start at mean 0 / std 1, to be filled
-    by a checkpoint load).
-    """
+    """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch."""
     sizes = {
         "in_channels": at_least("in_channels", in_channels),
         "width": at_least("width", width),
@@ -178,13 +174,7 @@ def conv_stack_denoiser(
         "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
     }
     return _two_branch(
-        lambda out_channels: ConvStack(**sizes, out_channels=out_channels),
-        output=output,
-        kernel_size=kernel_size,
-        shared=shared,
-        whiten=whiten,
-        in_channels=in_channels,
-        whitening=whitening,
+        lambda out_channels: ConvStack(**sizes, out_channels=out_channels), in_channels, branches
     )
 
 
@@ -195,14 +185,10 @@ def residual_denoiser(
     blocks: int,
     conv_kernel: int,
     predictor_width: int,
-    output: Literal["direct", "kernel"],
-    shared: bool,
-    whiten: bool,
-    kernel_size: int | None = None,
-    whitening: Whitening = None,
+    **branches: Unpack[TwoBranchArgs],
 ) -> TwoBranchDenoiser:
     """Residual KPCN (Vogels et al. 2018 style): a `ResidualKernelNet` per branch, or one shared by both
-    (`shared`, an ablation of the seed thesis). `whitening` as for `conv_stack_denoiser`."""
+    (`shared`, an ablation of the seed thesis)."""
     sizes = {
         "in_channels": at_least("in_channels", in_channels),
         "width": at_least("width", width),
@@ -211,13 +197,7 @@ def residual_denoiser(
         "predictor_width": at_least("predictor_width", predictor_width),
     }
     return _two_branch(
-        lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels),
-        output=output,
-        kernel_size=kernel_size,
-        shared=shared,
-        whiten=whiten,
-        in_channels=in_channels,
-        whitening=whitening,
+        lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels), in_channels, branches
     )
 
 
