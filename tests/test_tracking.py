@@ -15,6 +15,7 @@ from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError
+from src.multirun import PARENT_FILE
 from src.tracking import mlflow_tracking as mt
 from src.tracking.mlflow_tracking import (
     DEFAULT_COLUMNS,
@@ -205,7 +206,7 @@ def test_multirun_job_becomes_child_and_failure_marks_parent(store, monkeypatch)
     experiment_id = setup_tracking(cfg.tracking)
     parent = MlflowClient().create_run(experiment_id, run_name="sweep")
     record = {"run_id": parent.info.run_id, "experiment_id": experiment_id, "tracking_uri": cfg.tracking.uri}
-    (sweep / mt.PARENT_FILE).write_text(json.dumps(record))
+    (sweep / PARENT_FILE).write_text(json.dumps(record))
     with pytest.raises(ValueError), job_run(cfg, run_name="child", tags={}) as tracker:
         raise ValueError
     tags = mlflow.get_run(tracker.run_id).data.tags

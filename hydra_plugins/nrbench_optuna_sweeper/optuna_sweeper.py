@@ -138,7 +138,7 @@ class OptunaSweeper(Sweeper):
         self.launcher = Plugins.instance().instantiate_launcher(
             hydra_context=hydra_context, task_function=task_function, config=config
         )
-        from src.tracking.callbacks import sweep_dir  # lazy: mlflow is not needed at plugin scan
+        from src.multirun import sweep_dir
 
         self.sweep_dir = sweep_dir(config)  # relative to the launch dir, as the sweep callback resolves it
 

@@ -1,8 +1,8 @@
 """Choose the Mitsuba variant for this machine: ``cuda_ad_rgb`` on an NVIDIA GPU, else ``llvm_ad_rgb``.
 
 Dr.Jit's LLVM backend needs a system ``libLLVM`` >= 16 (LLVM 15 fails to compile its kernels, see
-docs/architecture.md). Debian 12 ships several versions side by side, so we point Dr.Jit at the newest suitable
-one through ``DRJIT_LIBLLVM_PATH`` instead of trusting its default search order.
+docs/architecture.md). Debian 12 ships several versions side by side, so we point Dr.Jit at the newest
+suitable one through ``DRJIT_LIBLLVM_PATH`` instead of trusting its default search order.
 """
 
 from __future__ import annotations

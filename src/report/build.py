@@ -21,6 +21,7 @@ from typing import Any
 import mlflow
 
 from src.io.atomic import atomic_write_text
+from src.multirun import quiet_mlflow_logs
 from src.report.collect import config_value, differing_params, find_runs, param_column
 from src.report.figures import image_grid, learning_curves, run_labels
 from src.report.html import render_html
@@ -34,7 +35,6 @@ from src.report.tables import (
     to_latex,
     to_markdown,
 )
-from src.tracking.mlflow_tracking import quiet_mlflow_logs
 
 log = logging.getLogger("nrbench.report")
 

@@ -1,4 +1,5 @@
-"""Hydra callback: a parent MLflow run per multirun, and its comparison table when the sweep ends.
+"""Hydra callback: a parent MLflow run per multirun, and its comparison table when the sweep ends (the
+report over the sweep is `src.report.sweep_callback`).
 
 Configured in `conf/config.yaml` under `hydra.callbacks.mlflow_sweep`. The parent run is created with
 `MlflowClient.create_run` (not `mlflow.start_run`), so no run is active in the launching process: with
@@ -7,60 +8,28 @@ Hydra's basic launcher the jobs run in this same process and start their own flu
 
 from __future__ import annotations
 
-import copy
 import logging
-import os
 from datetime import datetime
-from pathlib import Path
 from typing import Any
 
 import mlflow
 import pandas as pd
-from hydra.core.hydra_config import HydraConfig
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
 from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from src.errors import ConfigError
 from src.io.atomic import atomic_write_json
+from src.multirun import PARENT_FILE, read_parent, resolved_section, sweep_dir
 from src.provenance import git_commit
-from src.tracking.mlflow_tracking import (
-    DEFAULT_COLUMNS,
-    PARENT_FILE,
-    comparison_table,
-    format_table,
-    read_parent,
-    setup_tracking,
-)
+from src.tracking.mlflow_tracking import DEFAULT_COLUMNS, comparison_table, format_table, setup_tracking
 
 log = logging.getLogger("nrbench.tracking")
 
 # The sweep table adds each job's overrides in front, so rows of a sweep over anything are told apart.
 SWEEP_COLUMNS = {"job": "tags.nrbench.hydra_job", **DEFAULT_COLUMNS}
 _BAD_CHILD_STATUSES = ("FAILED", "KILLED")
-
-
-def resolved_section(config: DictConfig, key: str) -> DictConfig:
-    """The resolved section `key` (tracking, report) of the launcher's config.
-
-    Before any job starts Hydra has not set `HydraConfig`, so `${hydra:runtime.cwd}` (behind
-    `paths.root`, hence the default `tracking.uri`) cannot resolve. Set it from a copy of this config
-    (whose `hydra.runtime.cwd` is already the launch dir) just for the resolution, then put it back.
-    """
-    holder = HydraConfig.instance()
-    previous = holder.cfg
-    scratch = copy.deepcopy(config)
-    try:
-        if previous is None:
-            holder.set_config(scratch)
-        return OmegaConf.create(OmegaConf.to_container(scratch[key], resolve=True))
-    except OmegaConfBaseException as err:
-        raise ConfigError(f"{key}: cannot resolve it in the sweep's launcher ({err.msg})") from None
-    finally:
-        holder.cfg = previous
 
 
 def varying_overrides(jobs: pd.Series) -> pd.Series:
@@ -71,11 +40,6 @@ def varying_overrides(jobs: pd.Series) -> pd.Series:
         return jobs
     common = set.intersection(*(set(p) for p in parts))
     return parts.map(lambda p: " ".join(o for o in p if o not in common))
-
-
-def sweep_dir(config: DictConfig) -> Path:
-    """Absolute sweep dir; a relative `hydra.sweep.dir` is relative to the launch directory."""
-    return Path(config.hydra.runtime.cwd or os.getcwd()) / str(config.hydra.sweep.dir)
 
 
 class MlflowSweepCallback(Callback):
@@ -149,23 +113,3 @@ class MlflowSweepCallback(Callback):
         client.log_text(parent_id, table.to_csv(index=False), "comparison.csv")
         client.log_text(parent_id, text + "\n", "comparison.txt")
         client.set_terminated(parent_id, "FAILED" if failed else "FINISHED")
-        _write_sweep_report(config, parent_id)
-
-
-def _write_sweep_report(config: DictConfig, parent_id: str) -> None:
-    """The report over this sweep's children (the `report` stage of a multirun runs here, once, rather
-    than in every job). A report failure is logged; it does not fail the finished sweep."""
-    from src.errors import NrbenchError
-    from src.report.build import build_report, report_line
-
-    report = OmegaConf.merge(
-        resolved_section(config, "report"), {"parent_run_id": parent_id, "sweep_dir": None}
-    )
-    try:
-        summary = build_report(
-            OmegaConf.create({"report": report, "tracking": resolved_section(config, "tracking")})
-        )
-    except NrbenchError as err:
-        log.error("report: %s", err)
-        return
-    print(report_line(summary), flush=True)

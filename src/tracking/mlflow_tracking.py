@@ -12,7 +12,6 @@ import contextlib
 import json
 import logging
 import math
-import os
 import re
 import time
 from collections.abc import Iterator, Mapping
@@ -31,11 +30,11 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from src.errors import ConfigError
+from src.multirun import PARENT_FILE, quiet_mlflow_logs, read_parent
 from src.provenance import git_commit
 
 log = logging.getLogger("nrbench.tracking")
 
-PARENT_FILE = "mlflow_parent.json"
 TRUNCATED = "...[truncated]"
 # Schemes whose artifact location the server decides (a local file URI would be unreadable by it).
 _REMOTE_SCHEMES = ("http://", "https://", "databricks")
@@ -63,14 +62,6 @@ _FORMATS: dict[str, str] = {
     "train time s": "{:.1f}",
     "inference ms/MP": "{:.1f}",
 }
-
-
-def quiet_mlflow_logs() -> None:
-    """Silence the database-migration chatter MLflow prints when it opens or creates a SQLite store,
-    and its per-artifact download progress bars (one per run and file when a report reads curves)."""
-    os.environ.setdefault("MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR", "false")
-    for name in ("alembic", "mlflow.store.db.utils", "mlflow.store.tracking.sqlalchemy_store"):
-        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def _one_line(err: BaseException) -> str:
@@ -263,15 +254,6 @@ def _hydra_job() -> tuple[str, Path | None]:
         return overrides, None
     # Relative to the launch directory, not the cwd (hydra.job.chdir=true moves the cwd).
     return overrides, Path(hydra_cfg.runtime.cwd) / str(hydra_cfg.sweep.dir)
-
-
-def read_parent(sweep_dir: Path) -> dict | None:
-    """The sweep's parent-run record (`mlflow_parent.json`), or None if the callback did not run."""
-    path = Path(sweep_dir) / PARENT_FILE
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        return None
 
 
 def _parent_run_id(sweep_dir: Path, uri: str) -> str | None:

@@ -1,0 +1,36 @@
+"""Hydra callback: one report over a multirun's jobs when it ends (inside a multirun the `report` stage
+does not run in each job). Configured in `conf/config.yaml` under `hydra.callbacks.sweep_report`, after
+`mlflow_sweep`, whose parent-run record in the sweep dir says which runs are this sweep's."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+from src.errors import NrbenchError
+from src.multirun import read_parent, resolved_section, sweep_dir
+from src.report.build import build_report, report_line
+
+log = logging.getLogger("nrbench.report")
+
+
+class SweepReportCallback(Callback):
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        """The report over this sweep's child runs. A report failure is logged; it does not fail the
+        finished sweep."""
+        tracking = resolved_section(config, "tracking")
+        record = read_parent(sweep_dir(config))
+        if not tracking.enabled or record is None:
+            return
+        report = OmegaConf.merge(
+            resolved_section(config, "report"), {"parent_run_id": record["run_id"], "sweep_dir": None}
+        )
+        try:
+            summary = build_report(OmegaConf.create({"report": report, "tracking": tracking}))
+        except NrbenchError as err:
+            log.error("report: %s", err)
+            return
+        print(report_line(summary), flush=True)
