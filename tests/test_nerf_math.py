@@ -521,3 +521,60 @@ def test_real_sph_harm_closed_form_and_ide_degrees():
     # [Y_0^0, Y_1^0, sqrt(2) Re Y_1^1, sqrt(2) Im Y_1^1] with the Condon-Shortley phase
     assert_within(feats, torch.tensor([c0, c1 * z, -c1 * x, -c1 * y], dtype=F64), 1e-12)
     assert ide_degrees(1) == [(1, 0), (1, 1)]
+
+
+def test_rays_and_intervals_do_not_mix():
+    """Every quantity of a ray (and of an interval) depends on that ray (interval) alone: all at once
+    equals one at a time. The batching test above cannot see a reduction over *all* rays (`dim=None`),
+    nor an interval built from the wrong endpoint, since those act alike on a flat and a batched input."""
+    g = gen(30)
+    tdist = torch.tensor([[2.0, 2.5, 3.5, 5.0], [1.0, 1.2, 1.3, 4.0]], dtype=F64)
+    dirs = torch.tensor([[0.3, -0.2, 0.9], [2.0, 1.0, -0.5]], dtype=F64)  # different lengths
+    origins = torch.rand(2, 3, generator=g, dtype=F64)
+    radii = torch.tensor([[0.01], [0.03]], dtype=F64)
+    for diag in (True, False):
+        means, covs = cast_rays(tdist, origins, dirs, radii, diag)
+        for r in range(2):
+            for i in range(3):
+                one = cast_rays(
+                    tdist[r : r + 1, i : i + 2], origins[r : r + 1], dirs[r : r + 1], radii[r : r + 1], diag
+                )
+                assert_within(means[r, i], one[0][0, 0], 1e-12)
+                assert_within(covs[r, i], one[1][0, 0], 1e-12)
+    density = 3 * torch.rand(2, 3, generator=g, dtype=F64)
+    rgb = torch.rand(2, 3, 3, generator=g, dtype=F64)
+    bg = torch.tensor([1.0, 0.5, 0.0], dtype=F64)
+    weights, _, _ = compute_alpha_weights(density, tdist, dirs)
+    out = volumetric_rendering(rgb, weights, tdist, bg)
+    for r in range(2):
+        w_one, _, _ = compute_alpha_weights(density[r : r + 1], tdist[r : r + 1], dirs[r : r + 1])
+        assert_within(weights[r], w_one[0], 1e-12)
+        one = volumetric_rendering(rgb[r : r + 1], w_one, tdist[r : r + 1], bg)
+        for key, value in one.items():
+            assert_within(out[key][r], value[0], 1e-12)
+
+
+def test_sample_pdf_pads_an_empty_ray_inside_a_batch():
+    # A ray whose weights are all zero gets a uniform pdf: its samples are the quantiles themselves on
+    # [0, 1] bins, whatever the batch shape around it.
+    bins = torch.linspace(0.0, 1.0, 5, dtype=F64).expand(2, 3, 5)
+    weights = torch.rand(2, 3, 4, generator=gen(31), dtype=F64)
+    weights[1, 2] = 0.0
+    batched = sample_pdf(bins, weights, 6, randomized=False)
+    assert_within(
+        batched.reshape(6, 6), sample_pdf(bins.reshape(6, 5), weights.reshape(6, 4), 6, False), 1e-12
+    )
+    assert_within(batched[1, 2], torch.linspace(0.0, 1.0 - 1e-5, 6, dtype=F64), 1e-9)
+
+
+# Surviving mutants of the NeRF math (bash scripts/mutation.sh nerf), all equivalent here:
+# - sample_pdf: the clamps of `frac` to [0, 1], of `above` to the last index, of the cdf to 1 and of the
+#   quantiles to 1 - eps (13 mutants, e.g. clamp(0.0, 2.0), `denom >= 0`, max=1.0 + eps): each guards a
+#   bound the construction already keeps (u < 1 = cdf[-1], cdf_0 <= u < cdf_1 where denom > 0), and a
+#   zero-width bin is never the one a quantile falls in; `arange(n, dtype=None)`: int64 strata promote to
+#   the jitter's dtype.
+# - resample_tdist `torch.sort(..., dim=-1)` -> `torch.sort(...)`: -1 is the default.
+# - complex_sph_harm: the float64 polynomial's `dtype=`/`device=` arguments dropped or None (8 mutants),
+#   and the `"mps"` test misspelt or forced False (3): they change nothing on a CPU (or CUDA) device, and
+#   the meta-device test above does not check devices; `xyz[..., 2:4]` is `2:3` on 3-vectors.
+# - sph_harm_poly_coeffs `(-1) ** (m + l - j)` -> `(-1) ** (m + l + j)`: the exponents differ by 2j.
