@@ -1,0 +1,10 @@
+"""nrbench: a reproducible experiment and benchmark harness for neural rendering research."""
+
+from omegaconf import OmegaConf
+
+# `${nrbench.join:${compare.denoise.learned},...}`: config lists joined into a Hydra sweep value
+# ("kpcn,dpcn,resnet"), so that a sweep reads the compared models from conf/compare.yaml. Registered on
+# import of the package, i.e. before any config that uses it is composed.
+OmegaConf.register_new_resolver(
+    "nrbench.join", lambda *lists: ",".join(str(item) for items in lists for item in items), replace=True
+)

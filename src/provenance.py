@@ -44,7 +44,7 @@ def data_fingerprint(directory: Path) -> str:
 
 #: Config keys that say where things go, not what is computed: they never make two runs incomparable.
 #: The seed is listed too because reports aggregate over it.
-IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.", "report.")
+IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.", "report.", "compare.")
 IGNORED_PARAMS = frozenset(
     {
         "task.train.checkpoint_dir",

@@ -18,7 +18,7 @@ def test_result_config_leaves_out_paths_and_tracking_only(tmp_path):
     a = result_config(smoke_config(tmp_path / "a", tmp_path / "run-a", ["model=kpcn"]))
     b = result_config(smoke_config(tmp_path / "b", tmp_path / "run-b", ["model=kpcn"]))
     assert a == b  # other data dir, run dir and MLflow store: the same params file
-    assert {"paths", "tracking", "report", "stage"}.isdisjoint(a)
+    assert {"paths", "tracking", "report", "stage", "compare"}.isdisjoint(a)
     assert "checkpoint_dir" not in a["task"]["train"] and "out_dir" not in a["task"]["eval"]
     assert a["seed"] == 0 and a["model"]["name"] == "kpcn" and a["task"]["train"]["lr"] == 1e-4
     other = result_config(smoke_config(tmp_path / "a", tmp_path / "run-a", ["model=kpcn", "seed=3"]))

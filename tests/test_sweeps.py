@@ -257,3 +257,23 @@ def test_a_users_own_radiance_field_runs_beside_nerf(smoke_data, tmp_path):
     )
     assert toy["model_config"]["_target_"] == "tests.plugins.toy_field.ToyField" and toy["step"] > 0
     assert set(toy["model"]) == {"mlps.0.0.weight", "mlps.0.0.bias", "mlps.0.2.weight", "mlps.0.2.bias"}
+
+
+def test_the_compared_models_live_in_one_place():
+    """conf/compare.yaml is what the denoisers / nerf_variants sweeps and the DVC pipeline compare."""
+    from dvc.repo import Repo
+
+    compare = compose_sweep("denoisers").compare
+    denoisers, nerf = swept(compose_sweep("denoisers")), swept(compose_sweep("nerf_variants"))
+    learned, baselines = list(compare.denoise.learned), list(compare.denoise.baselines)
+    assert list(denoisers["model"].sweep_string_iterator()) == learned + baselines
+    assert list(nerf["model"].sweep_string_iterator()) == list(compare.nerf.models)
+    assert list(nerf["task.scene"].sweep_string_iterator()) == list(compare.nerf.scenes)
+    stages = {s.addressing for s in Repo(ROOT).index.stages}
+
+    def items(kind):
+        return {s.split("@", 1)[1] for s in stages if s.startswith(f"{kind}@")}
+
+    assert items("denoise_train") == items("denoise_eval") == set(learned)
+    assert items("denoise_baseline") == set(baselines)
+    assert items("nerf_train") == {f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes}
