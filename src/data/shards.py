@@ -110,6 +110,50 @@ def _default_load_fn(path: Path) -> Mapping[str, np.ndarray]:
     return load_kpcn_exr(path)[0]
 
 
+def _image_arrays(noisy: Mapping, ref: Mapping, noisy_path: Path, ref_path: Path, eps: float) -> dict:
+    """Everything stored for one noisy image (H, W, C arrays): network inputs, targets, guides, colours."""
+    color, ref_color = _color(noisy, noisy_path), _color(ref, ref_path)
+    if color.shape != ref_color.shape:
+        raise DataError(f"{noisy_path}: {color.shape} vs reference {ref_color.shape}")
+    inputs = make_network_inputs(noisy, eps)
+    return {
+        "diffuse_in": inputs["diffuse_in"],
+        "specular_in": inputs["specular_in"],
+        **make_targets(ref, inputs["albedo"], eps),
+        "albedo": inputs["albedo"],
+        "normal": inputs["normal"],
+        "depth": inputs["depth"],
+        "color": color,
+        "reference": ref_color,
+    }
+
+
+def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any]):
+    """(patches of every array of `image`, their corners), sampled where the noisy image is noisiest."""
+    imp = importance_map(
+        noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
+    )
+    corners = sample_patches(
+        imp,
+        sampling["patch_size"],
+        sampling["patches_per_image"],
+        rng,
+        candidates_factor=sampling["candidates_factor"],
+        min_keep_prob=sampling["min_keep_prob"],
+        min_distance=sampling["min_distance"],
+    )
+    return {k: extract_patches(v, corners, sampling["patch_size"]) for k, v in image.items()}, corners
+
+
+def _write_indices(out_dir: Path, indices: Mapping[tuple[str, str], list], patch_size: int) -> None:
+    channels = {k: list(v) for k, v in SHARD_CHANNELS.items()}
+    for (kind, split), entries in indices.items():
+        index = {"kind": kind, "split": split, "dtype": "float32", "channels": channels, "shards": entries}
+        if kind == "patches":
+            index["patch_size"] = patch_size
+        atomic_write_json(out_dir / kind / split / INDEX_NAME, index)
+
+
 def preprocess_dataset(
     raw_dir: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -137,6 +181,19 @@ def preprocess_dataset(
     path to a buffer dict (default: `load_kpcn_exr(path)[0]`, imported lazily). Deterministic given the
     seeds. Returns (and writes to summary.json) the counts and settings.
     """
+    settings = {
+        "eps": eps,
+        "patch_size": patch_size,
+        "patches_per_image": patches_per_image,
+        "split_fractions": dict(split_fractions),
+        "split_seed": split_seed,
+        "sample_seed": sample_seed,
+        "candidates_factor": candidates_factor,
+        "min_keep_prob": min_keep_prob,
+        "min_distance": min_distance,
+        "whiten_eps": whiten_eps,
+        "importance_percentile": importance_percentile,
+    }
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
     groups = group_dataset(raw_dir)
@@ -153,35 +210,10 @@ def preprocess_dataset(
             ref = load_fn(groups[scene][ref_spp])
             for spp in sorted(groups[scene])[:-1]:
                 noisy = load_fn(groups[scene][spp])
-                color, ref_color = _color(noisy, groups[scene][spp]), _color(ref, groups[scene][ref_spp])
-                if color.shape != ref_color.shape:
-                    raise DataError(f"{groups[scene][spp]}: {color.shape} vs reference {ref_color.shape}")
-                inputs = make_network_inputs(noisy, eps)
-                image = {
-                    "diffuse_in": inputs["diffuse_in"],
-                    "specular_in": inputs["specular_in"],
-                    **make_targets(ref, inputs["albedo"], eps),
-                    "albedo": inputs["albedo"],
-                    "normal": inputs["normal"],
-                    "depth": inputs["depth"],
-                    "color": color,
-                    "reference": ref_color,
-                }
+                image = _image_arrays(noisy, ref, groups[scene][spp], groups[scene][ref_spp], eps)
                 entry = {"file": shard_name(scene, spp), "scene": scene, "spp": spp, "reference_spp": ref_spp}
                 if split in ("train", "val"):
-                    imp = importance_map(
-                        noisy["colorVariance"], noisy["normalVariance"], percentile=importance_percentile
-                    )
-                    corners = sample_patches(
-                        imp,
-                        patch_size,
-                        patches_per_image,
-                        _image_rng(sample_seed, scene, spp),
-                        candidates_factor=candidates_factor,
-                        min_keep_prob=min_keep_prob,
-                        min_distance=min_distance,
-                    )
-                    patches = {k: extract_patches(v, corners, patch_size) for k, v in image.items()}
+                    patches, corners = _patches(image, noisy, _image_rng(sample_seed, scene, spp), settings)
                     if split == "train":
                         for k, m in moments.items():
                             m.update(patches[k])
@@ -190,19 +222,16 @@ def preprocess_dataset(
                     save_tensors(out_dir / "patches" / split / entry["file"], shard)
                     indices["patches", split].append({**entry, "n_patches": len(corners)})
                 if split in ("val", "test"):
-                    full = {k: _channels_first(v) for k, v in image.items()}
-                    save_tensors(out_dir / "full" / split / entry["file"], full)
+                    save_tensors(
+                        out_dir / "full" / split / entry["file"],
+                        {k: _channels_first(v) for k, v in image.items()},
+                    )
                     h, w = image["color"].shape[:2]
                     indices["full", split].append({**entry, "height": h, "width": w})
                 bar.update(1)
     bar.close()
 
-    channels = {k: list(v) for k, v in SHARD_CHANNELS.items()}
-    for (kind, split), entries in indices.items():
-        index = {"kind": kind, "split": split, "dtype": "float32", "channels": channels, "shards": entries}
-        if kind == "patches":
-            index["patch_size"] = patch_size
-        atomic_write_json(out_dir / kind / split / INDEX_NAME, index)
+    _write_indices(out_dir, indices, patch_size)
     save_whitening_stats(out_dir / "whitening.json", {k: m.finalize(whiten_eps) for k, m in moments.items()})
     atomic_write_json(out_dir / "splits.json", splits)
     summary = {
@@ -211,19 +240,7 @@ def preprocess_dataset(
         "noisy_images": n_images,
         "patches": {s: sum(e["n_patches"] for e in indices["patches", s]) for s in ("train", "val")},
         "full_images": {s: len(indices["full", s]) for s in ("val", "test")},
-        "settings": {
-            "eps": eps,
-            "patch_size": patch_size,
-            "patches_per_image": patches_per_image,
-            "split_fractions": dict(split_fractions),
-            "split_seed": split_seed,
-            "sample_seed": sample_seed,
-            "candidates_factor": candidates_factor,
-            "min_keep_prob": min_keep_prob,
-            "min_distance": min_distance,
-            "whiten_eps": whiten_eps,
-            "importance_percentile": importance_percentile,
-        },
+        "settings": settings,
     }
     atomic_write_json(out_dir / "summary.json", summary)
     return summary
