@@ -8,6 +8,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.io.atomic import atomic_write_json
+
 
 def git_commit(repo: Path | None = None) -> str:
     """HEAD's commit hash, with ``+dirty`` when tracked files differ from it; ``unknown`` outside git."""
@@ -86,3 +88,8 @@ def provenance(cfg: DictConfig, data_dir: Path | None = None) -> dict:
     if data_dir is not None and data_dir.exists():
         record["data_fingerprint"] = data_fingerprint(data_dir)
     return record
+
+
+def write_summary(path: Path, summary: dict, cfg: DictConfig, data_dir: Path, **extra) -> None:
+    """A stage's JSON summary, atomically, with the provenance of its result (config, commit, data)."""
+    atomic_write_json(path, {"summary": summary, **extra, **provenance(cfg, data_dir)})

@@ -72,3 +72,18 @@ def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, ca
     assert tracker.run_id != first
     assert client.get_run(tracker.run_id).info.status == "FINISHED"
     assert f"MLflow run {first} (to resume) is not in" in caplog.text
+
+
+def test_the_task_object_comes_from_config_and_a_bad_one_is_one_line(tmp_path):
+    from src.errors import ConfigError
+    from src.stages import render, task_of
+    from src.tasks.denoise import DenoiseTask
+    from src.tasks.nerf import NerfTask
+    from tests.conftest import one_line_error
+
+    assert isinstance(task_of(smoke_config(tmp_path, tmp_path / "run")), DenoiseTask)
+    assert isinstance(task_of(smoke_config(tmp_path, tmp_path / "run", ["task=nerf"])), NerfTask)
+    bad = smoke_config(tmp_path, tmp_path / "run", ["task._target_=src.tasks.nope.Task"])
+    with pytest.raises(ConfigError) as excinfo:
+        render(bad)
+    one_line_error(excinfo, "task._target_", "src.tasks.nope.Task")

@@ -1,0 +1,126 @@
+"""The Monte Carlo denoising task: render the KPCN-buffer EXRs, preprocess them into network inputs and
+patches, train a denoiser, evaluate it on the test images."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+
+from src.io.atomic import atomic_directory
+from src.provenance import data_fingerprint, write_summary
+
+PREPROCESS_PROVENANCE = "preprocess_provenance.json"
+
+
+def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
+    """What the prepared data depends on: the preprocessing settings and the raw data's fingerprint."""
+    settings = json.dumps(OmegaConf.to_container(cfg.task.preprocess, resolve=True), sort_keys=True)
+    return hashlib.sha256(f"{settings}|{data_fingerprint(raw)}".encode()).hexdigest()[:16]
+
+
+def _cached_preprocess(out: Path, key: str) -> dict | None:
+    try:
+        record = json.loads((out / PREPROCESS_PROVENANCE).read_text())
+    except (OSError, ValueError):
+        return None
+    return record["summary"] if record.get("cache_key") == key else None
+
+
+class DenoiseTask:
+    def data_dir(self, cfg: DictConfig) -> Path:
+        """The data the runs' `nrbench.data_fingerprint` tag identifies: the raw EXRs."""
+        return Path(cfg.paths.raw)
+
+    def render(self, cfg: DictConfig) -> dict:
+        """The denoising EXRs into `paths.raw` (files whose render key is unchanged are kept)."""
+        from src.render.render_dataset import render_denoise_dataset
+
+        raw = Path(cfg.paths.raw)
+        summary = render_denoise_dataset(
+            OmegaConf.to_container(cfg.dataset, resolve=True), raw, cfg.render.variant
+        )
+        if summary["samples_per_second"]:
+            print(
+                f"render: {summary['files_rendered']} files ({summary['files_cached']} cached) in "
+                f"{summary['render_seconds']:.1f} s, {summary['samples_per_second'] / 1e6:.2f} M samples/s "
+                f"[{summary['variant']}]"
+            )
+        else:
+            print(f"render: all {summary['files_cached']} files up to date in {raw}")
+        write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, raw)
+        return summary
+
+    def preprocess(self, cfg: DictConfig) -> dict:
+        """The raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test).
+
+        Skipped when the prepared directory was made from the same settings and raw data (each job of a
+        multirun would otherwise redo it)."""
+        from src.data.kpcn_buffers import RepairPolicy, load_kpcn_exr
+        from src.data.shards import preprocess_dataset
+
+        p = cfg.task.preprocess
+        raw, out = Path(cfg.paths.raw), Path(cfg.paths.prepared)
+        key = _preprocess_key(cfg, raw)
+        cached = _cached_preprocess(out, key)
+        if cached is not None:
+            print(f"preprocess: up to date in {out}")
+            return cached
+        policy = RepairPolicy(**OmegaConf.to_container(p.repair, resolve=True))
+        repairs: dict[str, str] = {}
+
+        def load(path: Path):
+            buffers, report = load_kpcn_exr(path, repair=policy)
+            if report.total:
+                repairs[path.name] = report.summary()
+            return buffers
+
+        with atomic_directory(out) as tmp:
+            summary = preprocess_dataset(
+                raw,
+                tmp,
+                eps=p.eps_albedo,
+                patch_size=p.patch_size,
+                patches_per_image=p.patches_per_image,
+                split_fractions=dict(p.split),
+                split_seed=p.split_seed,
+                sample_seed=p.sample_seed,
+                candidates_factor=p.candidates_factor,
+                min_keep_prob=p.min_keep_prob,
+                min_distance=p.min_distance * p.patch_size,
+                whiten_eps=p.whiten_eps,
+                importance_percentile=p.importance_percentile,
+                load_fn=load,
+            )
+            summary["repairs"] = repairs
+            write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
+        repaired = f", repaired {len(repairs)} files" if repairs else ""
+        print(
+            f"preprocess: {summary['noisy_images']} images, {summary['patches']} patches{repaired} -> {out}"
+        )
+        return summary
+
+    def train(self, cfg: DictConfig, tracker) -> dict:
+        from src.train.trainer import train_denoiser
+
+        return train_denoiser(cfg, tracker)
+
+    def evaluate(self, cfg: DictConfig, tracker) -> dict:
+        from src.eval.denoise_eval import evaluate_denoiser
+
+        summary = evaluate_denoiser(cfg, tracker)
+        mean = summary["mean"]
+        print(
+            f"eval: {cfg.model.name} on {summary['images']} images: PSNR {mean['psnr']:.2f} dB "
+            f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE {mean['relmse']:.5f} "
+            f"(noisy {mean['noisy_relmse']:.5f}), {mean['ms_per_mpixel']:.1f} ms/MP "
+            f"-> {cfg.task.eval.out_dir}"
+        )
+        return summary
+
+    def model_summary(self, model, model_cfg: dict) -> str:
+        from src.models.denoise.summary import model_summary
+
+        return model_summary(model, model_cfg)
