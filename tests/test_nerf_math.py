@@ -569,12 +569,12 @@ def test_sample_pdf_pads_an_empty_ray_inside_a_batch():
 
 # Surviving mutants of the NeRF math (bash scripts/mutation.sh nerf), all equivalent here:
 # - sample_pdf: the clamps of `frac` to [0, 1], of `above` to the last index, of the cdf to 1 and of the
-#   quantiles to 1 - eps (13 mutants, e.g. clamp(0.0, 2.0), `denom >= 0`, max=1.0 + eps): each guards a
-#   bound the construction already keeps (u < 1 = cdf[-1], cdf_0 <= u < cdf_1 where denom > 0), and a
-#   zero-width bin is never the one a quantile falls in; `arange(n, dtype=None)`: int64 strata promote to
-#   the jitter's dtype.
+#   quantiles to 1 - eps, and the fallbacks where a bin has zero width (12 mutants, e.g. clamp(0.0, 2.0),
+#   `denom >= 0`, max=1.0 + eps): each guards a bound the construction already keeps (u < 1 = cdf[-1],
+#   cdf_0 <= u < cdf_1 where denom > 0), and a zero-width bin is never the one a quantile falls in;
+#   `arange(n, dtype=None)` (2): int64 strata promote to the jitter's dtype.
 # - resample_tdist `torch.sort(..., dim=-1)` -> `torch.sort(...)`: -1 is the default.
-# - complex_sph_harm: the float64 polynomial's `dtype=`/`device=` arguments dropped or None (8 mutants),
+# - complex_sph_harm: the float64 polynomial's `dtype=`/`device=` arguments dropped or None (9 mutants),
 #   and the `"mps"` test misspelt or forced False (3): they change nothing on a CPU (or CUDA) device, and
 #   the meta-device test above does not check devices; `xyz[..., 2:4]` is `2:3` on 3-vectors.
 # - sph_harm_poly_coeffs `(-1) ** (m + l - j)` -> `(-1) ** (m + l + j)`: the exponents differ by 2j.
