@@ -56,7 +56,9 @@ from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.summary import count_parameters, flops_per_pixel, random_batch
 from src.models.instantiate import build_method
-from src.models.nerf.models import NerfModelBase, RefNeRF, nerf_mlp_flops_per_ray, render_rays_chunked
+from src.models.nerf.inference import render_rays_chunked
+from src.models.nerf.models import NerfModelBase, RefNeRF
+from src.models.nerf.summary import nerf_mlp_flops_per_ray
 from src.render.multiview import look_at_c2w, sphere_position
 from src.train.device import pick_device, seed_everything
 

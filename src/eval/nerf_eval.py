@@ -27,7 +27,8 @@ from src.io.images import write_png
 from src.metrics.image import image_metrics, lpips_variant
 from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
-from src.models.nerf.models import NerfModelBase, render_rays_chunked
+from src.models.nerf.inference import render_rays_chunked
+from src.models.nerf.models import NerfModelBase
 from src.provenance import provenance
 from src.train.checkpoint import load_weights
 from src.train.device import pick_device

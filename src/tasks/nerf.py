@@ -55,6 +55,6 @@ class NerfTask:
         return summary
 
     def model_summary(self, model, model_cfg: dict) -> str:
-        from src.models.nerf.models import nerf_model_summary
+        from src.models.nerf.summary import nerf_model_summary
 
         return nerf_model_summary(model, model_cfg)

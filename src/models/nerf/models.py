@@ -1,5 +1,5 @@
-"""NeRF, mip-NeRF and Ref-NeRF behind one interface, chunked rendering and summary (built from config by
-`builders.py`).
+"""NeRF, mip-NeRF and Ref-NeRF behind one interface (built from config by `builders.py`; chunked rendering
+in `inference.py`, parameter and FLOP summary in `summary.py`).
 
 Every model renders two levels (coarse, fine) of the same rays:
 
@@ -25,9 +25,6 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from src.errors import ConfigError, DataError
-from src.models.denoise.summary import count_parameters
-from src.models.instantiate import model_dict
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
 from src.models.nerf.fields import NerfMLP, RefNerfMLP
@@ -254,80 +251,3 @@ class RefNeRF(NerfModelBase):
             pred_normal = pred_normal + mult * (w * diff_sq).sum(dim=-1).mean()
         total = self.orientation_loss_mult * orientation + self.pred_normal_loss_mult * pred_normal
         return total, {"orientation": float(orientation.detach()), "pred_normal": float(pred_normal.detach())}
-
-
-# --- inference and reporting ------------------------------------------------------------------------------
-
-
-def render_rays_chunked(
-    model: NerfModelBase,
-    rays: Rays,
-    chunk: int,
-    randomized: bool = False,
-    generator: torch.Generator | None = None,
-) -> dict[str, Tensor]:
-    """Render any number of rays `chunk` at a time (no_grad; Ref-NeRF still differentiates its density
-    internally for the normals, then detaches). Returns the fine level's `model.render_keys`, each
-    (N, ...) concatenated on the CPU."""
-    missing = [k for k in RAY_KEYS if k not in rays]
-    if missing:
-        raise DataError(f"rays: missing {missing}; expected keys {list(RAY_KEYS)}")
-    if chunk < 1:
-        raise ConfigError(f"chunk: expected a positive integer, got {chunk!r}")
-    param = next(model.parameters())
-    n = rays["origins"].shape[0]
-    pieces: dict[str, list[Tensor]] = {k: [] for k in model.render_keys}
-    with torch.no_grad():
-        for start in range(0, n, chunk):
-            batch = {k: rays[k][start : start + chunk].to(param.device, param.dtype) for k in RAY_KEYS}
-            fine = model(batch, randomized=randomized, generator=generator)[-1]
-            for k in model.render_keys:
-                pieces[k].append(fine[k].detach().cpu())
-    return {k: torch.cat(v) for k, v in pieces.items()}
-
-
-def mlp_flops_per_sample(mlp: nn.Module) -> int:
-    """2 x the multiply-accumulates of one MLP evaluation: every `nn.Linear` runs once per sample
-    (bias additions, activations and encodings are not counted, the usual convention)."""
-    return 2 * sum(m.in_features * m.out_features for m in mlp.modules() if isinstance(m, nn.Linear))
-
-
-def nerf_mlp_flops_per_ray(model: NerfModelBase) -> dict[str, int]:
-    """{"coarse", "fine", "total"}: MLP forward FLOPs per ray (samples x FLOPs per sample)."""
-    samples = model.samples_per_level()
-    flops = {
-        level: s * mlp_flops_per_sample(model.mlp_for(i))
-        for i, (level, s) in enumerate(zip(LEVELS, samples, strict=True))
-    }
-    flops["total"] = sum(flops.values())
-    return flops
-
-
-def nerf_model_summary(model: NerfModelBase, model_cfg: Mapping[str, Any]) -> str:
-    """Architecture, parameter counts (total and per MLP), samples per ray and MLP FLOPs per ray."""
-    cfg = model_dict(model_cfg)
-    lines = [
-        f"model: {cfg.get('name', model.name)} (family {cfg.get('family', 'nerf')}, learned True)",
-        str(model),
-    ]
-    per = ", ".join(f"{label} {count_parameters(m):,}" for label, m in model.mlp_modules().items())
-    lines.append(f"parameters: {count_parameters(model):,} ({per})")
-    coarse, fine = model.samples_per_level()
-    how = (
-        f"{model.num_coarse_samples} coarse + {model.num_fine_samples} importance samples"
-        if model.resample_padding is None
-        else f"resampled with padding {model.resample_padding}"
-    )
-    lines.append(
-        f"samples per ray: coarse {coarse}, fine {fine} ({how}); MLP evaluations per ray: {coarse + fine}"
-    )
-    flops = nerf_mlp_flops_per_ray(model)
-    note = ""
-    if isinstance(model, RefNeRF):
-        note = "; excludes the density-gradient backward pass for the normals (about 2x the spatial MLP)"
-    lines.append(
-        f"MLP FLOPs per ray (forward, 2 x MACs): {flops['total']:,} "
-        f"(coarse {flops['coarse']:,} + fine {flops['fine']:,}){note}"
-    )
-    lines.append(f"GFLOPs per 800x800 frame (NeRF-synthetic size): {flops['total'] * 800 * 800 / 1e9:,.1f}")
-    return "\n".join(lines)
