@@ -51,7 +51,7 @@ from omegaconf import OmegaConf
 from torch import nn
 
 from src.data.blender import focal_from_fov, generate_rays
-from src.errors import ConfigError, NrbenchError
+from src.errors import ConfigError, NrbenchError, one_line
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.summary import count_parameters, flops_per_pixel, random_batch
@@ -193,7 +193,7 @@ def bench_oidn(profile: str, batch, timer) -> Row:
         seconds = timer([lambda: infer_tiled(model, batch, 0)])[0]
         return Row("oidn", seconds, note="pyoidn, full frame")
     except Exception as err:  # import failure, missing native library, unsupported device...
-        reason = " ".join(str(err).split()) or type(err).__name__
+        reason = one_line(err)
         return Row("oidn", None, note=f"unavailable ({reason})")
 
 
@@ -571,7 +571,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         print(args.run(args))
     except (NrbenchError, HydraException) as err:  # a bad config value or an unknown model name
-        print(f"bench: {' '.join(str(err).split())}", file=sys.stderr)
+        print(f"bench: {one_line(err)}", file=sys.stderr)
         return 2
     return 0
 

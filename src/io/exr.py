@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from src.errors import DataError
+from src.errors import DataError, one_line
 from src.io.atomic import atomic_path
 
 PIXEL_DTYPES = (np.dtype(np.float32), np.dtype(np.float16), np.dtype(np.uint32))  # FLOAT, HALF, UINT
@@ -36,10 +36,6 @@ COMPRESSIONS = {
     "piz": OpenEXR.PIZ_COMPRESSION,
     "zstd": OpenEXR.ZSTD_COMPRESSION,  # needs OpenEXR >= 3.4 to read back
 }
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 def format_names(names: Iterable[str], limit: int = 40) -> str:
@@ -94,7 +90,7 @@ def write_exr(
         try:
             OpenEXR.File(header, pixels).write(str(tmp))
         except (RuntimeError, ValueError, TypeError) as err:
-            raise DataError(f"{path}: cannot write EXR: {_one_line(err)}") from err
+            raise DataError(f"{path}: cannot write EXR: {one_line(err)}") from err
     return path
 
 
@@ -104,7 +100,7 @@ def _open(path: Path, header_only: bool) -> OpenEXR.File:
     try:
         return OpenEXR.File(str(path), separate_channels=True, header_only=header_only)
     except (RuntimeError, ValueError, OSError) as err:
-        raise DataError(f"{path}: not a readable EXR file ({_one_line(err)})") from err
+        raise DataError(f"{path}: not a readable EXR file ({one_line(err)})") from err
 
 
 def exr_channel_names(path: str | os.PathLike[str]) -> list[str]:
@@ -131,7 +127,7 @@ def read_exr(path: str | os.PathLike[str], channels: Iterable[str] | None = None
     try:
         found = {name: ch.pixels for name, ch in _open(path, header_only=False).channels().items()}
     except (RuntimeError, ValueError) as err:  # e.g. truncated pixel data, noticed only here
-        raise DataError(f"{path}: not a readable EXR file ({_one_line(err)})") from err
+        raise DataError(f"{path}: not a readable EXR file ({one_line(err)})") from err
     wanted = list(found) if channels is None else list(dict.fromkeys(channels))
     missing = [name for name in wanted if name not in found]
     if missing:

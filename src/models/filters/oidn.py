@@ -16,15 +16,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from src.errors import ConfigError, EnvironmentSetupError
+from src.errors import ConfigError, EnvironmentSetupError, one_line
 from src.models.denoise.base import Batch, Denoiser
 
 #: Accepted values of `quality` (pyoidn also accepts "default" and the OIDN_QUALITY_* integers).
 QUALITIES = ("high", "balanced", "fast", "default")
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 def _import_pyoidn():
@@ -33,7 +29,7 @@ def _import_pyoidn():
         import pyoidn
     except Exception as err:  # ImportError, or OSError from the bundled shared library
         raise EnvironmentSetupError(
-            f"pyoidn (Intel Open Image Denoise) cannot be imported: {_one_line(err)}; "
+            f"pyoidn (Intel Open Image Denoise) cannot be imported: {one_line(err)}; "
             "install the pinned `pyoidn` package (uv sync)"
         ) from err
     return pyoidn
@@ -88,7 +84,7 @@ class OIDNDenoiser(Denoiser):
                 rgb, alb, nrm, hdr=self.hdr, quality=self.quality, clean_aux=self.clean_aux
             )
         except Exception as err:  # TypeError/ValueError/RuntimeError from pyoidn or the OIDN library
-            raise EnvironmentSetupError(f"pyoidn.denoise failed: {_one_line(err)}") from err
+            raise EnvironmentSetupError(f"pyoidn.denoise failed: {one_line(err)}") from err
 
     @torch.no_grad()
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
