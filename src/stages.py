@@ -10,7 +10,6 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 
-import hydra.utils
 from omegaconf import DictConfig, OmegaConf
 
 from src.errors import ConfigError
@@ -22,13 +21,9 @@ log = logging.getLogger(__name__)
 
 def task_of(cfg: DictConfig):
     """The task object `task._target_` names (src/tasks/): what each stage means for this task."""
-    target = cfg.task.get("_target_")
-    try:
-        return hydra.utils.get_class(str(target))()
-    except Exception as err:  # ImportError, AttributeError, or a target that is not a class
-        raise ConfigError(
-            f"task._target_: cannot build task {target!r} ({' '.join(str(err).split())})"
-        ) from None
+    from src.models.instantiate import resolve_target
+
+    return resolve_target(cfg.task, "task")()
 
 
 def render(cfg: DictConfig, tracker=None) -> dict:

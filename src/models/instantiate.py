@@ -1,12 +1,13 @@
-"""Build a method (denoiser, filter; radiance fields next) from its `model:` config group.
+"""Build a method (denoiser, filter, radiance field) from its `model:` config group.
 
 `model._target_` names the class or factory (any importable dotted path, in this repository or the
 user's own package); every other key of the group is one of its keyword arguments, so the constructor
-signature is the contract between a YAML file and its code (the lightning-hydra-template convention,
-built with `hydra.utils.instantiate`). A few keys are read by the harness itself and not passed on
-(`HARNESS_KEYS`). Before anything is built, the keys are checked against the signature, so that a typo,
-a missing value or a wrong type is a one-line `ConfigError` naming `model.<key>` rather than a
-`TypeError` deep inside Hydra: Hydra's own errors span several lines and name no config key.
+signature is the contract between a YAML file and its code (the lightning-hydra-template convention;
+the method is called directly, nested `_target_` groups go through `hydra.utils.instantiate`). A few
+keys are read by the harness itself and not passed on (`HARNESS_KEYS`). Before anything is built, the
+keys are checked against the signature, so that a typo, a missing value or a wrong type is a one-line
+`ConfigError` naming `model.<key>` rather than a `TypeError` deep inside Hydra: Hydra's own errors span
+several lines and name no config key.
 """
 
 from __future__ import annotations
@@ -20,16 +21,12 @@ from typing import Any
 import hydra.utils
 from omegaconf import DictConfig, OmegaConf
 
-from src.errors import ConfigError
+from src.errors import ConfigError, one_line
 
 #: Keys of a `model:` group that the harness reads (run names, whether to train, the task family); they are
 #: not arguments of the method.
 HARNESS_KEYS = ("name", "learned", "family")
 TARGET_KEY = "_target_"
-
-
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or type(err).__name__
 
 
 def model_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -41,21 +38,21 @@ def model_dict(model_cfg: Mapping[str, Any]) -> dict[str, Any]:
     return dict(model_cfg)
 
 
-def resolve_target(model_cfg: Mapping[str, Any]) -> Callable[..., Any]:
-    """The class or factory `model._target_` names."""
-    target = model_cfg.get(TARGET_KEY)
+def resolve_target(node: Mapping[str, Any], section: str = "model") -> Callable[..., Any]:
+    """The class or factory `<section>._target_` names (a method's `model:` group, a `task:` group...)."""
+    target = node.get(TARGET_KEY)
     if not isinstance(target, str) or not target:
         raise ConfigError(
-            f"model.{TARGET_KEY}: expected the dotted path of the method's class or factory "
+            f"{section}.{TARGET_KEY}: expected the dotted path of a class or factory "
             f"(e.g. src.models.denoise.models.conv_stack_denoiser), got {target!r}"
         )
     try:
         found = hydra.utils.get_object(target)
     except Exception as err:  # ImportError, AttributeError, or whatever the module raises on import
-        raise ConfigError(f"model.{TARGET_KEY}: cannot import {target!r} ({_one_line(err)})") from None
+        raise ConfigError(f"{section}.{TARGET_KEY}: cannot import {target!r} ({one_line(err)})") from None
     if not callable(found):
         raise ConfigError(
-            f"model.{TARGET_KEY}: {target!r} is a {type(found).__name__}, not a class or function"
+            f"{section}.{TARGET_KEY}: {target!r} is a {type(found).__name__}, not a class or function"
         )
     return found
 
@@ -120,10 +117,15 @@ def _arguments(target: Callable[..., Any]) -> tuple[dict[str, Any], set[str], bo
     return accepted, required, takes_any
 
 
-def check_arguments(target: Callable[..., Any], kwargs: Mapping[str, Any], provided: set[str]) -> None:
-    """Every key is an argument of `target`, of the annotated type; every required argument is given
-    (by the config, or by the harness in `provided`)."""
-    accepted, required, takes_any = _arguments(target)
+def check_arguments(
+    target: Callable[..., Any],
+    arguments: tuple[dict[str, Any], set[str], bool],
+    kwargs: Mapping[str, Any],
+    provided: set[str],
+) -> None:
+    """Every key is an argument of `target` (its `_arguments`), of the annotated type; every required
+    argument is given (by the config, or by the harness in `provided`)."""
+    accepted, required, takes_any = arguments
     name = getattr(target, "__qualname__", repr(target))
     for key in kwargs:
         if key not in accepted and not takes_any:
@@ -153,9 +155,10 @@ def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
     cfg = model_dict(model_cfg)
     target = resolve_target(cfg)
     kwargs = {k: v for k, v in cfg.items() if k not in HARNESS_KEYS and k != TARGET_KEY}
-    accepted, _, takes_any = _arguments(target)
+    arguments = _arguments(target)
+    accepted, _, takes_any = arguments
     wanted = {k: v for k, v in context.items() if k in accepted or takes_any}
-    check_arguments(target, kwargs, set(wanted))
+    check_arguments(target, arguments, kwargs, set(wanted))
     # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra; the method itself is called
     # directly, so that run-time objects (statistics, tensors) reach it as they are, not as OmegaConf nodes.
     kwargs = {k: _build_nested(v) for k, v in kwargs.items()}
@@ -164,7 +167,7 @@ def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
     except ConfigError:
         raise
     except (TypeError, ValueError) as err:  # a value the constructor rejects (e.g. an even conv kernel)
-        raise ConfigError(f"model ({cfg.get('name', cfg[TARGET_KEY])}): {_one_line(err)}") from None
+        raise ConfigError(f"model ({cfg.get('name', cfg[TARGET_KEY])}): {one_line(err)}") from None
 
 
 def _build_nested(value: Any) -> Any:
