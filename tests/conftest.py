@@ -42,6 +42,23 @@ def one_line_cli_error(result, *needles):
     return errors[0]
 
 
+def assert_loads_from_legacy_checkpoint(cfg, legacy_cfg, path):
+    """A model built from `cfg`, saved in a checkpoint that records the older `legacy_cfg` (a config from
+    before `model._target_`), loads back into a fresh model of `cfg` with every weight equal."""
+    import torch
+
+    from src.models.instantiate import build_method
+    from src.train.checkpoint import load_weights, save_checkpoint
+
+    trained = build_method(cfg)
+    state = {"model_config": legacy_cfg, "model": trained.state_dict(), "optimizer": {}}
+    save_checkpoint(path, state | {"epoch": 1, "batch_in_epoch": 0, "step": 5})
+    fresh = build_method(cfg)
+    load_weights(fresh, cfg, path)
+    for key, value in trained.state_dict().items():
+        assert torch.equal(fresh.state_dict()[key], value), key
+
+
 ROOT = Path(__file__).resolve().parent.parent
 
 

@@ -14,7 +14,7 @@ from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import count_parameters, flops_per_pixel, model_summary, random_batch
 from src.models.instantiate import build_method
-from tests.conftest import compose_config, one_line_error
+from tests.conftest import assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
 C_IN = len(INPUT_CHANNELS)
 
@@ -388,17 +388,11 @@ def test_bench_runs_on_a_tiny_frame_and_prints_the_ratios(capsys):
 
 def test_a_checkpoint_from_before_target_configs_still_loads(tmp_path):
     # Checkpoints written before `model._target_` named the builder carry `model.architecture` instead.
-    from src.train.checkpoint import load_weights, save_checkpoint
+    from src.train.checkpoint import load_weights
 
     cfg = tiny_cfg(whiten=False)
-    trained = build_method(cfg)
     legacy = {k: v for k, v in cfg.items() if k != "_target_"} | {"architecture": "conv_stack"}
-    state = {"model_config": legacy, "model": trained.state_dict(), "optimizer": {}}
-    save_checkpoint(tmp_path / "old.pt", state | {"epoch": 1, "batch_in_epoch": 0, "step": 5})
-    fresh = build_method(cfg)
-    load_weights(fresh, cfg, tmp_path / "old.pt")
-    for key, value in trained.state_dict().items():
-        assert torch.equal(fresh.state_dict()[key], value), key
+    assert_loads_from_legacy_checkpoint(cfg, legacy, tmp_path / "old.pt")
     # ...but not into a different network: the one-line error names what changed.
     with pytest.raises(DataError) as excinfo:
         load_weights(

@@ -15,7 +15,7 @@ from src.models.nerf.fields import RefNerfMLP
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import RefNeRF
 from src.models.nerf.summary import nerf_mlp_flops_per_ray, nerf_model_summary
-from tests.conftest import compose_config, one_line_error
+from tests.conftest import assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
 NAMES = ("nerf", "mipnerf", "refnerf")
 #: Exact parameter counts at paper size (total, per MLP) and the papers' round figures (+-10%).
@@ -318,14 +318,6 @@ def test_every_radiance_field_config_instantiates(name, profile):
 
 def test_a_checkpoint_from_before_target_configs_still_loads(tmp_path):
     # Radiance-field checkpoints written before `model._target_` were built by `model.name`.
-    from src.train.checkpoint import load_weights, save_checkpoint
-
     cfg = model_cfg("mipnerf", "smoke")
-    trained = build_method(cfg)
     legacy = {k: v for k, v in cfg.items() if k != "_target_"}
-    state = {"model_config": legacy, "model": trained.state_dict(), "optimizer": {}}
-    save_checkpoint(tmp_path / "old.pt", state | {"epoch": 0, "batch_in_epoch": 0, "step": 3})
-    fresh = build_method(cfg)
-    load_weights(fresh, cfg, tmp_path / "old.pt")
-    for key, value in trained.state_dict().items():
-        assert torch.equal(fresh.state_dict()[key], value), key
+    assert_loads_from_legacy_checkpoint(cfg, legacy, tmp_path / "old.pt")
