@@ -2,9 +2,15 @@
 
 from omegaconf import OmegaConf
 
+from src.data.features import feature_count as _feature_count
+
 # `${nrbench.join:${compare.denoise.learned},...}`: config lists joined into a Hydra sweep value
 # ("kpcn,dpcn,resnet"), so that a sweep reads the compared models from conf/compare.yaml. Registered on
 # import of the package, i.e. before any config that uses it is composed.
 OmegaConf.register_new_resolver(
     "nrbench.join", lambda *lists: ",".join(str(item) for items in lists for item in items), replace=True
 )
+
+# `in_channels: ${nrbench.channels:${task.features}}`: a denoiser's input channel count, derived from the
+# configured feature list (src/data/features.py) instead of typed by hand.
+OmegaConf.register_new_resolver("nrbench.channels", lambda features: _feature_count(features), replace=True)

@@ -7,7 +7,8 @@ import torch
 import torch.nn.functional as F
 
 from src.bench import main as bench_main
-from src.data.kpcn_preprocess import INPUT_CHANNELS, WhiteningStats
+from src.data.features import PAPER_CHANNELS
+from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
 from src.models.denoise.kernels import apply_kernel
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
@@ -16,7 +17,7 @@ from src.models.denoise.summary import count_parameters, flops_per_pixel, model_
 from src.models.instantiate import build_method
 from tests.conftest import assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
-C_IN = len(INPUT_CHANNELS)
+C_IN = len(PAPER_CHANNELS)
 
 
 def assert_close(

@@ -22,7 +22,7 @@ from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
 from src.train.trainer import Trainer, train_denoiser
-from tests.conftest import ROOT, one_line_error, smoke_config, stop_at
+from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
 
 
 def _untracked(data, run_dir, *overrides):
@@ -201,3 +201,26 @@ def test_summary_stage_prints_parameters_without_training(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "3,656,606" in result.stdout or "3656606" in result.stdout  # 2 branches x 1,828,303
     assert not (tmp_path / "mlflow.db").exists()
+
+
+def test_a_model_trains_and_evaluates_on_the_features_configured(smoke_data, tmp_path):
+    features = "task.features=[color,albedo,normal,visibility,visibility.grad]"
+    cfg = _untracked(smoke_data, tmp_path, "model=dpcn", "task.train.epochs=1", features)
+    with job_run(cfg, run_name="x", tags={}) as tracker:
+        summary = train_denoiser(cfg, tracker)
+        state = load_checkpoint(summary["checkpoint"])
+        assert state["features"] == ["color", "albedo", "normal", "visibility", "visibility.grad"]
+        assert state["model_config"]["in_channels"] == 12
+        assert state["model"]["diffuse_mean"].numel() == 12  # whitening statistics of those channels
+        assert evaluate_denoiser(cfg, tracker)["images"] > 0
+        other = _untracked(
+            smoke_data, tmp_path, "model=dpcn", "task.features=[color,normal,albedo,depth,depth.grad]"
+        )
+        with pytest.raises(DataError) as err:
+            evaluate_denoiser(other, tracker)
+    one_line_error(err, "final.pt", "task.features=[color,albedo,normal,visibility,visibility.grad]")
+
+
+def test_a_bad_feature_list_is_one_line_before_anything_runs(tmp_path):
+    result = _run_cli(["stage=summary", "model=kpcn", "task.features=[color,colour]"], tmp_path)
+    one_line_cli_error(result, "task.features[1]='colour'", ".var or .grad")

@@ -1,11 +1,12 @@
-"""KPCN transforms: inverse, variance propagation vs Monte Carlo, gradients, 28 inputs, targets, whitening."""
+"""KPCN transforms: inverse, variance propagation vs Monte Carlo, gradients, candidate inputs, targets,
+whitening."""
 
 import numpy as np
 import pytest
 import torch
 
+from src.data.features import CANDIDATE_CHANNELS
 from src.data.kpcn_preprocess import (
-    INPUT_CHANNELS,
     compute_whitening_stats,
     image_gradients,
     load_whitening_stats,
@@ -121,27 +122,42 @@ def test_gradients_non_square_against_slow_reference():
     np.testing.assert_array_equal(g, ref)
 
 
-def test_network_inputs_have_28_documented_channels():
+def test_network_inputs_hold_every_candidate_feature_in_the_documented_order():
     b = synthetic_buffers()
     x = make_network_inputs(b, EPS)
-    assert len(INPUT_CHANNELS) == 28 and len(set(INPUT_CHANNELS)) == 28
+    assert len(CANDIDATE_CHANNELS) == 38 and len(set(CANDIDATE_CHANNELS)) == 38
     for branch in ("diffuse", "specular"):
         a = x[f"{branch}_in"]
-        assert a.shape == (13, 21, 28) and a.dtype == np.float32
+        assert a.shape == (13, 21, 38) and a.dtype == np.float32
         np.testing.assert_array_equal(a[..., :3], x[f"{branch}_t"])
-    ch = {n: i for i, n in enumerate(INPUT_CHANNELS)}
-    np.testing.assert_allclose(
-        x["diffuse_in"][..., ch["depth"]], b["depth"][..., 0] / b["depth"].max(), rtol=1e-6
-    )
+        np.testing.assert_array_equal(a[..., 4:10], image_gradients(x[f"{branch}_t"]))
+    ch = {n: i for i, n in enumerate(CANDIDATE_CHANNELS)}
+
+    def channels(name, count=1):
+        return x["diffuse_in"][..., ch[name] : ch[name] + count]
+
+    np.testing.assert_allclose(channels("depth")[..., 0], b["depth"][..., 0] / b["depth"].max(), rtol=1e-6)
     np.testing.assert_allclose(
         x["specular_in"][..., ch["color_var"]],
         (b["specularVariance"] / (1 + b["specular"].mean(-1, keepdims=True)) ** 2)[..., 0],
         rtol=1e-6,
     )
+    np.testing.assert_array_equal(channels("normal_x", 3), b["normal"])
+    np.testing.assert_array_equal(channels("normal_var"), b["normalVariance"])
+    np.testing.assert_array_equal(channels("normal_dx_x", 6), image_gradients(b["normal"]))
+    np.testing.assert_array_equal(channels("albedo_r", 3), b["albedo"])
+    np.testing.assert_array_equal(channels("albedo_var"), b["albedoVariance"])
+    np.testing.assert_array_equal(channels("albedo_dx_r", 6), image_gradients(b["albedo"]))
+    np.testing.assert_array_equal(channels("visibility"), b["visibility"])
+    np.testing.assert_array_equal(channels("visibility_var"), b["visibilityVariance"])
+    np.testing.assert_array_equal(channels("visibility_dx_v", 2), image_gradients(b["visibility"]))
     np.testing.assert_array_equal(x["diffuse_in"][..., 10:], x["specular_in"][..., 10:])  # shared features
     bad = dict(b)
     bad["normal"] = b["normal"][:, :-1]
     with pytest.raises(DataError, match="normal"):
+        make_network_inputs(bad, EPS)
+    bad = {k: v for k, v in b.items() if k != "visibility"}
+    with pytest.raises(DataError, match="'visibility' is missing"):
         make_network_inputs(bad, EPS)
 
 
@@ -246,8 +262,6 @@ def test_float64_buffers_give_the_same_bits_as_float32_ones():
 
 
 # Surviving mutants (bash scripts/mutation.sh kpcn), each equivalent for the reason given:
-# - _grad_names (3): INPUT_CHANNELS is built at import, before mutmut switches a mutant on; the channel
-#   names are checked by test_network_inputs_have_28_documented_channels.
 # - normalize_depth `else 0.0` -> `else 1.0`: only reached for an empty depth, where depth / 1 is the same
 #   empty array as zeros_like (test_normalize_depth_below_one_and_degenerate_inputs).
 # - make_network_inputs / whiten `astype(..., copy=False)` -> copy=True/None/default: copying or not

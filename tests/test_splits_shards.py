@@ -8,8 +8,9 @@ import torch
 from torch.utils.data import DataLoader
 
 from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
+from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
-from src.data.shards import SHARD_KEYS, preprocess_dataset, save_tensors
+from src.data.shards import SHARD_CHANNELS, SHARD_KEYS, preprocess_dataset, save_tensors
 from src.data.splits import group_dataset, parse_exr_name, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
@@ -66,13 +67,13 @@ def test_shards_stream_every_patch_once_per_epoch_with_two_workers(tmp_path):
     root, sizes, entries, pid = tmp_path / "patches" / "train", [5, 3, 7, 1, 4], [], 0
     for i, n in enumerate(sizes):
         shard = {k: torch.zeros(n, 3, 4, 4) for k in SHARD_KEYS}
-        shard["diffuse_in"] = (
-            torch.arange(pid, pid + n, dtype=torch.float32).view(n, 1, 1, 1).expand(n, 28, 4, 4)
-        )
+        ids = torch.arange(pid, pid + n, dtype=torch.float32).view(n, 1, 1, 1)
+        shard["diffuse_in"] = shard["specular_in"] = ids.expand(n, 38, 4, 4)
         save_tensors(root / f"s{i}.pt", shard)
         entries.append({"file": f"s{i}.pt", "scene": f"s{i}", "spp": 4, "n_patches": n})
         pid += n
-    atomic_write_json(root / "index.json", {"patch_size": 4, "shards": entries})
+    channels = {k: list(v) for k, v in SHARD_CHANNELS.items()}
+    atomic_write_json(root / "index.json", {"patch_size": 4, "channels": channels, "shards": entries})
     ds = PatchShardDataset(tmp_path, "train", seed=1)
     assert len(ds) == sum(sizes)
     orders = []
@@ -164,3 +165,30 @@ def test_preprocess_dataset_end_to_end(tmp_path):
         iter(DataLoader(PatchShardDataset(out, "train", whitening=out / "whitening.json"), batch_size=24))
     )
     assert whitened["diffuse_in"][:, 3:].mean().abs() < 1
+
+    # task.features: the configured channels, by name, from the stored candidates; whitening alike
+    features = ["visibility", "visibility.grad", "albedo", "color.var"]
+    names = [
+        "visibility",
+        "visibility_dx_v",
+        "visibility_dy_v",
+        "albedo_r",
+        "albedo_g",
+        "albedo_b",
+        "color_var",
+    ]
+    stored = list(SHARD_CHANNELS["diffuse_in"])
+    picked = [stored.index(n) for n in names]
+    plain = next(
+        iter(DataLoader(PatchShardDataset(out, "train", shuffle=False, features=features), batch_size=6))
+    )
+    torch.testing.assert_close(plain["diffuse_in"], shards[0]["diffuse_in"][:, picked], rtol=0, atol=0)
+    torch.testing.assert_close(plain["diffuse_t"], shards[0]["diffuse_in"][:, :3], rtol=0, atol=0)
+    white = PatchShardDataset(out, "train", features=features, whitening=out / "whitening.json")
+    np.testing.assert_array_equal(white.whitening["specular_in"].std, stats["specular_in"].std[picked])
+    item = FullImageDataset(out, "test", features=features)[0]
+    assert item["specular_in"].shape == (len(names), 24, 40)
+    paper = next(iter(DataLoader(PatchShardDataset(out, "train", shuffle=False), batch_size=6)))
+    torch.testing.assert_close(  # the default is the paper's 28, in the order of Bako et al.
+        paper["diffuse_in"], shards[0]["diffuse_in"][:, [stored.index(n) for n in PAPER_CHANNELS]]
+    )

@@ -5,8 +5,9 @@
 - `FullImageDataset`: whole val/test images, one file per (scene, spp), map-style.
 
 Both yield dicts of float32 tensors, channel first, under `SHARD_KEYS`, plus `diffuse_t` / `specular_t`
-(the transformed noisy colours, channels 0:3 of the inputs before any whitening: what a KPCN filters and
-what `rebuild_color` needs alongside `albedo`).
+(the transformed noisy colours, channels 0:3 of the stored inputs: what a KPCN filters and what
+`rebuild_color` needs alongside `albedo`). `diffuse_in` / `specular_in` hold only the channels of
+`features` (`task.features`, default the paper's 28), selected by name from the stored candidates.
 """
 
 from __future__ import annotations
@@ -20,27 +21,44 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
+from src.data.features import PAPER_FEATURES, Features, channel_indices, feature_channels
 from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
-from src.data.shards import SHARD_KEYS, load_tensors, read_index
+from src.data.shards import INDEX_NAME, SHARD_KEYS, load_tensors, read_index
 
 Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
 
 
 def _prepare(
-    data: dict[str, torch.Tensor], whitening: Mapping[str, WhiteningStats] | None, channel_axis: int
+    data: dict[str, torch.Tensor],
+    select: torch.Tensor,
+    whitening: Mapping[str, WhiteningStats] | None,
+    channel_axis: int,
 ):
-    """Select SHARD_KEYS, add the raw transformed colours, whiten the inputs if asked."""
+    """Select SHARD_KEYS, add the raw transformed colours, keep the `select`ed input channels, whiten
+    them if asked (`whitening` already selected alike)."""
     out = {k: data[k] for k in SHARD_KEYS}
     for branch in ("diffuse", "specular"):
-        out[f"{branch}_t"] = out[f"{branch}_in"].narrow(channel_axis, 0, 3)
+        key = f"{branch}_in"
+        out[f"{branch}_t"] = out[key].narrow(channel_axis, 0, 3)
+        out[key] = out[key].index_select(channel_axis, select)
         if whitening is not None:
-            key = f"{branch}_in"
             out[key] = whiten(out[key], whitening[key], channel_axis=channel_axis)
     return out
 
 
-def _load_whitening(whitening: Whitening) -> Mapping[str, WhiteningStats] | None:
-    return load_whitening_stats(whitening) if isinstance(whitening, str | os.PathLike) else whitening
+def input_selection(index: Mapping[str, Any], features: Features, where: Path) -> torch.Tensor:
+    """Positions of the `features`' channels among the stored inputs an index lists."""
+    stored = index["channels"]["diffuse_in"]
+    return torch.tensor(channel_indices(feature_channels(features), stored, str(where / INDEX_NAME)))
+
+
+def selected_whitening(whitening: Whitening, select: torch.Tensor) -> Mapping[str, WhiteningStats] | None:
+    """Whitening statistics (a dict, or the path of whitening.json) of the `select`ed channels only."""
+    if isinstance(whitening, str | os.PathLike):
+        whitening = load_whitening_stats(whitening)
+    if whitening is None:
+        return None
+    return {key: stats.select(select.tolist()) for key, stats in whitening.items()}
 
 
 class PatchShardDataset(IterableDataset):
@@ -51,7 +69,8 @@ class PatchShardDataset(IterableDataset):
     patches of each shard are permuted with (seed, epoch, shard). So every patch comes exactly once per
     epoch, whatever the number of workers. Call `set_epoch` before iterating a DataLoader each epoch
     (with `persistent_workers=False`, the default, workers get a fresh copy of the dataset per epoch).
-    `whitening`: stats dict or path to whitening.json, applied to diffuse_in / specular_in.
+    `whitening`: stats dict or path to whitening.json (of all stored channels), applied to the selected
+    diffuse_in / specular_in.
     """
 
     def __init__(
@@ -62,6 +81,7 @@ class PatchShardDataset(IterableDataset):
         seed: int = 0,
         shuffle: bool = True,
         whitening: Whitening = None,
+        features: Features = PAPER_FEATURES,
     ) -> None:
         super().__init__()
         self.root = Path(shard_dir) / "patches" / split
@@ -69,7 +89,8 @@ class PatchShardDataset(IterableDataset):
         self.shards = self.index["shards"]
         self.patch_size = self.index["patch_size"]
         self.seed, self.shuffle, self.epoch = seed, shuffle, 0
-        self.whitening = _load_whitening(whitening)
+        self.select = input_selection(self.index, features, self.root)
+        self.whitening = selected_whitening(whitening, self.select)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -87,7 +108,9 @@ class PatchShardDataset(IterableDataset):
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         for i in self._my_shards():
-            data = _prepare(load_tensors(self.root / self.shards[i]["file"]), self.whitening, channel_axis=1)
+            data = _prepare(
+                load_tensors(self.root / self.shards[i]["file"]), self.select, self.whitening, channel_axis=1
+            )
             n = data["color"].shape[0]
             rng = np.random.default_rng([self.seed, self.epoch, int(i)])
             for j in rng.permutation(n) if self.shuffle else range(n):
@@ -101,16 +124,24 @@ class FullImageDataset(Dataset):
     Items are dicts of (C, H, W) tensors plus `scene` (str), `spp` and `reference_spp` (int).
     """
 
-    def __init__(self, shard_dir: str | os.PathLike[str], split: str, *, whitening: Whitening = None) -> None:
+    def __init__(
+        self,
+        shard_dir: str | os.PathLike[str],
+        split: str,
+        *,
+        whitening: Whitening = None,
+        features: Features = PAPER_FEATURES,
+    ) -> None:
         self.root = Path(shard_dir) / "full" / split
         self.index = read_index(self.root)
         self.images = self.index["shards"]
-        self.whitening = _load_whitening(whitening)
+        self.select = input_selection(self.index, features, self.root)
+        self.whitening = selected_whitening(whitening, self.select)
 
     def __len__(self) -> int:
         return len(self.images)
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         meta = self.images[i]
-        data = _prepare(load_tensors(self.root / meta["file"]), self.whitening, channel_axis=0)
+        data = _prepare(load_tensors(self.root / meta["file"]), self.select, self.whitening, channel_axis=0)
         return {**data, "scene": meta["scene"], "spp": meta["spp"], "reference_spp": meta["reference_spp"]}

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from src.data.features import FEATURE_BUFFERS
 from src.data.kpcn_buffers import KPCN_BUFFERS
 from src.errors import DataError
 from src.io.atomic import atomic_write_json
@@ -34,35 +35,10 @@ BAKO_ALBEDO_EPS = 0.00316
 #: Buffers `make_network_inputs` needs, with their channel counts (from the KPCN convention).
 REQUIRED_BUFFERS = {
     b: len(KPCN_BUFFERS[b])
-    for b in ("diffuse", "specular", "albedo", "normal", "depth")
+    for b in ("diffuse", "specular", "albedo", "normal", "depth", "visibility")
     + ("diffuseVariance", "specularVariance", "albedoVariance", "normalVariance", "depthVariance")
+    + ("visibilityVariance",)
 }
-
-
-def _grad_names(prefix: str, channels: tuple[str, ...]) -> tuple[str, ...]:
-    return tuple(f"{prefix}_d{axis}_{c}" for axis in "xy" for c in channels)
-
-
-_RGB = ("r", "g", "b")
-_XYZ = ("x", "y", "z")
-
-#: Channel order of `diffuse_in` / `specular_in` (28 channels). "color" is the branch's transformed
-#: colour (diffuse / (albedo + eps), or log(1 + specular)); gradients are `image_gradients` (all x
-#: channels, then all y channels). 28 inputs match the seed thesis's DPCN: a first 5x5 conv 28->100 and
-#: 9 layers of 100 channels give 1,828,303 parameters per branch.
-INPUT_CHANNELS: tuple[str, ...] = (
-    *(f"color_{c}" for c in _RGB),
-    "color_var",
-    *_grad_names("color", _RGB),
-    "normal_var",
-    *_grad_names("normal", _XYZ),
-    "depth",
-    "depth_var",
-    *_grad_names("depth", ("z",)),
-    "albedo_var",
-    *_grad_names("albedo", _RGB),
-)
-assert len(INPUT_CHANNELS) == 28
 
 
 def _exp_minus_one(x):
@@ -148,28 +124,21 @@ def _check_buffers(buffers: Mapping[str, np.ndarray], names: Iterable[str], what
     return shape
 
 
-def _branch_input(color_t, color_var_t, normal, normal_var, depth, depth_var, albedo, albedo_var):
-    return np.concatenate(
-        [
-            color_t,
-            color_var_t,
-            image_gradients(color_t),
-            normal_var,
-            image_gradients(normal),
-            depth,
-            depth_var,
-            image_gradients(depth),
-            albedo_var,
-            image_gradients(albedo),
-        ],
-        axis=-1,
-    )
+def _candidate_stack(color: tuple[np.ndarray, np.ndarray], guides: Mapping[str, tuple]) -> np.ndarray:
+    """One branch's candidate features (order `CANDIDATE_CHANNELS`): for the branch colour and each guide
+    buffer, its value, its variance and its image gradients."""
+    parts = []
+    for buffer in FEATURE_BUFFERS:
+        value, var = color if buffer == "color" else guides[buffer]
+        parts += [value, var, image_gradients(value)]
+    return np.concatenate(parts, axis=-1)
 
 
 def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[str, np.ndarray]:
-    """Build both branches' 28-channel inputs (order: `INPUT_CHANNELS`) from one noisy image.
+    """Build both branches' candidate inputs (order: `CANDIDATE_CHANNELS`, from which a run selects
+    `task.features`; see `src.data.features`) from one noisy image.
 
-    Returns float32 arrays: `diffuse_in`, `specular_in` (H, W, 28), `diffuse_t`, `specular_t` (H, W, 3:
+    Returns float32 arrays: `diffuse_in`, `specular_in` (H, W, 38), `diffuse_t`, `specular_t` (H, W, 3:
     the transformed noisy colours, = channels 0:3 of the inputs, what a KPCN kernel filters) and
     `albedo` (H, W, 3, needed by `rebuild_color`), `normal` (H, W, 3) and the normalised `depth` (H, W, 1)
     (the guides of the non-learned baselines). The auxiliary features are shared by both branches.
@@ -180,14 +149,17 @@ def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[s
     diffuse_t = transform_diffuse(b["diffuse"], albedo, eps)
     specular_t = transform_specular(b["specular"])
     depth, depth_var = normalize_depth(b["depth"], b["depthVariance"])
-    aux = (b["normal"], b["normalVariance"], depth, depth_var, albedo, b["albedoVariance"])
-    diffuse_in = _branch_input(diffuse_t, transform_diffuse_variance(b["diffuseVariance"], albedo, eps), *aux)
-    specular_in = _branch_input(
-        specular_t, transform_specular_variance(b["specularVariance"], b["specular"]), *aux
-    )
+    guides = {
+        "normal": (b["normal"], b["normalVariance"]),
+        "depth": (depth, depth_var),
+        "albedo": (albedo, b["albedoVariance"]),
+        "visibility": (b["visibility"], b["visibilityVariance"]),
+    }
+    diffuse_var = transform_diffuse_variance(b["diffuseVariance"], albedo, eps)
+    specular_var = transform_specular_variance(b["specularVariance"], b["specular"])
     out = {
-        "diffuse_in": diffuse_in,
-        "specular_in": specular_in,
+        "diffuse_in": _candidate_stack((diffuse_t, diffuse_var), guides),
+        "specular_in": _candidate_stack((specular_t, specular_var), guides),
         "diffuse_t": diffuse_t,
         "specular_t": specular_t,
         "albedo": albedo,
@@ -237,6 +209,10 @@ class WhiteningStats:
 
     def to_dict(self) -> dict[str, list[float]]:
         return {"mean": self.mean.tolist(), "std": self.std.tolist()}
+
+    def select(self, channels: list[int]) -> WhiteningStats:
+        """The statistics of the given channels only (the run's `task.features` among the stored)."""
+        return WhiteningStats(self.mean[channels], self.std[channels])
 
     @classmethod
     def from_dict(cls, d: Mapping[str, list[float]]) -> WhiteningStats:

@@ -30,8 +30,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from src.data.features import CANDIDATE_CHANNELS
 from src.data.kpcn_preprocess import (
-    INPUT_CHANNELS,
     RunningMoments,
     make_network_inputs,
     make_targets,
@@ -45,8 +45,8 @@ from src.io.atomic import atomic_path, atomic_write_json
 _RGB = ("r", "g", "b")
 #: Tensors in every shard / full image, with their channel names.
 SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
-    "diffuse_in": INPUT_CHANNELS,
-    "specular_in": INPUT_CHANNELS,
+    "diffuse_in": CANDIDATE_CHANNELS,  # every candidate feature; a run selects `task.features` at load
+    "specular_in": CANDIDATE_CHANNELS,
     "diffuse_target": _RGB,  # reference diffuse / (noisy albedo + eps)
     "specular_target": _RGB,  # log(1 + reference specular)
     "albedo": _RGB,  # noisy albedo, for rebuild_color

@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from src.data.denoise_dataset import FullImageDataset
+from src.data.features import check_trained_features, input_features
 from src.eval.common import mean_rows, sync
 from src.io.atomic import atomic_write_csv, atomic_write_json
 from src.io.exr import write_exr
@@ -46,7 +47,8 @@ def load_denoiser(cfg: DictConfig, device: torch.device) -> Denoiser:
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
     model = build_method(model_cfg)
     if model.learned:
-        load_weights(model, model_cfg, cfg.task.eval.checkpoint)
+        state = load_weights(model, model_cfg, cfg.task.eval.checkpoint)
+        check_trained_features(state.get("features"), input_features(cfg), cfg.task.eval.checkpoint)
     return model.to(device).eval()
 
 
@@ -76,7 +78,7 @@ def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
     device = pick_device(cfg.device)
     eps = float(cfg.task.preprocess.eps_albedo)
     model = load_denoiser(cfg, device)
-    data = FullImageDataset(cfg.paths.prepared, e.split)
+    data = FullImageDataset(cfg.paths.prepared, e.split, features=input_features(cfg))
     out_dir = Path(e.out_dir)
     rows: list[dict[str, Any]] = []
     for i in tqdm(range(len(data)), desc=f"eval {cfg.model.name}", unit="img"):

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.data.features import CANDIDATE_CHANNELS
 from src.io.atomic import atomic_directory
 from src.provenance import data_fingerprint, write_summary
 
@@ -16,9 +17,11 @@ PREPROCESS_PROVENANCE = "preprocess_provenance.json"
 
 
 def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
-    """What the prepared data depends on: the preprocessing settings and the raw data's fingerprint."""
+    """What the prepared data depends on: the preprocessing settings, the raw data's fingerprint and the
+    stored input channels (prepared folders of an older channel set are made again)."""
     settings = json.dumps(OmegaConf.to_container(cfg.task.preprocess, resolve=True), sort_keys=True)
-    return hashlib.sha256(f"{settings}|{data_fingerprint(raw)}".encode()).hexdigest()[:16]
+    stored = ",".join(CANDIDATE_CHANNELS)
+    return hashlib.sha256(f"{settings}|{data_fingerprint(raw)}|{stored}".encode()).hexdigest()[:16]
 
 
 def _cached_preprocess(out: Path, key: str) -> dict | None:

@@ -24,8 +24,8 @@ from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from src.data.denoise_dataset import PatchShardDataset
-from src.data.kpcn_preprocess import load_whitening_stats
+from src.data.denoise_dataset import PatchShardDataset, selected_whitening
+from src.data.features import input_features
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
@@ -90,15 +90,19 @@ class Trainer:
         self.eps = float(cfg.task.preprocess.eps_albedo)
         self.loss = get_loss(t.loss)
         self.model_cfg = model_config(cfg)
+        self.features = input_features(cfg)
         seed_everything(int(cfg.seed))
         prepared = Path(cfg.paths.prepared)
+        data = {"seed": int(cfg.seed), "features": self.features}
+        self.train_data = PatchShardDataset(prepared, "train", shuffle=True, **data)
+        self.val_data = PatchShardDataset(prepared, "val", shuffle=False, **data)
         whitening = (
-            load_whitening_stats(prepared / "whitening.json") if self.model_cfg.get("whiten") else None
+            selected_whitening(prepared / "whitening.json", self.train_data.select)
+            if self.model_cfg.get("whiten")
+            else None
         )
         self.model = build_method(self.model_cfg, whitening=whitening).to(self.device)
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=float(t.lr))
-        self.train_data = PatchShardDataset(prepared, "train", seed=int(cfg.seed), shuffle=True)
-        self.val_data = PatchShardDataset(prepared, "val", seed=int(cfg.seed), shuffle=False)
         self.pos = Position()
         self.checkpoint_dir = Path(t.checkpoint_dir)
         self.train_seconds = 0.0
@@ -106,7 +110,9 @@ class Trainer:
 
     # -- checkpoints ---------------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        return training_state(self, self.pos.epoch, self.pos.batch_in_epoch, self.pos.step)
+        return training_state(
+            self, self.pos.epoch, self.pos.batch_in_epoch, self.pos.step, features=self.features
+        )
 
     def save(self, name: str = LAST_NAME) -> Path:
         path = self.checkpoint_dir / name

@@ -3,7 +3,8 @@ benchmarks and report tables.
 
 A batch is a dict of float32 (N, C, H, W) tensors, as `src.data.denoise_dataset` yields them:
 
-    diffuse_in, specular_in   28-channel network inputs (order `INPUT_CHANNELS`), NOT whitened: a model
+    diffuse_in, specular_in   the `task.features` channels (`src.data.features`; the paper's 28 by
+                              default), in the order configured, NOT whitened: a model
                               that whitens holds the statistics as buffers and applies them itself, so a
                               checkpoint is self-contained
     diffuse_t, specular_t     transformed noisy colours (d / (albedo + eps), log(1 + s)): what kernels filter

@@ -16,6 +16,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from src.data.features import PAPER_CHANNELS
 from src.data.shards import SHARD_CHANNELS
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import BRANCHES, TwoBranchDenoiser
@@ -31,7 +32,7 @@ def random_batch(
     height: int,
     width: int,
     *,
-    in_channels: int = len(SHARD_CHANNELS["diffuse_in"]),
+    in_channels: int = len(PAPER_CHANNELS),
     batch_size: int = 1,
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
@@ -43,7 +44,7 @@ def random_batch(
         x = torch.rand((batch_size, channels, height, width), generator=generator)
         return (lo + (hi - lo) * x).to(device)
 
-    batch = {key: rand(len(names)) for key, names in SHARD_CHANNELS.items()}
+    batch = {key: rand(len(names)) for key, names in SHARD_CHANNELS.items() if not key.endswith("_in")}
     for branch in BRANCHES:
         batch[f"{branch}_in"] = rand(in_channels, -1.0, 1.0)
         batch[f"{branch}_t"] = rand(len(SHARD_CHANNELS[f"{branch}_target"]))
@@ -82,7 +83,7 @@ def kernel_application_flops(kernel_size: int, channels: int = 3) -> int:
     return 2 * taps * channels + SOFTMAX_FLOPS_PER_TAP * taps
 
 
-def flops_per_pixel(model: nn.Module, in_channels: int = len(SHARD_CHANNELS["diffuse_in"])) -> dict[str, Any]:
+def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) -> dict[str, Any]:
     """FLOPs per output pixel: {"total", "conv", "kernel"} (both branches of a two-branch model).
 
     A plain network (e.g. a `ConvStack`) is fed an (1, in_channels, s, s) tensor; a `Denoiser` a random
