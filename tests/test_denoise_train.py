@@ -21,7 +21,7 @@ from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
-from src.train.trainer import Trainer, train_denoiser
+from src.train.trainer import Trainer, component_losses, objective, train_denoiser
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
 
 
@@ -128,7 +128,7 @@ def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_pa
     one_line_error(err, "foreign.pt", "not an nrbench checkpoint")
 
     cfg = _untracked(smoke_data, tmp_path, "model=dpcn", f"task.eval.checkpoint={tmp_path}/kpcn.pt")
-    kpcn_cfg = OmegaConf.to_container(_untracked(smoke_data, tmp_path, "model=kpcn").model)
+    kpcn_cfg = OmegaConf.to_container(_untracked(smoke_data, tmp_path, "model=kpcn").model, resolve=True)
     state = {
         "model_config": kpcn_cfg,
         "model": {},
@@ -147,7 +147,7 @@ def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_pa
 def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
     cfg = _untracked(smoke_data, smoke_data / "run", f"model={model}")
     torch.manual_seed(0)
-    denoiser = build_method(OmegaConf.to_container(cfg.model)).eval()
+    denoiser = build_method(OmegaConf.to_container(cfg.model, resolve=True)).eval()
     item = FullImageDataset(cfg.paths.prepared, "test")[0]
     batch = {k: v[None] for k, v in item.items() if isinstance(v, torch.Tensor)}
     eps = cfg.task.preprocess.eps_albedo
@@ -224,3 +224,29 @@ def test_a_model_trains_and_evaluates_on_the_features_configured(smoke_data, tmp
 def test_a_bad_feature_list_is_one_line_before_anything_runs(tmp_path):
     result = _run_cli(["stage=summary", "model=kpcn", "task.features=[color,colour]"], tmp_path)
     one_line_cli_error(result, "task.features[1]='colour'", ".var or .grad")
+
+
+class _Fixed(torch.nn.Module):
+    """A stand-in model returning fixed outputs, to see which losses the trainer forms from them."""
+
+    def __init__(self, outputs):
+        super().__init__()
+        self.outputs = outputs
+
+    def forward(self, batch):
+        return self.outputs
+
+
+def test_the_objective_is_the_loss_of_what_the_model_predicts():
+    ones, zeros = torch.ones(1, 3, 2, 2), torch.zeros(1, 3, 2, 2)
+    batch = {"diffuse_target": zeros, "specular_target": zeros, "reference": zeros, "albedo": zeros}
+    l1 = lambda out, target: (out - target).abs().mean()  # noqa: E731
+    pair = component_losses(_Fixed({"diffuse": ones, "specular": 2 * ones}), batch, l1, eps=0.5)
+    assert list(pair) == ["diffuse", "specular", "color"]
+    assert float(objective(pair)) == 3.0  # diffuse + specular; the rebuilt colour is only logged
+    assert float(pair["color"]) == pytest.approx(0.5 + np.expm1(2.0))  # (albedo + eps) d + exp(s) - 1
+    color = component_losses(_Fixed({"color": 4 * ones}), batch, l1, eps=0.5)
+    assert list(color) == ["color"] and float(objective(color)) == 4.0
+    with pytest.raises(DataError) as err:
+        component_losses(_Fixed({"colour": ones}), batch, l1, eps=0.5)
+    one_line_error(err, "_Fixed.forward", "'colour'", "'specular'")

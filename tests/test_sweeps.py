@@ -218,16 +218,21 @@ def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_pat
 
 
 def test_a_users_own_denoiser_runs_beside_a_builtin_one(smoke_data, tmp_path):
-    """README "Add your own method": one module (tests/plugins/toy_denoiser.py) and one YAML
-    (tests/conf/model/toy.yaml) outside src/ are trained, evaluated and reported beside DPCN by one
-    multirun."""
-    sweep(["model=dpcn,toy", "hydra.searchpath=[file://tests/conf]"], smoke_data, tmp_path)
+    """README "Add your own method": one module (tests/plugins/toy_denoiser.py) and one YAML each
+    (tests/conf/model/toy.yaml, a two-branch model; toy_color.yaml, one branch predicting colour) outside
+    src/ are trained, evaluated and reported beside DPCN by one multirun."""
+    sweep(["model=dpcn,toy,toy_color", "hydra.searchpath=[file://tests/conf]"], smoke_data, tmp_path)
     table = pd.read_csv(tmp_path / "reports" / "denoise" / "comparison.csv", comment="#", index_col=0)
-    assert sorted(table.index) == ["dpcn", "toy"]
+    assert sorted(table.index) == ["dpcn", "toy", "toy_color"]
     assert (table["PSNR"] > 0).all() and (table["runs"] == 1).all()
     checkpoints = [load_checkpoint(p) for p in (tmp_path / "sweep").glob("*/checkpoints/final.pt")]
     by_name = {c["model_config"]["name"]: c for c in checkpoints}
-    assert set(by_name) == {"dpcn", "toy"}
+    assert set(by_name) == {"dpcn", "toy", "toy_color"}
+    # the colour model is fitted on colour alone: its curves hold the colour loss and no branch losses
+    color_curves = by_name["toy_color"]["curves"]
+    assert color_curves and {"train_loss_color", "val_loss_color"} <= set(color_curves[-1])
+    assert not any("diffuse" in key for key in color_curves[-1])
+    assert set(by_name["toy_color"]["model"]) == {f"net.{i}.{w}" for i in (0, 2) for w in ("weight", "bias")}
     toy = by_name["toy"]
     assert toy["step"] > 0
     assert toy["model_config"]["_target_"] == "tests.plugins.toy_denoiser.ToyDenoiser"

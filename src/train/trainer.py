@@ -1,9 +1,12 @@
 """Training loop for the learned denoisers (`stage=train`).
 
-Following the seed thesis, the diffuse and specular branches are fitted to their transformed targets
-(objective = loss(diffuse) + loss(specular)); the final colour, rebuilt with the inverse transform, is
-scored with the same loss for the logs only. Per step (every `log_every`) and per epoch, on train and
-validation patches, the three losses are logged: `{train,val}_loss_{diffuse,specular,color}`.
+The objective is the sum of the losses of what the model predicts, each against its target
+(`TARGETS`): following the seed thesis, a two-branch model's diffuse and specular outputs are fitted to
+their transformed targets (objective = loss(diffuse) + loss(specular)) and the final colour, rebuilt
+with the inverse transform, is scored with the same loss for the logs only; a model that predicts colour
+directly (one branch) is fitted on that colour against the reference. Per step (every `log_every`) and
+per epoch, on train and validation patches, each loss is logged: `{train,val}_loss_{diffuse,specular,
+color}` for a two-branch model, `{train,val}_loss_color` for a colour model.
 
 Resume: a checkpoint records (epoch, batch within the epoch, step). The data order of an epoch depends only
 on (seed, epoch), so resuming replays the epoch's order and skips the batches already done: an interrupted
@@ -12,7 +15,9 @@ and resumed run ends with the same weights as an uninterrupted one.
 
 from __future__ import annotations
 
+import functools
 import logging
+import operator
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -26,6 +31,7 @@ from tqdm import tqdm
 
 from src.data.denoise_dataset import PatchShardDataset, selected_whitening
 from src.data.features import input_features
+from src.errors import DataError
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
@@ -42,7 +48,8 @@ from src.train.losses import Loss, get_loss
 
 log = logging.getLogger(__name__)
 
-COMPONENTS = ("diffuse", "specular", "color")
+#: A model output -> the batch entry it is fitted to.
+TARGETS = {"diffuse": "diffuse_target", "specular": "specular_target", "color": "reference"}
 
 
 @dataclass
@@ -59,14 +66,41 @@ def model_config(cfg: DictConfig) -> dict[str, Any]:
 
 
 def component_losses(model: Denoiser, batch: Batch, loss: Loss, eps: float) -> dict[str, torch.Tensor]:
-    """Loss of each branch against its transformed target, and of the rebuilt colour against the
-    reference."""
+    """Loss of each of the model's outputs against its target (`TARGETS`), and of the final colour
+    (rebuilt from the branches when the model predicts them) against the reference."""
     out = model(batch)
-    return {
-        "diffuse": loss(out["diffuse"], batch["diffuse_target"]),
-        "specular": loss(out["specular"], batch["specular_target"]),
-        "color": loss(final_color(out, batch, eps).float(), batch["reference"]),
-    }
+    unknown = [key for key in out if key not in TARGETS]
+    if unknown:
+        raise DataError(
+            f"{type(model).__name__}.forward returned {unknown}; a denoiser returns some of {list(TARGETS)}"
+        )
+    losses = {key: loss(value, batch[TARGETS[key]]) for key, value in out.items()}
+    if "color" not in losses:
+        losses["color"] = loss(final_color(out, batch, eps).float(), batch["reference"])
+    return losses
+
+
+def objective(losses: dict[str, Any]) -> Any:
+    """What the optimiser minimises: the sum of the predicted outputs' losses (diffuse + specular for a
+    two-branch model, whose colour loss is only logged; the colour loss for a colour model)."""
+    fitted = [losses[k] for k in ("diffuse", "specular") if k in losses] or [losses["color"]]
+    return functools.reduce(operator.add, fitted)
+
+
+class Means:
+    """Sample-weighted running means of named losses (the keys come from the first update)."""
+
+    def __init__(self) -> None:
+        self.totals: dict[str, float] = {}
+        self.count = 0
+
+    def add(self, losses: dict[str, float], size: int) -> None:
+        for key, value in losses.items():
+            self.totals[key] = self.totals.get(key, 0.0) + float(value) * size
+        self.count += size
+
+    def result(self) -> dict[str, float]:
+        return {k: v / max(self.count, 1) for k, v in self.totals.items()}
 
 
 def _to(batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
@@ -141,7 +175,7 @@ class Trainer:
         with _autocast(self.device, bool(self.t.amp)):
             losses = component_losses(self.model, batch, self.loss, self.eps)
         self.optimizer.zero_grad(set_to_none=True)
-        (losses["diffuse"] + losses["specular"]).backward()
+        objective(losses).backward()
         self.optimizer.step()
         return {k: float(v.detach()) for k, v in losses.items()}
 
@@ -149,25 +183,21 @@ class Trainer:
     def validate(self) -> dict[str, float]:
         """Mean losses over all validation patches (weighted by batch size)."""
         self.model.eval()
-        totals, n = dict.fromkeys(COMPONENTS, 0.0), 0
+        means = Means()
         for batch in self._batches(self.val_data, epoch=0):
             with _autocast(self.device, bool(self.t.amp)):
-                losses = component_losses(self.model, batch, self.loss, self.eps)
-            size = len(batch["color"])
-            totals = {k: totals[k] + float(losses[k]) * size for k in COMPONENTS}
-            n += size
-        return {k: v / max(n, 1) for k, v in totals.items()}
+                means.add(component_losses(self.model, batch, self.loss, self.eps), len(batch["color"]))
+        return means.result()
 
     def run_epoch(self, bar: tqdm) -> dict[str, float] | None:
         """Train the rest of the current epoch (or until max_steps); returns the epoch's mean train
         losses if the epoch finished, None if training stopped inside it."""
-        totals, n = dict.fromkeys(COMPONENTS, 0.0), 0
+        means = Means()
         start = time.perf_counter()
         for batch in self._batches(self.train_data, self.pos.epoch, skip=self.pos.batch_in_epoch):
             losses = self.train_step(batch)
             size = len(batch["color"])
-            totals = {k: totals[k] + losses[k] * size for k in COMPONENTS}
-            n += size
+            means.add(losses, size)
             self.pos.batch_in_epoch += 1
             self.pos.step += 1
             self._after_step(losses, size, bar)
@@ -176,11 +206,11 @@ class Trainer:
                 return None
         self.train_seconds += time.perf_counter() - start
         self.pos = Position(self.pos.epoch + 1, 0, self.pos.step)
-        return {k: v / max(n, 1) for k, v in totals.items()}
+        return means.result()
 
     def _after_step(self, losses: dict[str, float], size: int, bar: tqdm) -> None:
         bar.update(size)
-        bar.set_postfix(step=self.pos.step, loss=f"{losses['diffuse'] + losses['specular']:.4f}")
+        bar.set_postfix(step=self.pos.step, loss=f"{objective(losses):.4f}")
         if self.pos.step % int(self.t.log_every) == 0:
             self.tracker.log_metrics(
                 {f"train_step_loss_{k}": v for k, v in losses.items()}, step=self.pos.step
@@ -229,8 +259,8 @@ class Trainer:
         log.info(
             "epoch %d: train %s | val %s",
             self.pos.epoch,
-            " ".join(f"{k}={train_losses[k]:.4f}" for k in COMPONENTS),
-            " ".join(f"{k}={val_losses[k]:.4f}" for k in COMPONENTS),
+            " ".join(f"{k}={v:.4f}" for k, v in train_losses.items()),
+            " ".join(f"{k}={v:.4f}" for k, v in val_losses.items()),
         )
         return metrics
 

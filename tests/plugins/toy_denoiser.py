@@ -3,6 +3,7 @@ a two-layer 1x1-convolution network from the 28 KPCN inputs to the transformed c
 `tests/conf/model/toy.yaml`; the tests run it through training, evaluation, the report and a multirun
 without any edit under `src/`."""
 
+import torch
 from torch import nn
 
 from src.models.denoise.base import Denoiser
@@ -26,3 +27,21 @@ class ToyDenoiser(Denoiser):
 
     def forward(self, batch):
         return {branch: net(batch[f"{branch}_in"]) for branch, net in self.nets.items()}
+
+
+class ToyColorDenoiser(Denoiser):
+    """One branch, predicting linear colour directly (no diffuse/specular pair): the noisy colour plus
+    a per-pixel correction from the configured features. Config: `tests/conf/model/toy_color.yaml`."""
+
+    learned = True
+
+    def __init__(self, in_channels: int, hidden: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(in_channels + 3, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 3, 1))
+
+    @property
+    def halo(self) -> int:
+        return 0
+
+    def forward(self, batch):
+        return {"color": batch["color"] + self.net(torch.cat([batch["color"], batch["diffuse_in"]], dim=1))}
