@@ -21,7 +21,7 @@ from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
-from src.train.trainer import Trainer, component_losses, objective, train_denoiser
+from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
 
 
@@ -92,7 +92,7 @@ def _check_eval_values(cfg, eval_dir, logged):
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):
     straight = _untracked(smoke_data, tmp_path / "a", "model=resnet", "task.train.epochs=3")
     with job_run(straight, run_name="a", tags={}) as tracker:
-        reference = Trainer(straight, tracker)
+        reference = DenoiserTrainer(straight, tracker)
         reference.fit()
     steps_per_epoch = reference.pos.step // 3
     interrupted = _untracked(smoke_data, tmp_path / "b", "model=resnet", "task.train.epochs=3")

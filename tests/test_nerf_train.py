@@ -111,7 +111,7 @@ def _resume_and_compare(nerf_data, tmp_path, common, reference):
     resumed = _cfg(nerf_data, tmp_path / "c", *common, f"task.train.resume={tmp_path}/b/checkpoints")
     with job_run(resumed, run_name="c", tags={}) as tracker:
         summary = train_nerf(resumed, tracker)
-    assert summary["steps"] == reference.step
+    assert summary["steps"] == reference.pos.step
     final = load_checkpoint(summary["checkpoint"])["model"]
     for key, value in reference.model.state_dict().items():
         assert torch.equal(final[key], value), key

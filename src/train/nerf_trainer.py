@@ -7,35 +7,26 @@ mip-NeRF (`task.train.lr_*`), optional gradient clipping, and NeRF's centre-crop
 level's PSNR are logged; per `val_every` steps the same on a fixed subset of validation rays
 (`val_loss_*`, `val_psnr`), also written to `curves.csv`.
 
-Resume: the checkpoint holds the step, the model, the optimiser, the torch RNG (stratified sampling
-draws from it) and the curves, so an interrupted and resumed run ends with the same weights.
+The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`: a
+NeRF run is one epoch of `max_steps` batches. The checkpoint holds the step, the model, the optimiser, the
+torch RNG (stratified sampling draws from it) and the curves, so a resumed run ends with the same weights.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
-from collections.abc import Callable
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from tqdm import tqdm
 
 from src.data.blender import RayBatcher, load_blender_split, rays_for_pixels
-from src.models.denoise.summary import count_parameters
-from src.models.instantiate import build_method
-from src.train.checkpoint import (
-    FINAL_NAME,
-    LAST_NAME,
-    restore_training_state,
-    save_checkpoint,
-    training_state,
-)
 from src.train.curves import write_curves
-from src.train.device import pick_device, seed_everything
+from src.train.loop import Means, OnStep, TrainingLoop, run_training
 from src.train.schedules import log_linear_lr
 
 log = logging.getLogger(__name__)
@@ -68,20 +59,12 @@ def split_metrics(split: str, values: dict[str, float]) -> dict[str, float]:
     return metrics | {f"{split}_loss_{k}": v for k, v in values.items() if k != "psnr"}
 
 
-def _model_config(cfg: DictConfig) -> dict[str, Any]:
-    return OmegaConf.to_container(cfg.model, resolve=True)
+class NerfTrainer(TrainingLoop):
+    """Random ray batches of one scene, validation every `val_every` steps."""
 
-
-class NerfTrainer:
-    """Owns the model, optimiser, ray batches and step of one training run."""
-
-    def __init__(self, cfg: DictConfig, tracker, on_step: Callable[[int], None] | None = None) -> None:
-        t = cfg.task.train
-        self.cfg, self.t, self.tracker, self.on_step = cfg, t, tracker, on_step
-        self.device = pick_device(cfg.device)
-        seed_everything(int(cfg.seed))
-        self.model_cfg = _model_config(cfg)
-        self.model = build_method(self.model_cfg).to(self.device)
+    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
+        super().__init__(cfg, tracker, on_step)
+        t = self.t
         self.optimizer = torch.optim.Adam(
             self.model.parameters(),
             lr=float(t.lr_init),
@@ -101,10 +84,6 @@ class NerfTrainer:
             device=self.device,
         )
         self.val_rays = self._validation_rays(near, far)
-        self.step = 0
-        self.train_seconds = 0.0
-        self.curves: list[dict[str, float]] = []
-        self.checkpoint_dir = Path(t.checkpoint_dir)
 
     def _validation_rays(self, near: float, far: float) -> dict[str, torch.Tensor]:
         """A fixed random subset (`val_rays`) of the validation views' rays, the same every time."""
@@ -120,31 +99,26 @@ class NerfTrainer:
         rays["rgb"] = images[cam, row, col]
         return {k: v.to(self.device) for k, v in rays.items()}
 
-    # -- checkpoints ---------------------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
-        # One position counter: the step (a NeRF run has no epochs over a fixed batch order).
-        return training_state(self, 0, self.step, self.step, task="nerf")
+    def checkpoint_extra(self) -> dict[str, Any]:
+        return {"task": "nerf"}
 
-    def save(self, name: str = LAST_NAME) -> Path:
-        path = self.checkpoint_dir / name
-        save_checkpoint(path, self.state())
-        return path
+    # -- the task's part of the loop ----------------------------------------------------------------------
+    def batches(self, epoch: int, skip: int = 0) -> Iterator[dict[str, torch.Tensor]]:
+        """The batch of step s depends only on (seed, s): one epoch of `max_steps` batches."""
+        return (self.batcher.batch(step) for step in range(skip, int(self.t.max_steps)))
 
-    def restore(self, path: str) -> None:
-        self.step = int(restore_training_state(self, path)["step"])
-        log.info("resumed from %s at step %d", path, self.step)
+    def done(self) -> bool:
+        return self.pos.step >= int(self.t.max_steps)
 
-    # -- loop ----------------------------------------------------------------------------------------
     def learning_rate(self, step: int) -> float:
         t = self.t
         decay = (float(t.lr_init), float(t.lr_final), int(t.max_steps))
         return log_linear_lr(step, *decay, int(t.lr_delay_steps), float(t.lr_delay_mult))
 
-    def train_step(self) -> dict[str, float]:
+    def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
         self.model.train()
         for group in self.optimizer.param_groups:
-            group["lr"] = self.learning_rate(self.step)
-        batch = self.batcher.batch(self.step)
+            group["lr"] = self.learning_rate(self.pos.step)
         outputs = self.model(batch, randomized=True)
         loss, components = self.model.loss(outputs, batch["rgb"])
         self.optimizer.zero_grad(set_to_none=True)
@@ -153,7 +127,8 @@ class NerfTrainer:
             torch.nn.utils.clip_grad_norm_(self.model.parameters(), float(self.t.grad_max_norm))
         self.optimizer.step()
         fine_mse = float(torch.mean((outputs[-1]["rgb"].detach() - batch["rgb"]) ** 2))
-        return {"loss": float(loss.detach()), "psnr": mse_to_psnr(fine_mse), **components}
+        values = {"loss": float(loss.detach()), "psnr": mse_to_psnr(fine_mse), **components}
+        return values, len(batch["rgb"])
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
@@ -161,71 +136,46 @@ class NerfTrainer:
         (Ref-NeRF differentiates its density for the normals inside the model even here)."""
         self.model.eval()
         rays, chunk, n = self.val_rays, int(self.t.chunk), len(self.val_rays["rgb"])
-        totals: dict[str, float] = {}
+        means = Means()
         squared = 0.0
         for start in range(0, n, chunk):
             part = {k: v[start : start + chunk] for k, v in rays.items()}
             outputs = self.model(part, randomized=False)
             loss, components = self.model.loss(outputs, part["rgb"])
-            size = len(part["rgb"])
-            for k, v in {"loss": float(loss.detach()), **components}.items():
-                totals[k] = totals.get(k, 0.0) + v * size
+            means.add({"loss": float(loss.detach()), **components}, len(part["rgb"]))
             squared += float(torch.sum((outputs[-1]["rgb"].detach() - part["rgb"]) ** 2)) / 3
-        means = {k: v / n for k, v in totals.items()}
-        return {**means, "psnr": mse_to_psnr(squared / n)}
+        return {**means.result(), "psnr": mse_to_psnr(squared / n)}
 
     def _log(self, metrics: dict[str, float]) -> dict[str, float]:
-        self.tracker.log_metrics(metrics, step=self.step)
+        self.tracker.log_metrics(metrics, step=self.pos.step)
         return metrics
 
-    def fit(self) -> dict[str, Any]:
-        """Train until `max_steps`; checkpoint every `checkpoint_every` steps, on Ctrl-C and at the end."""
-        t = self.t
-        max_steps = int(t.max_steps)
-        bar = tqdm(total=max_steps, initial=self.step, desc=f"train {self.model_cfg['name']}", unit="step")
-        if self.step == 0:  # the curves start at the initialisation
+    def before_training(self) -> None:
+        if self.pos.step == 0:  # the curves start at the initialisation
             self.curves.append({"step": 0, **self._log(split_metrics("val", self.validate()))})
-        try:
-            while self.step < max_steps:
-                start = time.perf_counter()
-                values = self.train_step()
-                self.train_seconds += time.perf_counter() - start
-                self.step += 1
-                bar.update(1)
-                bar.set_postfix(loss=f"{values['loss']:.4f}", psnr=f"{values['psnr']:.2f}")
-                train_metrics = split_metrics("train", values)
-                if self.step % int(t.log_every) == 0:
-                    self._log(train_metrics)
-                if self.step % int(t.val_every) == 0 or self.step == max_steps:
-                    row = self._log(split_metrics("val", self.validate())) | train_metrics
-                    self.curves.append({"step": self.step, **row})
-                    write_curves(t.curves_file, self.curves)
-                if self.step % int(t.checkpoint_every) == 0:
-                    self.save()
-                if self.on_step is not None:
-                    self.on_step(self.step)
-        except KeyboardInterrupt:
-            self.save()  # resume continues from exactly here
-            raise
-        finally:
-            bar.close()
-        final = self.save(FINAL_NAME)
-        return {
-            "checkpoint": str(final),
-            "steps": self.step,
-            "train_time_s": self.train_seconds,
-            "param_count": count_parameters(self.model),
-            "train_rays_per_s": self.step * int(t.batch_size) / max(self.train_seconds, 1e-9),
-            **(self.curves[-1] if self.curves else {}),
-        }
+
+    def after_step(self, values: dict[str, float], size: int, bar: tqdm) -> None:
+        """Progress; train metrics every `log_every`, validation every `val_every` and at the end,
+        a checkpoint every `checkpoint_every` steps."""
+        t, step = self.t, self.pos.step
+        bar.update(1)
+        bar.set_postfix(loss=f"{values['loss']:.4f}", psnr=f"{values['psnr']:.2f}")
+        train_metrics = split_metrics("train", values)
+        if step % int(t.log_every) == 0:
+            self._log(train_metrics)
+        if step % int(t.val_every) == 0 or step == int(t.max_steps):
+            row = self._log(split_metrics("val", self.validate())) | train_metrics
+            self.curves.append({"step": step, **row})
+            write_curves(t.curves_file, self.curves)
+        if step % int(t.checkpoint_every) == 0:
+            self.save()
+
+    def extra_summary(self) -> dict[str, Any]:
+        rays_per_s = self.pos.step * int(self.t.batch_size) / max(self.train_seconds, 1e-9)
+        return {"train_rays_per_s": rays_per_s, **(self.curves[-1] if self.curves else {})}
 
 
-def train_nerf(cfg: DictConfig, tracker, on_step: Callable[[int], None] | None = None) -> dict[str, Any]:
+def train_nerf(cfg: DictConfig, tracker, on_step: OnStep = None) -> dict[str, Any]:
     """Fit `cfg.model` to scene `task.scene`; resume from `task.train.resume` when set."""
-    trainer = NerfTrainer(cfg, tracker, on_step)
-    if cfg.task.train.resume:
-        trainer.restore(cfg.task.train.resume)
-    summary = trainer.fit()
-    keys = ("train_time_s", "param_count", "steps", "train_rays_per_s")
-    tracker.log_metrics({k: summary[k] for k in keys}, step=summary["steps"])
-    return summary
+    logged = ("train_time_s", "param_count", "steps", "train_rays_per_s")
+    return run_training(NerfTrainer, cfg, tracker, on_step, logged)

@@ -8,9 +8,8 @@ directly (one branch) is fitted on that colour against the reference. Per step (
 per epoch, on train and validation patches, each loss is logged: `{train,val}_loss_{diffuse,specular,
 color}` for a two-branch model, `{train,val}_loss_color` for a colour model.
 
-Resume: a checkpoint records (epoch, batch within the epoch, step). The data order of an epoch depends only
-on (seed, epoch), so resuming replays the epoch's order and skips the batches already done: an interrupted
-and resumed run ends with the same weights as an uninterrupted one.
+The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`; the
+data order of an epoch depends only on (seed, epoch), so a resumed run ends with the same weights.
 """
 
 from __future__ import annotations
@@ -18,14 +17,12 @@ from __future__ import annotations
 import functools
 import logging
 import operator
-import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
@@ -33,36 +30,14 @@ from src.data.denoise_dataset import PatchShardDataset, selected_whitening
 from src.data.features import input_features
 from src.errors import DataError
 from src.models.denoise.base import Batch, Denoiser, final_color
-from src.models.denoise.summary import count_parameters
-from src.models.instantiate import build_method
-from src.train.checkpoint import (
-    FINAL_NAME,
-    LAST_NAME,
-    restore_training_state,
-    save_checkpoint,
-    training_state,
-)
 from src.train.curves import write_curves
-from src.train.device import pick_device, seed_everything
+from src.train.loop import Means, OnStep, TrainingLoop, run_training
 from src.train.losses import Loss, get_loss
 
 log = logging.getLogger(__name__)
 
 #: A model output -> the batch entry it is fitted to.
 TARGETS = {"diffuse": "diffuse_target", "specular": "specular_target", "color": "reference"}
-
-
-@dataclass
-class Position:
-    """Where training is: `batch_in_epoch` batches of `epoch` are done, `step` optimiser steps in all."""
-
-    epoch: int = 0
-    batch_in_epoch: int = 0
-    step: int = 0
-
-
-def model_config(cfg: DictConfig) -> dict[str, Any]:
-    return OmegaConf.to_container(cfg.model, resolve=True)
 
 
 def component_losses(model: Denoiser, batch: Batch, loss: Loss, eps: float) -> dict[str, torch.Tensor]:
@@ -87,22 +62,6 @@ def objective(losses: dict[str, Any]) -> Any:
     return functools.reduce(operator.add, fitted)
 
 
-class Means:
-    """Sample-weighted running means of named losses (the keys come from the first update)."""
-
-    def __init__(self) -> None:
-        self.totals: dict[str, float] = {}
-        self.count = 0
-
-    def add(self, losses: dict[str, float], size: int) -> None:
-        for key, value in losses.items():
-            self.totals[key] = self.totals.get(key, 0.0) + float(value) * size
-        self.count += size
-
-    def result(self) -> dict[str, float]:
-        return {k: v / max(self.count, 1) for k, v in self.totals.items()}
-
-
 def _to(batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
     return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
 
@@ -114,51 +73,34 @@ def _autocast(device: torch.device, enabled: bool):
     )
 
 
-class Trainer:
-    """Owns the model, optimiser, data and position of one training run."""
+class DenoiserTrainer(TrainingLoop):
+    """Patches from the prepared shards, epochs of the training split, validation after every epoch."""
 
-    def __init__(self, cfg: DictConfig, tracker, on_step: Callable[[int], None] | None = None) -> None:
-        t = cfg.task.train
-        self.cfg, self.t, self.tracker, self.on_step = cfg, t, tracker, on_step
-        self.device = pick_device(cfg.device)
-        self.eps = float(cfg.task.preprocess.eps_albedo)
-        self.loss = get_loss(t.loss)
-        self.model_cfg = model_config(cfg)
+    unit = "patch"
+
+    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
         self.features = input_features(cfg)
-        seed_everything(int(cfg.seed))
         prepared = Path(cfg.paths.prepared)
         data = {"seed": int(cfg.seed), "features": self.features}
         self.train_data = PatchShardDataset(prepared, "train", shuffle=True, **data)
         self.val_data = PatchShardDataset(prepared, "val", shuffle=False, **data)
         whitening = (
             selected_whitening(prepared / "whitening.json", self.train_data.select)
-            if self.model_cfg.get("whiten")
+            if cfg.model.get("whiten")
             else None
         )
-        self.model = build_method(self.model_cfg, whitening=whitening).to(self.device)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=float(t.lr))
-        self.pos = Position()
-        self.checkpoint_dir = Path(t.checkpoint_dir)
-        self.train_seconds = 0.0
-        self.curves: list[dict[str, float]] = []  # one row per epoch: step, epoch, train/val losses
+        super().__init__(cfg, tracker, on_step, whitening=whitening)
+        self.eps = float(cfg.task.preprocess.eps_albedo)
+        self.loss = get_loss(self.t.loss)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=float(self.t.lr))
+        self.history: dict[str, float] = {}  # the last completed epoch's train/val losses
 
-    # -- checkpoints ---------------------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
-        return training_state(
-            self, self.pos.epoch, self.pos.batch_in_epoch, self.pos.step, features=self.features
-        )
+    def checkpoint_extra(self) -> dict[str, Any]:
+        return {"features": self.features}
 
-    def save(self, name: str = LAST_NAME) -> Path:
-        path = self.checkpoint_dir / name
-        save_checkpoint(path, self.state())
-        return path
+    def batches(self, epoch: int, skip: int = 0) -> Iterator[Batch]:
+        return self._batches(self.train_data, epoch, skip)
 
-    def restore(self, path: str) -> None:
-        state = restore_training_state(self, path)
-        self.pos = Position(state["epoch"], state["batch_in_epoch"], state["step"])
-        log.info("resumed from %s at epoch %d, batch %d, step %d", path, *vars(self.pos).values())
-
-    # -- loop ----------------------------------------------------------------------------------------
     def _batches(self, data: PatchShardDataset, epoch: int, skip: int = 0) -> Iterator[Batch]:
         data.set_epoch(epoch)
         loader = DataLoader(data, batch_size=int(self.t.batch_size), num_workers=int(self.t.num_workers))
@@ -166,18 +108,22 @@ class Trainer:
             if i >= skip:
                 yield _to(batch, self.device)
 
-    def _done(self) -> bool:
-        max_steps = self.t.max_steps
-        return self.pos.epoch >= int(self.t.epochs) or (max_steps is not None and self.pos.step >= max_steps)
+    def done(self) -> bool:
+        return self.pos.epoch >= int(self.t.epochs) or self.stop_inside_epoch()
 
-    def train_step(self, batch: Batch) -> dict[str, float]:
+    def progress(self) -> tuple[int, int]:
+        per_epoch = len(self.train_data)
+        done = per_epoch * self.pos.epoch + self.pos.batch_in_epoch * int(self.t.batch_size)
+        return per_epoch * int(self.t.epochs), done
+
+    def train_step(self, batch: Batch) -> tuple[dict[str, float], int]:
         self.model.train()
         with _autocast(self.device, bool(self.t.amp)):
             losses = component_losses(self.model, batch, self.loss, self.eps)
         self.optimizer.zero_grad(set_to_none=True)
         objective(losses).backward()
         self.optimizer.step()
-        return {k: float(v.detach()) for k, v in losses.items()}
+        return {k: float(v.detach()) for k, v in losses.items()}, len(batch["color"])
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
@@ -189,67 +135,15 @@ class Trainer:
                 means.add(component_losses(self.model, batch, self.loss, self.eps), len(batch["color"]))
         return means.result()
 
-    def run_epoch(self, bar: tqdm) -> dict[str, float] | None:
-        """Train the rest of the current epoch (or until max_steps); returns the epoch's mean train
-        losses if the epoch finished, None if training stopped inside it."""
-        means = Means()
-        start = time.perf_counter()
-        for batch in self._batches(self.train_data, self.pos.epoch, skip=self.pos.batch_in_epoch):
-            losses = self.train_step(batch)
-            size = len(batch["color"])
-            means.add(losses, size)
-            self.pos.batch_in_epoch += 1
-            self.pos.step += 1
-            self._after_step(losses, size, bar)
-            if self.t.max_steps is not None and self.pos.step >= self.t.max_steps:
-                self.train_seconds += time.perf_counter() - start
-                return None
-        self.train_seconds += time.perf_counter() - start
-        self.pos = Position(self.pos.epoch + 1, 0, self.pos.step)
-        return means.result()
-
-    def _after_step(self, losses: dict[str, float], size: int, bar: tqdm) -> None:
+    def after_step(self, values: dict[str, float], size: int, bar: tqdm) -> None:
         bar.update(size)
-        bar.set_postfix(step=self.pos.step, loss=f"{objective(losses):.4f}")
+        bar.set_postfix(step=self.pos.step, loss=f"{objective(values):.4f}")
         if self.pos.step % int(self.t.log_every) == 0:
             self.tracker.log_metrics(
-                {f"train_step_loss_{k}": v for k, v in losses.items()}, step=self.pos.step
+                {f"train_step_loss_{k}": v for k, v in values.items()}, step=self.pos.step
             )
-        if self.on_step is not None:
-            self.on_step(self.pos.step)
 
-    def fit(self) -> dict[str, Any]:
-        """Train until `epochs` (or `max_steps`); checkpoint after every epoch and at the end."""
-        epochs = int(self.t.epochs)
-        total = len(self.train_data) * epochs
-        done = len(self.train_data) * self.pos.epoch + self.pos.batch_in_epoch * int(self.t.batch_size)
-        bar = tqdm(
-            total=total, initial=min(done, total), desc=f"train {self.model_cfg['name']}", unit="patch"
-        )
-        history: dict[str, float] = {}
-        try:
-            while not self._done():
-                train_losses = self.run_epoch(bar)
-                if train_losses is not None:
-                    history = self._end_epoch(train_losses)
-                self.save()
-        except KeyboardInterrupt:
-            # Keep what was done since the last checkpoint; resume continues from exactly here.
-            self.save()
-            raise
-        finally:
-            bar.close()
-        final = self.save(FINAL_NAME)
-        return {
-            "checkpoint": str(final),
-            "epochs": self.pos.epoch,
-            "steps": self.pos.step,
-            "train_time_s": self.train_seconds,
-            "param_count": count_parameters(self.model),
-            **history,
-        }
-
-    def _end_epoch(self, train_losses: dict[str, float]) -> dict[str, float]:
+    def end_epoch(self, train_losses: dict[str, float]) -> None:
         val_losses = self.validate()
         metrics = {f"train_loss_{k}": v for k, v in train_losses.items()}
         metrics |= {f"val_loss_{k}": v for k, v in val_losses.items()}
@@ -262,16 +156,13 @@ class Trainer:
             " ".join(f"{k}={v:.4f}" for k, v in train_losses.items()),
             " ".join(f"{k}={v:.4f}" for k, v in val_losses.items()),
         )
-        return metrics
+        self.history = metrics
+
+    def extra_summary(self) -> dict[str, Any]:
+        return {"epochs": self.pos.epoch, **self.history}
 
 
-def train_denoiser(cfg: DictConfig, tracker, on_step: Callable[[int], None] | None = None) -> dict[str, Any]:
+def train_denoiser(cfg: DictConfig, tracker, on_step: OnStep = None) -> dict[str, Any]:
     """Train `cfg.model` on `cfg.paths.prepared`; resume from `task.train.resume` when set."""
-    trainer = Trainer(cfg, tracker, on_step)
-    if cfg.task.train.resume:
-        trainer.restore(cfg.task.train.resume)
-    summary = trainer.fit()
-    tracker.log_metrics(
-        {k: summary[k] for k in ("train_time_s", "param_count", "steps", "epochs")}, step=summary["steps"]
-    )
-    return summary
+    logged = ("train_time_s", "param_count", "steps", "epochs")
+    return run_training(DenoiserTrainer, cfg, tracker, on_step, logged)

@@ -1,0 +1,198 @@
+"""The one training loop every task shares (`stage=train`): position, progress bar, timing, checkpoints,
+resume, Ctrl-C and the run summary. A task's trainer (`DenoiserTrainer`, `NerfTrainer`) subclasses
+`TrainingLoop` and supplies only what differs: its batches, one optimiser step, what it logs after a
+step and at the end of an epoch, and when training is done.
+
+Position: `batch_in_epoch` batches of `epoch` are done, `step` optimiser steps in all. A task's batches
+depend only on (seed, epoch, batch index) (a NeRF run is one epoch of `max_steps` batches), so resuming
+replays the epoch's order and skips the batches already done: an interrupted and resumed run ends with
+the same weights as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tqdm import tqdm
+
+from src.models.denoise.summary import count_parameters
+from src.models.instantiate import build_method
+from src.train.checkpoint import (
+    FINAL_NAME,
+    LAST_NAME,
+    restore_training_state,
+    save_checkpoint,
+    training_state,
+)
+from src.train.device import pick_device, seed_everything
+
+log = logging.getLogger(__name__)
+
+OnStep = Callable[[int], None] | None
+
+
+@dataclass
+class Position:
+    """Where training is: `batch_in_epoch` batches of `epoch` are done, `step` optimiser steps in all."""
+
+    epoch: int = 0
+    batch_in_epoch: int = 0
+    step: int = 0
+
+
+class Means:
+    """Sample-weighted running means of named values (the keys come from the first update)."""
+
+    def __init__(self) -> None:
+        self.totals: dict[str, float] = {}
+        self.count = 0
+
+    def add(self, values: dict[str, float], size: int) -> None:
+        for key, value in values.items():
+            self.totals[key] = self.totals.get(key, 0.0) + float(value) * size
+        self.count += size
+
+    def result(self) -> dict[str, float]:
+        return {k: v / max(self.count, 1) for k, v in self.totals.items()}
+
+
+class TrainingLoop:
+    """Owns the model, optimiser, position, curves and checkpoints of one training run.
+
+    A subclass calls `super().__init__` (device, seed, model from `cfg.model`), sets `self.optimizer`,
+    and implements `batches`, `train_step`, `done`, and optionally the hooks `after_step`, `end_epoch`,
+    `before_training`, `progress` and `extra_summary`.
+    """
+
+    #: What the progress bar counts (`progress` says how many).
+    unit = "step"
+
+    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None, **build_context: Any) -> None:
+        self.cfg, self.t, self.tracker, self.on_step = cfg, cfg.task.train, tracker, on_step
+        self.device = pick_device(cfg.device)
+        seed_everything(int(cfg.seed))
+        self.model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+        self.model = build_method(self.model_cfg, **build_context).to(self.device)
+        self.optimizer: torch.optim.Optimizer
+        self.pos = Position()
+        self.checkpoint_dir = Path(self.t.checkpoint_dir)
+        self.train_seconds = 0.0
+        self.curves: list[dict[str, float]] = []  # what curves.csv holds: one row per validation
+
+    # -- what a task supplies -------------------------------------------------------------------------
+    def batches(self, epoch: int, skip: int) -> Iterator[Any]:
+        """The batches of `epoch` after the first `skip`, in an order fixed by (seed, epoch)."""
+        raise NotImplementedError
+
+    def train_step(self, batch: Any) -> tuple[dict[str, float], int]:
+        """One optimiser step; returns its logged values and the batch size."""
+        raise NotImplementedError
+
+    def done(self) -> bool:
+        raise NotImplementedError
+
+    def after_step(self, values: dict[str, float], size: int, bar: tqdm) -> None:
+        """Progress and per-step logging (and any validation or checkpoint every N steps)."""
+
+    def end_epoch(self, means: dict[str, float]) -> None:
+        """Called with the epoch's mean train values when an epoch completes."""
+
+    def before_training(self) -> None:
+        """Called once before the first step of `fit` (e.g. to validate the initialisation)."""
+
+    def progress(self) -> tuple[int, int]:
+        """(total, done) in `unit`s, for the progress bar."""
+        return int(self.t.max_steps), self.pos.step
+
+    def extra_summary(self) -> dict[str, Any]:
+        """Task-specific entries of the run summary `fit` returns."""
+        return {}
+
+    def checkpoint_extra(self) -> dict[str, Any]:
+        """Task-specific entries of every checkpoint."""
+        return {}
+
+    # -- checkpoints ----------------------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        pos = self.pos
+        return training_state(self, pos.epoch, pos.batch_in_epoch, pos.step, **self.checkpoint_extra())
+
+    def save(self, name: str = LAST_NAME) -> Path:
+        path = self.checkpoint_dir / name
+        save_checkpoint(path, self.state())
+        return path
+
+    def restore(self, path: str) -> None:
+        state = restore_training_state(self, path)
+        self.pos = Position(state["epoch"], state["batch_in_epoch"], state["step"])
+        log.info("resumed from %s at epoch %d, batch %d, step %d", path, *vars(self.pos).values())
+
+    # -- the loop ---------------------------------------------------------------------------------------
+    def stop_inside_epoch(self) -> bool:
+        max_steps = self.t.max_steps
+        return max_steps is not None and self.pos.step >= int(max_steps)
+
+    def run_epoch(self, bar: tqdm) -> bool:
+        """Train the rest of the current epoch, or until `max_steps`; True if the epoch completed.
+        `train_seconds` counts fetching each batch and the optimiser step, not logging or validation."""
+        means = Means()
+        start = time.perf_counter()
+        for batch in self.batches(self.pos.epoch, skip=self.pos.batch_in_epoch):
+            values, size = self.train_step(batch)
+            self.train_seconds += time.perf_counter() - start
+            means.add(values, size)
+            self.pos.batch_in_epoch += 1
+            self.pos.step += 1
+            self.after_step(values, size, bar)
+            if self.on_step is not None:
+                self.on_step(self.pos.step)
+            if self.stop_inside_epoch():
+                return False
+            start = time.perf_counter()
+        self.pos = Position(self.pos.epoch + 1, 0, self.pos.step)
+        self.end_epoch(means.result())
+        return True
+
+    def fit(self) -> dict[str, Any]:
+        """Train until `done`; checkpoint after every epoch (or stop) and on Ctrl-C, then `final.pt`."""
+        total, done = self.progress()
+        name = self.model_cfg["name"]
+        bar = tqdm(total=total, initial=min(done, total), desc=f"train {name}", unit=self.unit)
+        try:
+            self.before_training()
+            while not self.done():
+                self.run_epoch(bar)
+                self.save()
+        except KeyboardInterrupt:
+            # Keep what was done since the last checkpoint; resume continues from exactly here.
+            self.save()
+            raise
+        finally:
+            bar.close()
+        final = self.save(FINAL_NAME)
+        return {
+            "checkpoint": str(final),
+            "steps": self.pos.step,
+            "train_time_s": self.train_seconds,
+            "param_count": count_parameters(self.model),
+            **self.extra_summary(),
+        }
+
+
+def run_training(
+    trainer_class: type[TrainingLoop], cfg: DictConfig, tracker, on_step: OnStep, logged: tuple[str, ...]
+) -> dict[str, Any]:
+    """Build a trainer, resume from `task.train.resume` when set, fit, log the summary's `logged` keys."""
+    trainer = trainer_class(cfg, tracker, on_step)
+    if cfg.task.train.resume:
+        trainer.restore(cfg.task.train.resume)
+    summary = trainer.fit()
+    tracker.log_metrics({k: summary[k] for k in logged}, step=summary["steps"])
+    return summary
