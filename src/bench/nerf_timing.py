@@ -17,7 +17,7 @@ from src.models.instantiate import build_method
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase, RefNeRF
 from src.models.nerf.summary import nerf_mlp_flops_per_ray
-from src.render.multiview import look_at_c2w, sphere_position
+from src.render.multiview_cameras import look_at_c2w, sphere_position
 
 #: The `nerf` rays: one camera at this distance from the origin, looking at it (the Blender scenes' setup:
 #: conf/dataset/nerf_procedural.yaml radius, elevation of its test circle, field of view, near and far).
