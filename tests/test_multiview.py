@@ -8,7 +8,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.data.blender import generate_rays, load_blender_split
+from src.data.blender import load_blender_split
+from src.data.rays import generate_rays
 from src.errors import ConfigError
 from src.render import multiview
 from src.render.multiview import render_multiview_dataset

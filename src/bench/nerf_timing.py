@@ -11,7 +11,7 @@ from typing import Any
 import torch
 
 from src.bench.timing import time_runs
-from src.data.blender import focal_from_fov, generate_rays
+from src.data.rays import focal_from_fov, generate_rays
 from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
 from src.models.nerf.inference import render_rays_chunked

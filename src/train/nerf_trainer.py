@@ -24,7 +24,9 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from src.data.blender import RayBatcher, load_blender_split, rays_for_pixels
+from src.data.blender import load_blender_split
+from src.data.ray_batches import RayBatcher
+from src.data.rays import rays_for_pixels
 from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
 from src.train.checkpoint import (
