@@ -4,8 +4,8 @@ import re
 
 import pytest
 
-from src.bench import main as bench_main
-from src.bench import nerf_model_configs
+from src.bench.cli import main as bench_main
+from src.bench.nerf import nerf_model_configs
 from src.errors import ConfigError
 from tests.conftest import one_line_error
 

@@ -8,16 +8,10 @@ import pytest
 import torch
 from PIL import Image
 
-from src.data.blender import (
-    RADIUS_SCALE,
-    RayBatcher,
-    downscale_rgba,
-    generate_rays,
-    load_blender_split,
-    pixel_footprint_radii,
-    rays_for_pixels,
-    step_seed,
-)
+from src.data.blender import load_blender_split
+from src.data.ray_batches import RayBatcher, step_seed
+from src.data.rays import RADIUS_SCALE, generate_rays, pixel_footprint_radii, rays_for_pixels
+from src.data.rgba import downscale_rgba
 from src.errors import DataError
 from tests.conftest import one_line_error
 

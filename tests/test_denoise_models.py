@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from src.bench import main as bench_main
+from src.bench.cli import main as bench_main
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError

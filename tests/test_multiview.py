@@ -8,21 +8,21 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.data.blender import generate_rays, load_blender_split
+from src.data.blender import load_blender_split
+from src.data.rays import generate_rays
 from src.errors import ConfigError
 from src.render import multiview
-from src.render.multiview import (
-    KEY_FILE,
-    SCENE_BUILDERS,
+from src.render.multiview import render_multiview_dataset
+from src.render.multiview_cache import KEY_FILE, render_key
+from src.render.multiview_cameras import (
     circle_poses,
-    encode_rgba8,
     hemisphere_poses,
     look_at_c2w,
     mitsuba_to_world,
-    render_key,
-    render_multiview_dataset,
     split_poses,
 )
+from src.render.multiview_scenes import SCENE_BUILDERS
+from src.render.multiview_views import encode_rgba8
 from tests.conftest import CONF_DIR, one_line_error
 
 PROBE = np.array([0.55, -0.35, 0.3])  # an off-centre point inside the scene ball

@@ -17,14 +17,10 @@ from omegaconf import OmegaConf
 from src.errors import ConfigError
 from src.multirun import PARENT_FILE
 from src.tracking import mlflow_tracking as mt
-from src.tracking.mlflow_tracking import (
-    DEFAULT_COLUMNS,
-    comparison_table,
-    flatten_config,
-    format_table,
-    job_run,
-    setup_tracking,
-)
+from src.tracking.comparison import DEFAULT_COLUMNS, comparison_table, format_table
+from src.tracking.experiment import setup_tracking
+from src.tracking.mlflow_tracking import job_run
+from src.tracking.run_config import TRUNCATED, flatten_config
 from tests.conftest import one_line_error
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -70,7 +66,7 @@ def test_flatten_config_nested_lists_and_truncation():
     flat = flatten_config(cfg)
     assert flat["a.b"] == "1" and flat["ref"] == "1" and flat["e"] == "None" and flat["f"] == "{}"
     assert json.loads(flat["a.c"]) == [1, 2, {"d": "x"}]
-    assert len(flat["long"]) == 6000 and flat["long"].endswith(mt.TRUNCATED)
+    assert len(flat["long"]) == 6000 and flat["long"].endswith(TRUNCATED)
     assert all(isinstance(v, str) for v in flat.values())
     assert flatten_config({"x": {"y": 2}}, sep="/") == {"x/y": "2"}
 

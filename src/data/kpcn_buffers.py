@@ -186,6 +186,29 @@ def load_kpcn_exr(
     path = Path(path)
     policy = repair or RepairPolicy()
     aliases = dict(aliases or {})
+    names = _buffer_names(aliases, buffers)
+    data = read_exr(path)
+    wanted = [(ch, aliases.get(ch, ch)) for b in names for ch in KPCN_BUFFERS[b]]
+    _check_channels(path, data, wanted, expected_size)
+
+    report = RepairReport(str(path))
+    out = {}
+    for b in names:
+        chans = [
+            _repair_channel(
+                path, ch, aliases.get(ch, ch), data[aliases.get(ch, ch)].astype(np.float32), policy, report
+            )
+            for ch in KPCN_BUFFERS[b]
+        ]
+        out[b] = np.stack(chans, axis=-1)
+    if report.total:
+        log.warning("%s: repaired %d values (%s)", path, report.total, report.summary())
+    return out, report
+
+
+def _buffer_names(aliases: Mapping[str, str], buffers: Iterable[str] | None) -> list[str]:
+    """The buffers to load (all of KPCN_BUFFERS by default, duplicates dropped), after checking that the
+    aliases and the buffers name known channels and buffers (one-line ConfigError otherwise)."""
     unknown = [a for a in aliases if a not in _CHANNEL_BUFFER]
     if unknown:
         raise ConfigError(f"aliases for unknown KPCN channels {format_names(map(repr, unknown))}")
@@ -195,9 +218,14 @@ def load_kpcn_exr(
         raise ConfigError(
             f"unknown KPCN buffers {format_names(map(repr, unknown))}; known: {format_names(KPCN_BUFFERS)}"
         )
+    return names
 
-    data = read_exr(path)
-    wanted = [(ch, aliases.get(ch, ch)) for b in names for ch in KPCN_BUFFERS[b]]
+
+def _check_channels(
+    path: Path, data: Mapping[str, np.ndarray], wanted: list[tuple[str, str]], expected_size
+) -> None:
+    """One-line DataError unless every wanted (our name, file name) channel is in the file, float, and of
+    `expected_size` (H, W), or else of the first channel's size."""
     missing = [_label(ch, file_ch) for ch, file_ch in wanted if file_ch not in data]
     if missing:
         noun = "channel" if len(missing) == 1 else "channels"
@@ -216,17 +244,3 @@ def load_kpcn_exr(
             raise DataError(
                 f"{path}: channel {file_ch!r} has pixel type {data[file_ch].dtype}; expected float"
             )
-
-    report = RepairReport(str(path))
-    out = {}
-    for b in names:
-        chans = [
-            _repair_channel(
-                path, ch, aliases.get(ch, ch), data[aliases.get(ch, ch)].astype(np.float32), policy, report
-            )
-            for ch in KPCN_BUFFERS[b]
-        ]
-        out[b] = np.stack(chans, axis=-1)
-    if report.total:
-        log.warning("%s: repaired %d values (%s)", path, report.total, report.summary())
-    return out, report

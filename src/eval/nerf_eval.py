@@ -20,7 +20,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from src.data.blender import generate_rays
+from src.data.rays import generate_rays
 from src.eval.common import mean_rows, sync
 from src.io.atomic import atomic_write_csv, atomic_write_json
 from src.io.images import write_png

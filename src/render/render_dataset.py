@@ -156,6 +156,16 @@ def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+@dataclass
+class RenderTotals:
+    """What a dataset render did: samples and seconds rendered, files rendered and files kept."""
+
+    samples: int = 0
+    seconds: float = 0.0
+    rendered: int = 0
+    skipped: int = 0
+
+
 def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") -> dict:
     """Render every scene at every noisy spp and the reference into ``raw_dir``; returns a summary.
 
@@ -164,10 +174,34 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     """
     import mitsuba as mi
 
-    from src.data.kpcn_buffers import write_kpcn_exr
-    from src.data.splits import exr_name
     from src.render.backend import set_mitsuba_variant
 
+    noisy, reference = _spp_counts(ds)
+    variant = set_mitsuba_variant(variant)
+    integrator = mi.load_dict({"type": "kpcn_aov", **dict(ds["integrator"])})
+    raw_dir.mkdir(parents=True, exist_ok=True)
+    manifest_path = raw_dir / "manifest.json"
+    manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
+
+    totals = RenderTotals()
+    sources = scene_sources(ds)
+    for source in tqdm(sources, desc=f"render [{variant}]", unit="scene"):
+        render_scene_files(source, ds, jobs, integrator, raw_dir, manifest, totals)
+    return {
+        "variant": variant,
+        "scenes": len(sources),
+        "files_rendered": totals.rendered,
+        "files_cached": totals.skipped,
+        "samples": totals.samples,
+        "render_seconds": round(totals.seconds, 3),
+        "samples_per_second": totals.samples / totals.seconds if totals.seconds > 0 else None,
+    }
+
+
+def _spp_counts(ds: Mapping) -> tuple[list[int], int]:
+    """The sorted noisy sample counts and the reference count; a `ConfigError` unless every noisy count is
+    >= 2 and the reference is above them all."""
     noisy = sorted(int(s) for s in ds["noisy_spp"])
     reference = int(ds["reference_spp"])
     if not noisy or min(noisy) < 2 or reference <= max(noisy):
@@ -175,43 +209,41 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
             f"dataset.noisy_spp={noisy} / dataset.reference_spp={reference}: expected noisy counts >= 2 "
             "and a reference count above all of them"
         )
-    variant = set_mitsuba_variant(variant)
-    integrator = mi.load_dict({"type": "kpcn_aov", **dict(ds["integrator"])})
-    raw_dir.mkdir(parents=True, exist_ok=True)
-    manifest_path = raw_dir / "manifest.json"
-    manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
-    pixels = int(ds["width"]) * int(ds["height"])
-    jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
+    return noisy, reference
 
-    samples, seconds, rendered, skipped = 0, 0.0, 0, 0
-    sources = scene_sources(ds)
-    for source in tqdm(sources, desc=f"render [{variant}]", unit="scene"):
-        scene = sensor = None
-        identity = source.identity()
-        for spp, role in jobs:
-            name = exr_name(source.name, spp)
-            key = render_key(identity, ds, spp, role)
-            if manifest.get(name) == key and (raw_dir / name).exists():
-                skipped += 1
-                continue
-            if scene is None:
-                scene, sensor = load_scene(source, ds)
-            passes = split_passes(spp, pixels, int(ds["max_pass_samples"]))
-            seeds = [pass_seed(int(ds["seed"]), source.name, spp, role, i) for i in range(len(passes))]
-            start = time.perf_counter()
-            buffers = render_buffers(scene, sensor, integrator, spp, seeds, passes)
-            seconds += time.perf_counter() - start
-            samples += pixels * spp
-            write_kpcn_exr(raw_dir / name, buffers)
-            manifest[name] = key
-            atomic_write_json(manifest_path, manifest)
-            rendered += 1
-    return {
-        "variant": variant,
-        "scenes": len(sources),
-        "files_rendered": rendered,
-        "files_cached": skipped,
-        "samples": samples,
-        "render_seconds": round(seconds, 3),
-        "samples_per_second": samples / seconds if seconds > 0 else None,
-    }
+
+def render_scene_files(
+    source: SceneSource,
+    ds: Mapping,
+    jobs: list[tuple[int, str]],
+    integrator,
+    raw_dir: Path,
+    manifest: dict,
+    totals: RenderTotals,
+) -> None:
+    """Render the (spp, role) ``jobs`` of one scene whose file is not current, each written as its EXR and
+    recorded in ``manifest`` (saved after every file); the scene is loaded only if something renders."""
+    from src.data.kpcn_buffers import write_kpcn_exr
+    from src.data.splits import exr_name
+
+    pixels = int(ds["width"]) * int(ds["height"])
+    scene = sensor = None
+    identity = source.identity()
+    for spp, role in jobs:
+        name = exr_name(source.name, spp)
+        key = render_key(identity, ds, spp, role)
+        if manifest.get(name) == key and (raw_dir / name).exists():
+            totals.skipped += 1
+            continue
+        if scene is None:
+            scene, sensor = load_scene(source, ds)
+        passes = split_passes(spp, pixels, int(ds["max_pass_samples"]))
+        seeds = [pass_seed(int(ds["seed"]), source.name, spp, role, i) for i in range(len(passes))]
+        start = time.perf_counter()
+        buffers = render_buffers(scene, sensor, integrator, spp, seeds, passes)
+        totals.seconds += time.perf_counter() - start
+        totals.samples += pixels * spp
+        write_kpcn_exr(raw_dir / name, buffers)
+        manifest[name] = key
+        atomic_write_json(raw_dir / "manifest.json", manifest)
+        totals.rendered += 1

@@ -38,6 +38,15 @@ from src.report.tables import (
 
 log = logging.getLogger("nrbench.report")
 
+#: The HTML page's heading of each table (by file stem) and of the image grid.
+TABLE_HEADINGS = {
+    "comparison": "Quality",
+    "comparison_per_spp": "Quality per spp",
+    "cost": "Cost",
+    "losses": "Final losses (validation, then training)",
+}
+GRID_HEADING = "Test images (noisy | denoised | reference)"
+
 
 def _crop(cfg: Any) -> tuple[int, int]:
     """Crop size and zoom of the grid: `task.eval`'s when the config has them, else 32 and 4."""
@@ -71,6 +80,28 @@ def build_report(cfg: Any) -> dict[str, Any]:
     columns_by = config_value(rc, "columns_by")
     # What tells the runs apart besides the seed: the compared axes, and the column key (e.g. the scene).
     row_keys = [*axes, *([str(columns_by)] if columns_by else [])]
+    warnings = _confounding_warnings(runs, axes, row_keys)
+    tables = _tables(runs, axes, row_keys, columns_by)
+
+    name = str(config_value(rc, "name", "report"))
+    out_dir = Path(str(config_value(rc, "out_dir", "reports"))).expanduser() / name
+    files = _write_tables(tables, out_dir, warnings)
+    curves, grid = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
+    for path in (curves, grid):
+        if path is not None:
+            files[path.name] = path
+    page = _page(name, runs, axes, tables, {"Learning curves": curves, GRID_HEADING: grid}, warnings)
+    files["index.html"] = atomic_write_text(out_dir / "index.html", page)
+    return {
+        "runs": len(runs),
+        "out_dir": str(out_dir),
+        "files": {k: str(v) for k, v in files.items()},
+        "warnings": warnings,
+    }
+
+
+def _confounding_warnings(runs, axes: list[str], row_keys: list[str]) -> list[str]:
+    """A warning (also logged) when the compared runs differ in more than the compared axes and seed."""
     warnings: list[str] = []
     differing = differing_params(runs, row_keys)
     if differing:
@@ -80,7 +111,11 @@ def build_report(cfg: Any) -> dict[str, Any]:
         )
         log.warning("report: %s", msg)
         warnings.append(msg)
+    return warnings
 
+
+def _tables(runs, axes: list[str], row_keys: list[str], columns_by) -> dict[str, Any]:
+    """{file stem: table}: quality and cost always, quality per spp and losses when the runs logged them."""
     comparison = per_value_table(runs, str(columns_by), axes) if columns_by else comparison_table(runs, axes)
     per_spp = comparison_table(runs, axes, group_by="spp")
     tables = {"comparison": comparison, "cost": cost_table(runs, axes)}
@@ -89,49 +124,46 @@ def build_report(cfg: Any) -> dict[str, Any]:
     losses = loss_table(runs, row_keys)
     if losses.attrs.get("metrics"):
         tables["losses"] = losses
+    return tables
 
-    name = str(config_value(rc, "name", "report"))
-    out_dir = Path(str(config_value(rc, "out_dir", "reports"))).expanduser() / name
+
+def _write_tables(tables: dict[str, Any], out_dir: Path, warnings: list[str]) -> dict[str, Path]:
+    """Each table as `<stem>.md`, `.tex` and `.csv` in `out_dir`, the warnings as notes."""
     files: dict[str, Path] = {}
     for stem, table in tables.items():
         files[f"{stem}.md"] = atomic_write_text(out_dir / f"{stem}.md", to_markdown(table, notes=warnings))
         files[f"{stem}.tex"] = atomic_write_text(out_dir / f"{stem}.tex", to_latex(table, notes=warnings))
         files[f"{stem}.csv"] = atomic_write_text(out_dir / f"{stem}.csv", to_csv(table, notes=warnings))
+    return files
 
+
+def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: list[str], columns_by):
+    """The learning curves and the image grid (of one `columns_by` value); each None when not drawn."""
+    rc = cfg.report
     crop_size, zoom = _crop(cfg)
     curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
     n_images = int(config_value(rc, "images", 3))
     grid_runs = _first_value_only(runs, columns_by)
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
-    for path in (curves, grid):
-        if path is not None:
-            files[path.name] = path
+    return curves, grid
 
+
+def _page(
+    name: str, runs, axes: list[str], tables: dict[str, Any], figures: dict, warnings: list[str]
+) -> str:
+    """The self-contained HTML page: the tables under their headings, the figures, the runs."""
     compared = ", ".join(axis_label(a) for a in axes)
-    headings = {
-        "comparison": "Quality",
-        "comparison_per_spp": "Quality per spp",
-        "cost": "Cost",
-        "losses": "Final losses (validation, then training)",
-    }
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
-    page = render_html(
+    return render_html(
         title=f"nrbench report: {name}",
         subtitle=f"{len(runs)} MLflow runs from {mlflow.get_tracking_uri()}, compared by {compared}; "
         f"generated {stamp}. Values: mean ± std over runs (seeds) per row; best per column in bold.",
-        tables={headings[k]: v for k, v in tables.items()},
-        figures={"Learning curves": curves, "Test images (noisy | denoised | reference)": grid},
+        tables={TABLE_HEADINGS[k]: v for k, v in tables.items()},
+        figures=figures,
         runs=runs,
         labels=run_labels(runs, axes),
         notes=warnings,
     )
-    files["index.html"] = atomic_write_text(out_dir / "index.html", page)
-    return {
-        "runs": len(runs),
-        "out_dir": str(out_dir),
-        "files": {k: str(v) for k, v in files.items()},
-        "warnings": warnings,
-    }
 
 
 def report_line(summary: dict) -> str:

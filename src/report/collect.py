@@ -99,6 +99,17 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
         mlflow.set_tracking_uri(str(uri))
     uri = mlflow.get_tracking_uri()
     names = _as_list(config_value(report_cfg, "experiment"))
+    experiment_ids = _experiment_ids(names, uri)
+    steps = _filter_steps(report_cfg, names, experiment_ids)
+    runs = _matching_runs(experiment_ids, steps, config_value(report_cfg, "filter"), uri)
+    runs = runs.sort_values("start_time", kind="stable") if "start_time" in runs else runs
+    runs = _keep_selected(runs, report_cfg)
+    log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
+    return runs.reset_index(drop=True)
+
+
+def _experiment_ids(names: list[str], uri: str) -> list[str]:
+    """Ids of the experiments `report.experiment` names; an empty list or a missing name is a `DataError`."""
     if not names:
         raise DataError("report.experiment is empty: name the MLflow experiment(s) to report on")
     client = MlflowClient()
@@ -108,32 +119,16 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
         if experiment is None or experiment.lifecycle_stage == "deleted":
             raise DataError(f"report.experiment={name!r}: no such MLflow experiment in {uri}")
         experiment_ids.append(experiment.experiment_id)
+    return experiment_ids
 
-    # (what the user set, MLflow clause or row predicate), applied cumulatively so that an empty result
-    # names its culprit.
+
+def _filter_steps(report_cfg: Any, names: list[str], experiment_ids: list[str]) -> list[tuple[str, Any]]:
+    """(what the user set, MLflow clause or row predicate) per filter of `report_cfg`, applied
+    cumulatively so that an empty result names its culprit."""
     steps: list[tuple[str, Any]] = [
         (f"report.experiment={names if len(names) > 1 else names[0]!r}", "attributes.status = 'FINISHED'")
     ]
-    parent_id = config_value(report_cfg, "parent_run_id")
-    sweep_dir = config_value(report_cfg, "sweep_dir")
-    if parent_id:
-        steps.append(
-            (f"report.parent_run_id={parent_id!r}", f"tags.{MLFLOW_PARENT_RUN_ID} = {_quote(parent_id)}")
-        )
-    elif sweep_dir:
-        parents = _sweep_parent_ids(experiment_ids, str(sweep_dir))
-        if not parents:
-            raise DataError(
-                f"report.sweep_dir={str(sweep_dir)!r}: no sweep parent run with this "
-                f"{SWEEP_DIR_TAG} tag in experiment(s) {names}"
-            )
-        column = f"tags.{MLFLOW_PARENT_RUN_ID}"
-        steps.append(
-            (
-                f"report.sweep_dir={str(sweep_dir)!r}",
-                lambda df: df[column].isin(parents) if column in df else pd.Series(False, index=df.index),
-            )
-        )
+    steps += _sweep_steps(report_cfg, names, experiment_ids)
     group = config_value(report_cfg, "group")
     if group:
         steps.append((f"report.group={group!r}", f"tags.`{GROUP_TAG}` = {_quote(group)}"))
@@ -143,7 +138,37 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     free = config_value(report_cfg, "filter")
     if free:
         steps.append((f"report.filter={str(free)!r}", str(free)))
+    return steps
 
+
+def _sweep_steps(report_cfg: Any, names: list[str], experiment_ids: list[str]) -> list[tuple[str, Any]]:
+    """The step selecting one sweep's children, by `parent_run_id` or else by `sweep_dir`; none if
+    neither is set. A `sweep_dir` without a parent run is a `DataError`."""
+    parent_id = config_value(report_cfg, "parent_run_id")
+    sweep_dir = config_value(report_cfg, "sweep_dir")
+    if parent_id:
+        return [(f"report.parent_run_id={parent_id!r}", f"tags.{MLFLOW_PARENT_RUN_ID} = {_quote(parent_id)}")]
+    if not sweep_dir:
+        return []
+    parents = _sweep_parent_ids(experiment_ids, str(sweep_dir))
+    if not parents:
+        raise DataError(
+            f"report.sweep_dir={str(sweep_dir)!r}: no sweep parent run with this "
+            f"{SWEEP_DIR_TAG} tag in experiment(s) {names}"
+        )
+    column = f"tags.{MLFLOW_PARENT_RUN_ID}"
+    return [
+        (
+            f"report.sweep_dir={str(sweep_dir)!r}",
+            lambda df: df[column].isin(parents) if column in df else pd.Series(False, index=df.index),
+        )
+    ]
+
+
+def _matching_runs(
+    experiment_ids: list[str], steps: list[tuple[str, Any]], free: Any, uri: str
+) -> pd.DataFrame:
+    """The runs every step selects; when none, a `DataError` naming the first step that left no run."""
     try:
         runs = _search(experiment_ids, steps)
     except Exception as err:  # MlflowException for a malformed free filter string
@@ -154,7 +179,11 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
             if _search(experiment_ids, steps[:n]).empty:
                 what = "no FINISHED job runs" if n == 1 else "matched no FINISHED job runs"
                 raise DataError(f"{steps[n - 1][0]}: {what} in {uri}")
-    runs = runs.sort_values("start_time", kind="stable") if "start_time" in runs else runs
+    return runs
+
+
+def _keep_selected(runs: pd.DataFrame, report_cfg: Any) -> pd.DataFrame:
+    """`runs` as `report.keep` says: all of them, or the latest per compared setting (`keep_latest`)."""
     keep = str(config_value(report_cfg, "keep", "all"))
     if keep not in KEEP_CHOICES:
         raise DataError(f"report.keep={keep!r}: expected one of {list(KEEP_CHOICES)}")
@@ -162,8 +191,7 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
         axes = [str(a) for a in config_value(report_cfg, "axes", ["model.name"])]
         columns_by = config_value(report_cfg, "columns_by")
         runs = keep_latest(runs, [*axes, *([str(columns_by)] if columns_by else [])])
-    log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
-    return runs.reset_index(drop=True)
+    return runs
 
 
 def keep_latest(runs: pd.DataFrame, axes: Iterable[str]) -> pd.DataFrame:

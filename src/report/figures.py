@@ -181,6 +181,34 @@ def image_grid(
     rendered view | reference, with a zoomed crop row (around the largest first-vs-last panel error),
     one strip per image stacked vertically. One run per distinct label (the first, e.g. the lowest
     seed). Runs without the `eval/png` artifacts are left out (logged); None when no run has them."""
+    chosen = _runs_with_images(runs, axes)
+    if not chosen:
+        log.info("report: no run has %s artifacts; no image grid", PNG_DIR)
+        return None
+    common = set.intersection(*(set(names) for _, names in chosen.values()))
+    _, first_names = next(iter(chosen.values()))
+    common = {n for n in common if "reference" in first_names[n]}
+    if not common:
+        log.info("report: the runs share no test image with a reference PNG; no image grid")
+        return None
+    strips = []
+    with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
+        for name in _pick(sorted(common), max(int(max_images), 1)):
+            panels = _panels(name, chosen, Path(tmp))
+            if len({p[1].shape for p in panels}) != 1:
+                log.warning("report: %s differs in size across runs; left out of the image grid", name)
+                continue
+            strips.append(comparison_strip(panels, crop_size, zoom))
+    if not strips:
+        return None
+    return write_png(out_png, _stack_strips(strips))
+
+
+def _runs_with_images(
+    runs: pd.DataFrame, axes: Sequence[str] | None
+) -> dict[str, tuple[str, dict[str, set[str]]]]:
+    """{row label without the seed: (run id, {image name: kinds})} of the first run per label that logged
+    output PNGs; the others are left out (logged)."""
     client = MlflowClient()
     labels = run_labels(runs, axes)
     chosen: dict[str, tuple[str, dict[str, set[str]]]] = {}
@@ -195,36 +223,32 @@ def image_grid(
             )
             continue
         chosen[short] = (run_id, names)
-    if not chosen:
-        log.info("report: no run has %s artifacts; no image grid", PNG_DIR)
-        return None
-    common = set.intersection(*(set(names) for _, names in chosen.values()))
+    return chosen
+
+
+def _panels(
+    name: str, chosen: dict[str, tuple[str, dict[str, set[str]]]], tmp: Path
+) -> list[tuple[str, np.ndarray]]:
+    """(label, image) panels of test image `name`: noisy (when the first run logged it), each chosen run's
+    output, then the reference (the first run's)."""
     first_id, first_names = next(iter(chosen.values()))
-    common = {n for n in common if "reference" in first_names[n]}
-    if not common:
-        log.info("report: the runs share no test image with a reference PNG; no image grid")
-        return None
-    strips = []
-    with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
-        for name in _pick(sorted(common), max(int(max_images), 1)):
-            panels = []
-            if "noisy" in first_names[name]:
-                noisy = _load(first_id, f"{name}-noisy.png", Path(tmp) / "n")
-                panels.append((f"noisy {_spp(name)} spp", noisy))
-            for short, (run_id, names) in chosen.items():
-                output = f"{name}-{_output_kind(names[name])}.png"
-                panels.append((short, _load(run_id, output, Path(tmp) / run_id)))
-            panels.append(("reference", _load(first_id, f"{name}-reference.png", Path(tmp) / "r")))
-            if len({p[1].shape for p in panels}) != 1:
-                log.warning("report: %s differs in size across runs; left out of the image grid", name)
-                continue
-            strips.append(comparison_strip(panels, crop_size, zoom))
-    if not strips:
-        return None
+    panels = []
+    if "noisy" in first_names[name]:
+        noisy = _load(first_id, f"{name}-noisy.png", tmp / "n")
+        panels.append((f"noisy {_spp(name)} spp", noisy))
+    for short, (run_id, names) in chosen.items():
+        output = f"{name}-{_output_kind(names[name])}.png"
+        panels.append((short, _load(run_id, output, tmp / run_id)))
+    panels.append(("reference", _load(first_id, f"{name}-reference.png", tmp / "r")))
+    return panels
+
+
+def _stack_strips(strips: list[np.ndarray]) -> np.ndarray:
+    """The strips one above the other, padded to the widest, with separator gaps between them."""
     width = max(s.shape[1] for s in strips)
     gap = np.full((SEPARATOR_PX * 2, width, 3), SEPARATOR_RGB, np.uint8)
     rows = []
     for strip in strips:
         pad = np.full((strip.shape[0], width - strip.shape[1], 3), SEPARATOR_RGB, np.uint8)
         rows += [np.concatenate([strip, pad], axis=1), gap]
-    return write_png(out_png, np.concatenate(rows[:-1], axis=0))
+    return np.concatenate(rows[:-1], axis=0)

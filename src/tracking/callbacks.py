@@ -23,7 +23,8 @@ from omegaconf import DictConfig, OmegaConf
 from src.io.atomic import atomic_write_json
 from src.multirun import PARENT_FILE, read_parent, resolved_section, sweep_dir
 from src.provenance import git_commit
-from src.tracking.mlflow_tracking import DEFAULT_COLUMNS, comparison_table, format_table, setup_tracking
+from src.tracking.comparison import DEFAULT_COLUMNS, comparison_table, format_table
+from src.tracking.experiment import setup_tracking
 
 log = logging.getLogger("nrbench.tracking")
 

@@ -24,7 +24,9 @@ import torch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from src.data.blender import RayBatcher, load_blender_split, rays_for_pixels
+from src.data.blender import load_blender_split
+from src.data.ray_batches import RayBatcher
+from src.data.rays import rays_for_pixels
 from src.train.curves import write_curves
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 from src.train.schedules import log_linear_lr

@@ -1,0 +1,84 @@
+"""Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
+--models dpcn,kpcn,resnet --profile paper]`` and ``python -m src.bench nerf [--models nerf,mipnerf,refnerf
+--profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]``.
+
+The command line: the two subcommands' arguments and their checks; a bad argument, config value or model
+name is one line on stderr and exit status 2. What each subcommand measures: `src.bench.denoise`,
+`src.bench.nerf`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from hydra.errors import HydraException
+
+from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
+from src.bench.nerf import run_nerf
+from src.errors import NrbenchError, one_line
+
+
+def _check_denoise(args: argparse.Namespace) -> str | None:
+    if min(args.width, args.height, args.repeats) < 1 or args.warmup < 0:
+        return "--width, --height and --repeats must be >= 1, --warmup >= 0"
+    return None
+
+
+def _check_nerf(args: argparse.Namespace) -> str | None:
+    if min(args.batch, args.steps, args.render_rays, args.chunk) < 1:
+        return "--batch, --steps, --render-rays and --chunk must be >= 1"
+    return None
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m src.bench", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    d = commands.add_parser("denoise", help="inference time of the learned denoisers, OIDN and conv2d")
+    d.add_argument("--width", type=int, default=1280, help="frame width (default: the KPCN set's 1280)")
+    d.add_argument("--height", type=int, default=720, help="frame height (default 720)")
+    d.add_argument("--repeats", type=int, default=3, help="timed runs per model (median reported)")
+    d.add_argument("--warmup", type=int, default=1, help="untimed runs first (allocator, cuDNN autotune)")
+    d.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda | cuda:N")
+    d.add_argument("--models", default="dpcn,kpcn,resnet", help="comma-separated conf/model names")
+    d.add_argument(
+        "--profile", default="paper", help="profile whose model sizes are used (paper: Bako et al.)"
+    )
+    d.add_argument(
+        "--tile", type=int, default=None, help=f"tile side; 0 = whole frame (default: CPU {CPU_TILE})"
+    )
+    d.add_argument("--autocast", choices=sorted(AUTOCAST_DTYPES), default="none", help="mixed precision")
+    d.add_argument("--oidn", action=argparse.BooleanOptionalAction, default=True, help="also time OIDN")
+    d.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
+    d.set_defaults(run=run_denoise, check=_check_denoise)
+
+    n = commands.add_parser("nerf", help="training and rendering rays/s of NeRF, mip-NeRF and Ref-NeRF")
+    n.add_argument("--models", default="nerf,mipnerf,refnerf", help="comma-separated; the first is the peer")
+    n.add_argument(
+        "--profile", default="cpu", help="cpu (default, as in src.run) | smoke | paper (published sizes: GPU)"
+    )
+    n.add_argument("--batch", type=int, default=1024, help="rays per training step")
+    n.add_argument("--steps", type=int, default=5, help="timed training steps (median; after 1 untimed)")
+    n.add_argument(
+        "--render-rays", type=int, default=4096, help="rays rendered (1 timed pass after 1 untimed)"
+    )
+    n.add_argument("--chunk", type=int, default=4096, help="rays per forward pass when rendering")
+    n.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
+    n.add_argument("--seed", type=int, default=0, help="seed of the random weights, rays and samples")
+    n.set_defaults(run=run_nerf, check=_check_nerf)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    problem = args.check(args)
+    if problem:
+        print(f"bench: {problem}", file=sys.stderr)
+        return 2
+    try:
+        print(args.run(args))
+    except (NrbenchError, HydraException) as err:  # a bad config value or an unknown model name
+        print(f"bench: {one_line(err)}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,21 @@
+"""The `model:` config of a benchmarked method, composed as `python -m src.run` composes it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+CONF_DIR = Path(__file__).resolve().parent.parent.parent / "conf"
+
+
+def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
+    """The `model:` group as `python -m src.run [task=<task>] model=<name> profile=<profile>` composes it
+    (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also sets the NeRF dataset that
+    `model.background` refers to)."""
+    overrides = ([f"task={task}"] if task else []) + [f"model={name}", f"profile={profile}"]
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    return OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[return-value]

@@ -1,0 +1,159 @@
+"""The procedural multi-view scenes as Mitsuba scene dicts: ``materials`` (a grid of spheres, one material
+per row, graded roughness) and ``busy`` (many small textured objects), and the path integrator they use."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from src.errors import ConfigError
+from src.render.multiview_seeds import scene_seed
+from src.render.studio_envmap import envmap_emitter
+
+
+def _material(kind: str, roughness: float, p: Mapping) -> dict:
+    if kind == "conductor":
+        return {"type": "roughconductor", "material": str(p["conductor"]), "alpha": roughness}
+    if kind == "plastic":
+        return {
+            "type": "roughplastic",
+            "alpha": roughness,
+            "diffuse_reflectance": {"type": "rgb", "value": list(p["plastic_color"])},
+        }
+    if kind == "dielectric":
+        return {"type": "roughdielectric", "alpha": roughness, "int_ior": float(p["dielectric_ior"])}
+    raise ConfigError(
+        f"dataset.scene_params.materials.rows: unknown material '{kind}'; expected conductor, plastic or "
+        "dielectric"
+    )
+
+
+def materials_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
+    """A grid of spheres in the z = 0 plane: one material kind per row (``rows``), GGX roughness graded
+    along the columns (``roughness``), under the structured ``env`` map. No ground plane."""
+    rows, alphas = list(p["rows"]), [float(a) for a in p["roughness"]]
+    spacing, radius = float(p["spacing"]), float(p["sphere_radius"])
+    scene: dict = {"type": "scene", "env": envmap_emitter(p["env"])}
+    for r, kind in enumerate(rows):
+        for c, alpha in enumerate(alphas):
+            centre = [(c - (len(alphas) - 1) / 2) * spacing, ((len(rows) - 1) / 2 - r) * spacing, 0.0]
+            _check_inside(ds, "materials", np.linalg.norm(centre) + radius)
+            scene[f"sphere_{r}_{c}"] = {
+                "type": "sphere",
+                "center": centre,
+                "radius": radius,
+                "bsdf": _material(kind, alpha, p),
+            }
+    return scene
+
+
+def _random_rotation(rng: np.random.Generator):
+    import mitsuba as mi
+
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    return mi.ScalarTransform4f().rotate(axis.tolist(), float(rng.uniform(0.0, 360.0)))
+
+
+def _textured_diffuse(rng: np.random.Generator, p: Mapping) -> dict:
+    from src.render.scenes import _color, random_texture
+
+    if rng.random() < float(p["textured_fraction"]):
+        reflectance = random_texture(rng, p)  # checkerboard or value-noise bitmap, 50/50
+    else:
+        reflectance = {"type": "rgb", "value": _color(rng)}
+    return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": reflectance}}
+
+
+def busy_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
+    """``n_objects`` small spheres, boxes and capped cylinders with checkerboard / value-noise diffuse
+    textures, packed inside the ``bound_radius`` ball, lit by a constant ambient environment and a
+    directional light."""
+    import mitsuba as mi
+
+    bound = float(ds["bound_radius"])
+    shapes = list(p["shapes"])
+    unknown = sorted(set(shapes) - {"sphere", "cube", "cylinder"})
+    if unknown:
+        raise ConfigError(
+            f"dataset.scene_params.busy.shapes: unknown {unknown}; expected sphere, cube or cylinder"
+        )
+    scene: dict = {
+        "type": "scene",
+        "ambient": {"type": "constant", "radiance": {"type": "rgb", "value": float(p["ambient"])}},
+        "sun": {
+            "type": "directional",
+            "direction": [float(v) for v in p["sun"]["direction"]],
+            "irradiance": {"type": "rgb", "value": float(p["sun"]["irradiance"])},
+        },
+    }
+    lo, hi = (float(s) for s in p["size"])
+    for k in range(int(p["n_objects"])):
+        shape = str(rng.choice(shapes))
+        size = float(rng.uniform(lo, hi))
+        extent = size * {"sphere": 1.0, "cube": math.sqrt(3.0), "cylinder": math.sqrt(2.0)}[shape]
+        if extent >= bound:
+            raise ConfigError(
+                f"dataset.scene_params.busy.size={[lo, hi]}: an object of extent {extent:.3g} does not "
+                f"fit in dataset.bound_radius={bound}"
+            )
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        centre = direction * (bound - extent) * rng.random() ** (1.0 / 3.0)  # uniform in the ball
+        bsdf = _textured_diffuse(rng, p)
+        base = mi.ScalarTransform4f().translate(centre.tolist()) @ _random_rotation(rng)
+        if shape == "sphere":
+            scene[f"object_{k}"] = {"type": "sphere", "to_world": base.scale(size), "bsdf": bsdf}
+        elif shape == "cube":
+            scene[f"object_{k}"] = {"type": "cube", "to_world": base.scale(size), "bsdf": bsdf}
+        else:  # unit cylinder along z in [0, 1], centred, with disks (normals outwards) as caps
+            body = base.scale([size, size, 2 * size])
+            scene[f"object_{k}"] = {
+                "type": "cylinder",
+                "to_world": body.translate([0.0, 0.0, -0.5]),
+                "bsdf": bsdf,
+            }
+            scene[f"object_{k}_top"] = {"type": "disk", "to_world": body.translate([0, 0, 0.5]), "bsdf": bsdf}
+            scene[f"object_{k}_bottom"] = {
+                "type": "disk",
+                "to_world": body.translate([0, 0, -0.5]).rotate([1, 0, 0], 180.0),
+                "bsdf": bsdf,
+            }
+    return scene
+
+
+#: Procedural multi-view scenes: builder(rng, dataset.scene_params.<name>, dataset) -> Mitsuba scene dict
+#: (no integrator, no sensor). Tests may register extra builders here.
+SCENE_BUILDERS: dict[str, Callable[[np.random.Generator, Mapping, Mapping], dict]] = {
+    "materials": materials_scene,
+    "busy": busy_scene,
+}
+
+
+def _check_inside(ds: Mapping, scene: str, extent: float) -> None:
+    bound = float(ds["bound_radius"])
+    if extent > bound + 1e-9:
+        raise ConfigError(
+            f"dataset.scene_params.{scene}: objects reach {extent:.3g} from the origin; expected at most "
+            f"dataset.bound_radius={bound}"
+        )
+
+
+def build_scene(name: str, ds: Mapping) -> dict:
+    """The Mitsuba scene dict of procedural scene ``name`` (content seeded by dataset seed and name),
+    with the path integrator (emitters hidden from camera rays: alpha 0 where rays miss geometry)."""
+    if name not in SCENE_BUILDERS:
+        raise ConfigError(f"dataset.scenes: unknown scene '{name}'; expected one of {sorted(SCENE_BUILDERS)}")
+    params = (ds.get("scene_params") or {}).get(name)
+    if params is None:
+        raise ConfigError(f"dataset.scene_params.{name} is missing; scene '{name}' needs its parameters")
+    scene = SCENE_BUILDERS[name](np.random.default_rng(scene_seed(int(ds["seed"]), name)), params, ds)
+    scene["integrator"] = {
+        "type": "path",
+        "max_depth": int(ds["max_depth"]),
+        "rr_depth": int(ds["rr_depth"]),
+        "hide_emitters": True,
+    }
+    return scene
