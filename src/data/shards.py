@@ -154,6 +154,55 @@ def _write_indices(out_dir: Path, indices: Mapping[tuple[str, str], list], patch
         atomic_write_json(out_dir / kind / split / INDEX_NAME, index)
 
 
+class _ShardWriter:
+    """Writes each noisy image's patch shard (train, val) and full image (val, test), collecting the
+    index entries and the whitening moments of the train patches; `finish` writes what lists them."""
+
+    def __init__(self, out_dir: Path, sampling: Mapping[str, Any]) -> None:
+        self.out_dir, self.sampling = out_dir, sampling
+        self.moments = {"diffuse_in": RunningMoments(), "specular_in": RunningMoments()}
+        self.indices: dict[tuple[str, str], list[dict[str, Any]]] = {
+            (kind, s): []
+            for kind, ss in (("patches", ("train", "val")), ("full", ("val", "test")))
+            for s in ss
+        }
+
+    def add(self, split: str, entry: dict[str, Any], image: dict, noisy: Mapping) -> None:
+        if split in ("train", "val"):
+            rng = _image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
+            patches, corners = _patches(image, noisy, rng, self.sampling)
+            if split == "train":
+                for k, m in self.moments.items():
+                    m.update(patches[k])
+            shard = {k: _channels_first(v) for k, v in patches.items()}
+            shard["corners"] = torch.from_numpy(corners)
+            save_tensors(self.out_dir / "patches" / split / entry["file"], shard)
+            self.indices["patches", split].append({**entry, "n_patches": len(corners)})
+        if split in ("val", "test"):
+            full = {k: _channels_first(v) for k, v in image.items()}
+            save_tensors(self.out_dir / "full" / split / entry["file"], full)
+            h, w = image["color"].shape[:2]
+            self.indices["full", split].append({**entry, "height": h, "width": w})
+
+    def finish(self, raw_dir, splits: Mapping[str, list[str]], n_images: int) -> dict[str, Any]:
+        """Indices (after all their shards), whitening statistics, splits and the summary it returns."""
+        out_dir, indices = self.out_dir, self.indices
+        _write_indices(out_dir, indices, self.sampling["patch_size"])
+        stats = {k: m.finalize(self.sampling["whiten_eps"]) for k, m in self.moments.items()}
+        save_whitening_stats(out_dir / "whitening.json", stats)
+        atomic_write_json(out_dir / "splits.json", splits)
+        summary = {
+            "raw_dir": str(raw_dir),
+            "splits": {s: len(splits[s]) for s in SPLITS},
+            "noisy_images": n_images,
+            "patches": {s: sum(e["n_patches"] for e in indices["patches", s]) for s in ("train", "val")},
+            "full_images": {s: len(indices["full", s]) for s in ("val", "test")},
+            "settings": dict(self.sampling),
+        }
+        atomic_write_json(out_dir / "summary.json", summary)
+        return summary
+
+
 def preprocess_dataset(
     raw_dir: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -198,10 +247,7 @@ def preprocess_dataset(
     out_dir = Path(out_dir)
     groups = group_dataset(raw_dir)
     splits = split_scenes(groups, split_fractions, split_seed)
-    moments = {"diffuse_in": RunningMoments(), "specular_in": RunningMoments()}
-    indices: dict[tuple[str, str], list[dict[str, Any]]] = {
-        (kind, s): [] for kind, ss in (("patches", ("train", "val")), ("full", ("val", "test"))) for s in ss
-    }
+    writer = _ShardWriter(out_dir, settings)
     n_images = sum(len(groups[sc]) - 1 for sc in groups)
     bar = tqdm(total=n_images, desc="preprocess", unit="img", disable=not progress)
     for split in SPLITS:
@@ -212,35 +258,7 @@ def preprocess_dataset(
                 noisy = load_fn(groups[scene][spp])
                 image = _image_arrays(noisy, ref, groups[scene][spp], groups[scene][ref_spp], eps)
                 entry = {"file": shard_name(scene, spp), "scene": scene, "spp": spp, "reference_spp": ref_spp}
-                if split in ("train", "val"):
-                    patches, corners = _patches(image, noisy, _image_rng(sample_seed, scene, spp), settings)
-                    if split == "train":
-                        for k, m in moments.items():
-                            m.update(patches[k])
-                    shard = {k: _channels_first(v) for k, v in patches.items()}
-                    shard["corners"] = torch.from_numpy(corners)
-                    save_tensors(out_dir / "patches" / split / entry["file"], shard)
-                    indices["patches", split].append({**entry, "n_patches": len(corners)})
-                if split in ("val", "test"):
-                    save_tensors(
-                        out_dir / "full" / split / entry["file"],
-                        {k: _channels_first(v) for k, v in image.items()},
-                    )
-                    h, w = image["color"].shape[:2]
-                    indices["full", split].append({**entry, "height": h, "width": w})
+                writer.add(split, entry, image, noisy)
                 bar.update(1)
     bar.close()
-
-    _write_indices(out_dir, indices, patch_size)
-    save_whitening_stats(out_dir / "whitening.json", {k: m.finalize(whiten_eps) for k, m in moments.items()})
-    atomic_write_json(out_dir / "splits.json", splits)
-    summary = {
-        "raw_dir": str(raw_dir),
-        "splits": {s: len(splits[s]) for s in SPLITS},
-        "noisy_images": n_images,
-        "patches": {s: sum(e["n_patches"] for e in indices["patches", s]) for s in ("train", "val")},
-        "full_images": {s: len(indices["full", s]) for s in ("val", "test")},
-        "settings": settings,
-    }
-    atomic_write_json(out_dir / "summary.json", summary)
-    return summary
+    return writer.finish(raw_dir, splits, n_images)
