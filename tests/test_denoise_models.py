@@ -13,8 +13,9 @@ from src.errors import ConfigError, DataError
 from src.models.denoise.kernels import apply_kernel
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
-from src.models.denoise.summary import count_parameters, flops_per_pixel, model_summary, random_batch
+from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
 from src.models.instantiate import build_method
+from src.models.parameters import count_parameters
 from tests.conftest import assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
 C_IN = len(PAPER_CHANNELS)

@@ -9,12 +9,12 @@ import torch
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError
-from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
 from src.models.nerf.fields import RefNerfMLP
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import RefNeRF
 from src.models.nerf.summary import nerf_mlp_flops_per_ray, nerf_model_summary
+from src.models.parameters import count_parameters
 from tests.conftest import assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
 NAMES = ("nerf", "mipnerf", "refnerf")

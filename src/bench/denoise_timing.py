@@ -13,8 +13,9 @@ from src.bench.model_configs import load_model_config
 from src.errors import one_line
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
-from src.models.denoise.summary import count_parameters, flops_per_pixel
+from src.models.denoise.summary import flops_per_pixel
 from src.models.instantiate import build_method
+from src.models.parameters import count_parameters
 
 
 @dataclass

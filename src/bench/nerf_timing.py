@@ -12,11 +12,11 @@ import torch
 
 from src.bench.timing import time_runs
 from src.data.rays import focal_from_fov, generate_rays
-from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase, RefNeRF
 from src.models.nerf.summary import nerf_mlp_flops_per_ray
+from src.models.parameters import count_parameters
 from src.render.multiview_cameras import look_at_c2w, sphere_position
 
 #: The `nerf` rays: one camera at this distance from the origin, looking at it (the Blender scenes' setup:

@@ -21,8 +21,8 @@ from tqdm import tqdm
 from src.eval.common import mean_rows, sync
 from src.io.atomic import atomic_write_csv, atomic_write_json
 from src.metrics.image import lpips_variant
-from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
+from src.models.parameters import count_parameters
 from src.provenance import provenance
 from src.train.checkpoint import load_weights
 from src.train.device import pick_device

@@ -22,8 +22,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from src.models.denoise.summary import count_parameters
 from src.models.instantiate import build_method
+from src.models.parameters import count_parameters
 from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,

@@ -20,6 +20,7 @@ from src.data.features import PAPER_CHANNELS
 from src.data.shards import SHARD_CHANNELS
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import BRANCHES, TwoBranchDenoiser
+from src.models.parameters import count_parameters
 
 #: FLOPs of the softmax per kernel tap (subtract the max, exp, add to the normaliser).
 SOFTMAX_FLOPS_PER_TAP = 3
@@ -50,11 +51,6 @@ def random_batch(
         batch[f"{branch}_t"] = rand(len(SHARD_CHANNELS[f"{branch}_target"]))
     batch["normal"] = rand(len(SHARD_CHANNELS["normal"]), -1.0, 1.0)
     return batch
-
-
-def count_parameters(model: nn.Module) -> int:
-    """Number of trainable scalars; a module shared by two branches is counted once."""
-    return sum(p.numel() for p in model.parameters())  # parameters() already removes duplicates
 
 
 def _conv_macs(model: nn.Module, run) -> int:

@@ -8,9 +8,9 @@ from typing import Any
 
 from torch import nn
 
-from src.models.denoise.summary import count_parameters
 from src.models.instantiate import model_dict
 from src.models.nerf.models import LEVELS, NerfModelBase, RefNeRF
+from src.models.parameters import count_parameters
 
 
 def mlp_flops_per_sample(mlp: nn.Module) -> int:
