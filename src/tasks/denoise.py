@@ -12,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from src.data.features import CANDIDATE_CHANNELS
 from src.io.atomic import atomic_directory
 from src.provenance import data_fingerprint, write_summary
+from src.tasks.base import Task
 
 PREPROCESS_PROVENANCE = "preprocess_provenance.json"
 
@@ -32,7 +33,7 @@ def _cached_preprocess(out: Path, key: str) -> dict | None:
     return record["summary"] if record.get("cache_key") == key else None
 
 
-class DenoiseTask:
+class DenoiseTask(Task):
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data the runs' `nrbench.data_fingerprint` tag identifies: the raw EXRs."""
         return Path(cfg.paths.raw)

@@ -8,9 +8,10 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.provenance import write_summary
+from src.tasks.base import Task
 
 
-class NerfTask:
+class NerfTask(Task):
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data the runs' `nrbench.data_fingerprint` tag identifies: this job's scene."""
         from src.train.nerf_trainer import scene_dir

@@ -1,0 +1,39 @@
+"""What a task is: the object `task._target_` names, which says what each stage means for it (see
+`src/stages.py`, which calls these methods and has no task-name branches). A new task subclasses `Task`,
+implements the stages its `task.stages` list names, and ships a `conf/task/<name>.yaml`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+
+class Task:
+    """One task (denoising, radiance fields, ...). Each method gets the resolved run config; `train` and
+    `evaluate` also get the MLflow tracker of the job's run. Every method returns the stage's summary."""
+
+    def data_dir(self, cfg: DictConfig) -> Path:
+        """The data a run's `nrbench.data_fingerprint` tag identifies."""
+        raise NotImplementedError
+
+    def render(self, cfg: DictConfig) -> dict[str, Any]:
+        """Produce (or locate) the task's dataset."""
+        raise NotImplementedError
+
+    def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
+        """Turn the rendered data into what training reads; only tasks listing the stage implement it."""
+        raise NotImplementedError
+
+    def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
+        """Fit `cfg.model`; the summary holds at least `checkpoint`, `steps` and `train_time_s`."""
+        raise NotImplementedError
+
+    def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
+        """Score the model on the held-out data (`src/eval/loop.py::Evaluation` does the loop)."""
+        raise NotImplementedError
+
+    def model_summary(self, model, model_cfg: dict) -> str:
+        """The text of `stage=summary`: architecture, parameters, cost."""
+        raise NotImplementedError
