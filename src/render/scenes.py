@@ -164,7 +164,7 @@ def cornell(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
 def sky_envmap(rng: np.random.Generator, rnd: Mapping) -> np.ndarray:
     """A latitude-longitude HDR sky: horizon-to-zenith gradient plus a bright sun disc."""
     h = int(rnd["env_res"])
-    w = 2 * h
+    w = 2 * h  # latitude-longitude layout: 360 degrees of azimuth over 180 of polar angle
     theta = (np.arange(h) + 0.5) / h * np.pi  # polar angle from +Y
     phi = (np.arange(w) + 0.5) / w * 2 * np.pi
     t = np.clip(np.cos(theta), 0, 1)[:, None, None]
@@ -173,6 +173,7 @@ def sky_envmap(rng: np.random.Generator, rnd: Mapping) -> np.ndarray:
     sky = np.where(np.cos(theta)[:, None, None] > 0, horizon * (1 - t) + zenith * t, ground)
     sky = np.broadcast_to(sky, (h, w, 3)).copy()
     sun_theta = np.radians(_uniform(rng, rnd["sun_elevation"]))
+    # The sun sits at azimuth 0 of the map; `env_rotation` turns the whole sky, so its azimuth varies there.
     sun_dir = np.array([np.sin(sun_theta), np.cos(sun_theta), 0.0])
     dirs = np.stack(
         [
