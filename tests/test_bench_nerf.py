@@ -91,3 +91,28 @@ def test_nerf_bench_unknown_model_is_a_one_line_error_before_any_timing(capsys, 
     with pytest.raises(ConfigError) as err:
         nerf_model_configs(f"nerf,{bad}", "smoke")
     one_line_error(err, bad, "--models", "mipnerf")
+
+
+def test_benchmark_camera_is_read_from_the_nerf_dataset_config():
+    """The rays' camera is the NeRF dataset's first test pose (radius, test circle, field of view, near/far
+    from conf/dataset/nerf_procedural.yaml), so a change there moves the benchmark rays."""
+    import math
+
+    import torch
+
+    from src.bench.model_configs import load_dataset_config
+    from src.bench.nerf_timing import BenchCamera, benchmark_rays
+
+    ds = load_dataset_config("nerf", "smoke")
+    camera = BenchCamera.from_dataset(ds)
+    assert camera == BenchCamera(4.0, 30.0, 0.0, 0.6911112070083618, 2.0, 6.0)  # the Blender scenes' setup
+
+    def rays(cam):
+        return benchmark_rays(16, torch.Generator().manual_seed(0), torch.device("cpu"), False, cam)
+
+    base, farther = rays(camera), rays(BenchCamera.from_dataset({**ds, "radius": 5.0, "far": 7.0}))
+    assert torch.norm(base["origins"][0]).item() == pytest.approx(4.0)
+    assert torch.norm(farther["origins"][0]).item() == pytest.approx(5.0)
+    assert farther["far"][0].item() == 7.0 and base["far"][0].item() == 6.0
+    elevation = math.degrees(math.asin(base["origins"][0, 2].item() / 4.0))
+    assert elevation == pytest.approx(30.0)

@@ -12,6 +12,7 @@ from src.render.render_dataset import (
     pass_seed,
     render_buffers,
     render_denoise_dataset,
+    render_key,
     scene_sources,
     split_passes,
 )
@@ -32,6 +33,17 @@ def render(ds, source, spp, role="noisy", max_pass=1 << 24):
     passes = split_passes(spp, ds["width"] * ds["height"], max_pass)
     seeds = [pass_seed(ds["seed"], source.name, spp, role, i) for i in range(len(passes))]
     return render_buffers(scene, sensor, integrator, spp, seeds, passes)
+
+
+def test_render_key_tracks_each_base_scenes_constants(ds):
+    """A change in `dataset.base_scenes.<base>` re-renders that base only; user scene files ignore it."""
+    tabletop, outdoor = {"base": "tabletop", "seed": 1}, {"base": "outdoor", "seed": 1}
+    bases = {**ds["base_scenes"], "tabletop": {**ds["base_scenes"]["tabletop"], "sky_scale": 0.5}}
+    changed = {**ds, "base_scenes": bases}
+    assert render_key(tabletop, changed, 4, "noisy") != render_key(tabletop, ds, 4, "noisy")
+    assert render_key(outdoor, changed, 4, "noisy") == render_key(outdoor, ds, 4, "noisy")
+    user = {"file": "a.xml", "sha256": "0"}
+    assert render_key(user, changed, 4, "noisy") == render_key(user, ds, 4, "noisy")
 
 
 def test_variance_of_mean_matches_brute_force():

@@ -284,3 +284,22 @@ def test_no_matching_runs_is_one_line_error_and_writes_nothing(store, tmp_path, 
         build_report(_cfg(store, tmp_path / "reports", **{key: value}))
     one_line_error(excinfo, needle)
     assert not (tmp_path / "reports").exists()
+
+
+def test_grid_crop_comes_from_task_eval_else_the_named_default():
+    """`task.eval.crop_size/crop_zoom` when set (denoise), `DEFAULT_CROP` when the task has none (nerf); a
+    value that is not an integer is an error, not silently replaced by the default."""
+    from src.report.build import _crop
+    from src.report.figures import DEFAULT_CROP
+
+    assert _crop(compose_config(["profile=smoke"])) == (8, 4)  # conf/task_profile/denoise_smoke.yaml
+    assert _crop(compose_config(["task=nerf", "profile=smoke"])) == DEFAULT_CROP == (32, 4)
+    assert _crop(OmegaConf.create({"report": {}})) == DEFAULT_CROP
+    with pytest.raises(ValueError):
+        _crop(OmegaConf.create({"task": {"eval": {"crop_size": "big", "crop_zoom": 4}}}))
+
+
+def test_a_table_without_its_metric_specs_is_an_error_not_a_table_without_metrics():
+    table = pd.DataFrame({"PSNR": [30.0], "runs": [1]}, index=pd.Index(["kpcn"], name="model"))
+    with pytest.raises(ValueError, match="attrs"):
+        to_markdown(table)

@@ -1,4 +1,4 @@
-"""The `model:` config of a benchmarked method, composed as `python -m src.run` composes it."""
+"""The `model:` (and `dataset:`) config of a benchmark, composed as `python -m src.run` composes it."""
 
 from __future__ import annotations
 
@@ -11,11 +11,21 @@ from omegaconf import OmegaConf
 CONF_DIR = Path(__file__).resolve().parent.parent.parent / "conf"
 
 
+def _compose(overrides: list[str], group: str) -> dict[str, Any]:
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose("config", overrides=overrides)
+    return OmegaConf.to_container(cfg[group], resolve=True)  # type: ignore[return-value]
+
+
 def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
     """The `model:` group as `python -m src.run [task=<task>] model=<name> profile=<profile>` composes it
     (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also sets the NeRF dataset that
     `model.background` refers to)."""
     overrides = ([f"task={task}"] if task else []) + [f"model={name}", f"profile={profile}"]
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose("config", overrides=overrides)
-    return OmegaConf.to_container(cfg.model, resolve=True)  # type: ignore[return-value]
+    return _compose(overrides, "model")
+
+
+def load_dataset_config(task: str, profile: str) -> dict[str, Any]:
+    """The `dataset:` group as `python -m src.run task=<task> profile=<profile>` composes it (the task's
+    default dataset, with its task profile's overrides)."""
+    return _compose([f"task={task}", f"profile={profile}"], "dataset")

@@ -6,7 +6,8 @@ ones, so that a load spike on a shared machine does not decide it), rendering
 rays/s (`render_rays_chunked` on `--render-rays` rays; one untimed warm-up pass, then one timed pass),
 each model's time per ray relative to the first model's (measured in the same run) and the achieved
 GFLOP/s (a training step counted as 3 x the forward FLOPs, rendering as 1 x). The rays are those of
-one camera on a sphere of radius 4 looking at the origin, on [2, 6] (the Blender scenes' setting).
+one camera on a sphere of radius 4 looking at the origin, on [2, 6] (the Blender scenes' setting): the
+first test pose of `task=nerf profile=<profile>`'s dataset (`BenchCamera.from_dataset`).
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ from typing import Any
 import torch
 from omegaconf import OmegaConf
 
-from src.bench.model_configs import CONF_DIR, load_model_config
+from src.bench.model_configs import CONF_DIR, load_dataset_config, load_model_config
 from src.bench.nerf_table import format_nerf_table, nerf_footnotes
-from src.bench.nerf_timing import bench_nerf_model, benchmark_rays
+from src.bench.nerf_timing import BenchCamera, bench_nerf_model, benchmark_rays
 from src.bench.timing import device_name
 from src.errors import ConfigError
 from src.train.device import pick_device, seed_everything
@@ -65,11 +66,12 @@ def run_nerf(args: argparse.Namespace) -> str:
     """All measurements of `nerf`; returns the printed report (progress goes to stderr)."""
     device = pick_device(args.device)
     configs = nerf_model_configs(args.models, args.profile)
+    camera = BenchCamera.from_dataset(load_dataset_config("nerf", args.profile))
     seed_everything(args.seed)
     generator = torch.Generator().manual_seed(args.seed)
-    train_rays = benchmark_rays(args.batch, generator, device, shuffle=True)
+    train_rays = benchmark_rays(args.batch, generator, device, shuffle=True, camera=camera)
     target = torch.rand(args.batch, 3, generator=generator).to(device)
-    render_rays = benchmark_rays(args.render_rays, generator, device, shuffle=False)
+    render_rays = benchmark_rays(args.render_rays, generator, device, shuffle=False, camera=camera)
     rows = []
     for i, (name, cfg) in enumerate(configs.items(), start=1):
         print(f"[{i}/{len(configs)}] {name}: training, then rendering ...", file=sys.stderr, flush=True)

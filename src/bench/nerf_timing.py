@@ -19,10 +19,31 @@ from src.models.nerf.summary import nerf_mlp_flops_per_ray
 from src.models.parameters import count_parameters
 from src.render.multiview_cameras import look_at_c2w, sphere_position
 
-#: The `nerf` rays: one camera at this distance from the origin, looking at it (the Blender scenes' setup:
-#: conf/dataset/nerf_procedural.yaml radius, elevation of its test circle, field of view, near and far).
-NERF_CAMERA = {"radius": 4.0, "elevation_deg": 30.0, "azimuth_deg": 0.0, "camera_angle_x": 0.6911112070083618}
-NERF_NEAR, NERF_FAR = 2.0, 6.0
+
+@dataclass(frozen=True)
+class BenchCamera:
+    """The camera of the `nerf` benchmark rays: at ``radius`` from the origin, looking at it, at the first
+    pose of the NeRF dataset's test circle, with the dataset's field of view and ray interval."""
+
+    radius: float
+    elevation_deg: float
+    azimuth_deg: float
+    camera_angle_x: float  # horizontal field of view, radians
+    near: float
+    far: float
+
+    @classmethod
+    def from_dataset(cls, ds: Mapping[str, Any]) -> BenchCamera:
+        """From a NeRF dataset config (conf/dataset/nerf_procedural.yaml: ``radius``, ``test_elevation_deg``,
+        ``test_azimuth_start_deg``, ``camera_angle_x``, ``near``, ``far``)."""
+        return cls(
+            float(ds["radius"]),
+            float(ds["test_elevation_deg"]),
+            float(ds["test_azimuth_start_deg"]),
+            float(ds["camera_angle_x"]),
+            float(ds["near"]),
+            float(ds["far"]),
+        )
 
 
 @dataclass
@@ -48,17 +69,17 @@ class NerfRow:
 
 
 def benchmark_rays(
-    n: int, generator: torch.Generator, device: torch.device, shuffle: bool
+    n: int, generator: torch.Generator, device: torch.device, shuffle: bool, camera: BenchCamera
 ) -> dict[str, torch.Tensor]:
-    """`n` rays (`RAY_KEYS`) of one camera on a sphere of radius 4 looking at the origin, near 2, far 6:
+    """`n` rays (`RAY_KEYS`) of `camera` (by default radius 4 looking at the origin, near 2, far 6):
     the pixels of a square image just large enough, in image order or (`shuffle`) a random subset."""
     side = max(2, math.isqrt(n - 1) + 1)  # side * side >= n
-    cam = NERF_CAMERA
     position = sphere_position(
-        cam["radius"], math.radians(cam["elevation_deg"]), math.radians(cam["azimuth_deg"])
+        camera.radius, math.radians(camera.elevation_deg), math.radians(camera.azimuth_deg)
     )
     c2w = look_at_c2w(position)
-    rays = generate_rays(c2w, focal_from_fov(cam["camera_angle_x"], side), side, side, NERF_NEAR, NERF_FAR)
+    focal = focal_from_fov(camera.camera_angle_x, side)
+    rays = generate_rays(c2w, focal, side, side, camera.near, camera.far)
     pick = torch.randperm(side * side, generator=generator)[:n] if shuffle else torch.arange(n)
     return {key: value[pick].to(device) for key, value in rays.items()}
 

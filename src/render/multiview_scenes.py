@@ -12,6 +12,10 @@ from src.errors import ConfigError
 from src.render.multiview_seeds import scene_seed
 from src.render.studio_envmap import envmap_emitter
 
+#: Distance from a busy object's centre to its farthest point, per unit ``size`` (geometry, not a parameter):
+#: sphere radius 1, cube half-edge 1 (half-diagonal sqrt 3), cylinder radius 1 and half-length 1 (sqrt 2).
+BOUNDING_RADIUS = {"sphere": 1.0, "cube": math.sqrt(3.0), "cylinder": math.sqrt(2.0)}
+
 
 def _material(kind: str, roughness: float, p: Mapping) -> dict:
     if kind == "conductor":
@@ -50,6 +54,8 @@ def materials_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
 
 
 def _random_rotation(rng: np.random.Generator):
+    """A rotation by an angle uniform in the full turn [0, 360) degrees about a uniformly random axis
+    (the bounds are the whole circle, not a parameter)."""
     import mitsuba as mi
 
     axis = rng.normal(size=3)
@@ -61,9 +67,9 @@ def _textured_diffuse(rng: np.random.Generator, p: Mapping) -> dict:
     from src.render.scenes import _color, random_texture
 
     if rng.random() < float(p["textured_fraction"]):
-        reflectance = random_texture(rng, p)  # checkerboard or value-noise bitmap, 50/50
+        reflectance = random_texture(rng, p)  # checkerboard or value-noise bitmap (checker_probability)
     else:
-        reflectance = {"type": "rgb", "value": _color(rng)}
+        reflectance = {"type": "rgb", "value": _color(rng, p["color"])}
     return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": reflectance}}
 
 
@@ -93,7 +99,7 @@ def busy_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
     for k in range(int(p["n_objects"])):
         shape = str(rng.choice(shapes))
         size = float(rng.uniform(lo, hi))
-        extent = size * {"sphere": 1.0, "cube": math.sqrt(3.0), "cylinder": math.sqrt(2.0)}[shape]
+        extent = size * BOUNDING_RADIUS[shape]
         if extent >= bound:
             raise ConfigError(
                 f"dataset.scene_params.busy.size={[lo, hi]}: an object of extent {extent:.3g} does not "

@@ -89,7 +89,7 @@ def load_scene(source: SceneSource, ds: Mapping):
         if source.path is not None:
             scene = mi.load_file(str(source.path))
         else:
-            scene = mi.load_dict(build_procedural_scene(source.base, source.seed, ds["randomize"]))
+            scene = mi.load_dict(build_procedural_scene(source.base, source.seed, ds))
     except RuntimeError as err:
         first_line = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise DataError(
@@ -147,12 +147,14 @@ def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes
 def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str) -> str:
     """Hash of everything that determines one output file, to skip renders whose output is current.
 
-    ``scene_identity`` is ``SceneSource.identity()``; procedural scenes also depend on ``randomize``.
+    ``scene_identity`` is ``SceneSource.identity()``; procedural scenes also depend on ``randomize`` and
+    on their base scene's ``base_scenes.<base>`` constants.
     """
     keyed = {k: ds[k] for k in ("width", "height", "seed", "integrator", "max_pass_samples")}
     payload = {"scene": scene_identity, "spp": spp, "role": role, **keyed}
     if "base" in scene_identity:
         payload["randomize"] = ds["randomize"]
+        payload["base_scene"] = (ds.get("base_scenes") or {}).get(scene_identity["base"])
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 

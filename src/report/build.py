@@ -22,8 +22,8 @@ import mlflow
 
 from src.io.atomic import atomic_write_text
 from src.multirun import quiet_mlflow_logs
-from src.report.collect import config_value, differing_params, find_runs, param_column
-from src.report.figures import image_grid, learning_curves, run_labels
+from src.report.collect import DEFAULT_AXES, config_value, differing_params, find_runs, param_column
+from src.report.figures import DEFAULT_CROP, image_grid, learning_curves, run_labels
 from src.report.html import render_html
 from src.report.tables import (
     axis_label,
@@ -48,13 +48,22 @@ TABLE_HEADINGS = {
 GRID_HEADING = "Test images (noisy | denoised | reference)"
 
 
+#: Defaults of optional `report:` keys for a config that lacks them (a hand-built one, e.g. in the tests);
+#: conf/config.yaml sets every key (`name` is the task's name there).
+DEFAULT_REPORT_NAME = "report"
+DEFAULT_OUT_DIR = "reports"
+DEFAULT_IMAGES = 3
+
+
 def _crop(cfg: Any) -> tuple[int, int]:
-    """Crop size and zoom of the grid: `task.eval`'s when the config has them, else 32 and 4."""
-    try:
-        e = cfg.task.eval
-        return int(e.crop_size), int(e.crop_zoom)
-    except Exception:
-        return 32, 4
+    """Crop size and zoom of the grid: `task.eval.crop_size` / `crop_zoom` when the config has both, else
+    `DEFAULT_CROP` (logged). A value that is not an integer is an error, not a silent default."""
+    e = config_value(config_value(cfg, "task"), "eval")
+    size, zoom = config_value(e, "crop_size"), config_value(e, "crop_zoom")
+    if size is None or zoom is None:
+        log.info("report: no task.eval.crop_size/crop_zoom; the image grid crops %d px at x%d", *DEFAULT_CROP)
+        return DEFAULT_CROP
+    return int(size), int(zoom)
 
 
 def _first_value_only(runs, columns_by: str | None):
@@ -76,15 +85,15 @@ def build_report(cfg: Any) -> dict[str, Any]:
         mlflow.set_tracking_uri(str(tracking.uri))
     runs = find_runs(rc)  # raises DataError before anything is written
 
-    axes = [str(a) for a in (config_value(rc, "axes") or ["model.name"])]
+    axes = [str(a) for a in (config_value(rc, "axes") or DEFAULT_AXES)]
     columns_by = config_value(rc, "columns_by")
     # What tells the runs apart besides the seed: the compared axes, and the column key (e.g. the scene).
     row_keys = [*axes, *([str(columns_by)] if columns_by else [])]
     warnings = _confounding_warnings(runs, axes, row_keys)
     tables = _tables(runs, axes, row_keys, columns_by)
 
-    name = str(config_value(rc, "name", "report"))
-    out_dir = Path(str(config_value(rc, "out_dir", "reports"))).expanduser() / name
+    name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
+    out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name
     files = _write_tables(tables, out_dir, warnings)
     curves, grid = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
     for path in (curves, grid):
@@ -142,7 +151,7 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
     rc = cfg.report
     crop_size, zoom = _crop(cfg)
     curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
-    n_images = int(config_value(rc, "images", 3))
+    n_images = int(config_value(rc, "images", DEFAULT_IMAGES))
     grid_runs = _first_value_only(runs, columns_by)
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
     return curves, grid

@@ -27,6 +27,14 @@ SWEEP_PARENT_TAG = "nrbench.sweep_parent"
 SWEEP_DIR_TAG = "nrbench.sweep_dir"
 GROUP_TAG = "nrbench.group"
 KEEP_CHOICES = ("latest", "all")
+#: Defaults of optional `report:` keys for a config that lacks them (a hand-built one: tests, a notebook,
+#: `find_runs` on its own). conf/config.yaml sets every key, so `python -m src.run stage=report` never uses
+#: these: absent `axes` compare models; absent `keep` keeps every run (nothing is dropped unasked).
+DEFAULT_AXES = ("model.name",)
+DEFAULT_KEEP = "all"
+#: How a run that lacks a param compares: as this value, so runs with and without the param differ (and
+#: two runs that both lack it match) instead of the missing value being dropped or equal to anything.
+UNSET = "<unset>"
 
 
 def config_value(cfg: Any, key: str, default: Any = None) -> Any:
@@ -132,7 +140,7 @@ def _filter_steps(report_cfg: Any, names: list[str], experiment_ids: list[str]) 
     group = config_value(report_cfg, "group")
     if group:
         steps.append((f"report.group={group!r}", f"tags.`{GROUP_TAG}` = {_quote(group)}"))
-    tags: Mapping[str, Any] = config_value(report_cfg, "tags", {}) or {}
+    tags: Mapping[str, Any] = config_value(report_cfg, "tags", {}) or {}  # no tags: no tag filter
     for key, value in tags.items():
         steps.append((f"report.tags.{key}={value!r}", f"tags.`{key}` = {_quote(value)}"))
     free = config_value(report_cfg, "filter")
@@ -184,11 +192,11 @@ def _matching_runs(
 
 def _keep_selected(runs: pd.DataFrame, report_cfg: Any) -> pd.DataFrame:
     """`runs` as `report.keep` says: all of them, or the latest per compared setting (`keep_latest`)."""
-    keep = str(config_value(report_cfg, "keep", "all"))
+    keep = str(config_value(report_cfg, "keep", DEFAULT_KEEP))
     if keep not in KEEP_CHOICES:
         raise DataError(f"report.keep={keep!r}: expected one of {list(KEEP_CHOICES)}")
     if keep == "latest":
-        axes = [str(a) for a in config_value(report_cfg, "axes", ["model.name"])]
+        axes = [str(a) for a in config_value(report_cfg, "axes", DEFAULT_AXES)]
         columns_by = config_value(report_cfg, "columns_by")
         runs = keep_latest(runs, [*axes, *([str(columns_by)] if columns_by else [])])
     return runs
@@ -198,8 +206,9 @@ def keep_latest(runs: pd.DataFrame, axes: Iterable[str]) -> pd.DataFrame:
     """The newest run (by start time; `runs` is sorted oldest first) per compared setting and seed: a
     stage rerun after a change replaces its older self instead of being averaged with it as a "seed"."""
     columns = [param_column(a) for a in [*axes, "seed"]]
+    # A param no run logged is a column of None (`runs.get`), i.e. UNSET for every run: it splits nothing.
     keys = pd.DataFrame({c: runs.get(c) for c in columns}, index=runs.index)
-    return runs[~keys.fillna("<unset>").astype(str).duplicated(keep="last")]
+    return runs[~keys.fillna(UNSET).astype(str).duplicated(keep="last")]
 
 
 def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
@@ -219,6 +228,6 @@ def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
         key = column.removeprefix("params.")
         if key in axis_keys or ignored_param(key) or (groups and key.startswith(groups)):
             continue
-        if runs[column].fillna("<unset>").astype(str).nunique() > 1:
+        if runs[column].fillna(UNSET).astype(str).nunique() > 1:
             out.append(key)
     return sorted(out)

@@ -27,7 +27,7 @@ from PIL import Image  # noqa: E402
 from src.io.atomic import atomic_path  # noqa: E402
 from src.io.images import SEPARATOR_PX, SEPARATOR_RGB, comparison_strip, write_png  # noqa: E402
 from src.report.collect import param_column  # noqa: E402
-from src.report.tables import DEFAULT_AXES  # noqa: E402
+from src.report.tables import DEFAULT_AXES, MISSING  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
 
@@ -69,13 +69,13 @@ def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[st
         parts = []
         for axis in axes:
             v = run.get(param_column(axis))
-            text = "-" if v is None or (isinstance(v, float) and np.isnan(v)) else str(v)
+            text = MISSING if v is None or (isinstance(v, float) and np.isnan(v)) else str(v)  # unlogged axis
             parts.append(text if axis.endswith(".name") else f"{axis.rsplit('.', 1)[-1]}={text}")
         base.append("/".join(parts))
     counts = pd.Series(base).value_counts()
     out = []
     for label, (_, run) in zip(base, runs.iterrows(), strict=True):
-        seed = run.get("params.seed")
+        seed = run.get("params.seed")  # a run without a logged seed gets no suffix (its label may repeat)
         out.append(f"{label} seed={seed}" if counts[label] > 1 and isinstance(seed, str) else label)
     return out
 
@@ -169,13 +169,18 @@ def _pick(names: Sequence[str], max_images: int) -> list[str]:
     return order[:max_images]
 
 
+#: The image grid's zoomed crop (side in pixels, zoom factor) when the task's eval config has none:
+#: conf/task/denoise.yaml's `crop_size` / `crop_zoom`. task=nerf has no such keys; its grid gets the same.
+DEFAULT_CROP = (32, 4)
+
+
 def image_grid(
     runs: pd.DataFrame,
     out_png: str | Path,
     max_images: int = 3,
     axes: Sequence[str] | None = None,
-    crop_size: int = 32,
-    zoom: int = 4,
+    crop_size: int = DEFAULT_CROP[0],
+    zoom: int = DEFAULT_CROP[1],
 ) -> Path | None:
     """For up to `max_images` test images: noisy (when logged) | each compared row's denoised image or
     rendered view | reference, with a zoomed crop row (around the largest first-vs-last panel error),

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from src.report.tables import cells
+from src.report.tables import MISSING, cells
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
@@ -64,7 +64,8 @@ def _runs_html(runs: pd.DataFrame, labels: Sequence[str]) -> str:
             run.get("tags.nrbench.data_fingerprint"),
         ]
         texts = [
-            "-" if v is None or (isinstance(v, float) and pd.isna(v)) else html.escape(str(v)) for v in values
+            MISSING if v is None or (isinstance(v, float) and pd.isna(v)) else html.escape(str(v))
+            for v in values
         ]
         lines.append("<tr>" + "".join(f'<td class="key"><code>{t}</code></td>' for t in texts) + "</tr>")
     lines += ["</tbody>", "</table>"]

@@ -15,12 +15,11 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import pandas as pd
 
-from src.report.collect import param_column
+from src.report.collect import DEFAULT_AXES, param_column
 
 #: label -> (MLflow metric key, higher is better, format)
 MetricSpec = tuple[str, bool | None, str]
 
-DEFAULT_AXES = ("model.name",)
 COMPARISON_METRICS: dict[str, MetricSpec] = {
     "PSNR": ("eval_psnr", True, "{:.2f}"),
     "SSIM": ("eval_ssim", True, "{:.4f}"),
@@ -37,6 +36,8 @@ COST_METRICS: dict[str, MetricSpec] = {
 }
 LPIPS_VARIANT_TAG = "tags.nrbench.lpips_variant"
 RUNS_COLUMN = "runs"
+#: The text of a value that is not there: an axis param a run did not log (its own row, not dropped), or a
+#: metric no run of a row logged (NaN mean, e.g. a model that does not log FLIP); never shown as 0.
 MISSING = "-"
 
 
@@ -84,8 +85,8 @@ def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, Me
     counts = keys.groupby(labels, sort=False).size()
     table = pd.DataFrame(index=counts.index)
     for label in present:
-        table[label] = mean.get(label, math.nan)
-        table[f"{label} std"] = std.get(label, math.nan)
+        table[label] = mean[label]  # every present label is a column of `values`; NaN where a row lacks it
+        table[f"{label} std"] = std[label]
     table[RUNS_COLUMN] = counts
     table.attrs["metrics"] = dict(present)
     table.attrs["axes"] = labels
@@ -143,6 +144,7 @@ def per_value_table(
     table.attrs["axes"] = parts[0].attrs["axes"]
     # One runs column (the total per row), as in the other tables.
     counts = [c for c in table.columns if c.startswith(f"{RUNS_COLUMN} ")]
+    # NaN in a "runs <value>" column: that row has no run with that value, i.e. 0 runs (exact, not a guess).
     table[RUNS_COLUMN] = table[counts].fillna(0).sum(axis=1).astype(int)
     return table.drop(columns=counts)
 
@@ -172,10 +174,22 @@ def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.Data
 # ------------------------------------------------------------------------------------------ cells
 
 
+def metric_specs(table: pd.DataFrame) -> dict[str, MetricSpec]:
+    """`table.attrs["metrics"]`; a `ValueError` when absent (pandas operations such as merge drop attrs),
+    instead of rendering the table silently without its metric columns."""
+    if "metrics" not in table.attrs:
+        raise ValueError(
+            "table.attrs['metrics'] is missing: build tables with comparison_table / per_value_table / "
+            "cost_table / loss_table and keep their attrs"
+        )
+    return table.attrs["metrics"]
+
+
 def best_rows(table: pd.DataFrame) -> dict[str, set[int]]:
     """Per metric label, the row positions holding its best mean (all of them on a tie)."""
     out: dict[str, set[int]] = {}
-    for label, (_, higher, _) in table.attrs.get("metrics", {}).items():
+    for label, (_, higher, _) in metric_specs(table).items():
+        # Means are floats already; a NaN (no run of the row logged the metric) is never the best.
         values = pd.to_numeric(table[label], errors="coerce").reset_index(drop=True)
         if higher is None or values.dropna().nunique() < 2:  # one value, or all tied: nothing stands out
             continue
@@ -195,7 +209,7 @@ def cells(
 ) -> tuple[list[str], list[bool | None], list[list[tuple[str, str | None, bool]]]]:
     """(header labels, per-column higher_is_better (None for axes/runs), rows of (mean text, std text or
     None, bold)) for the renderers."""
-    metrics: dict[str, MetricSpec] = table.attrs.get("metrics", {})
+    metrics = metric_specs(table)
     best = best_rows(table) if best is None else best
     axes = list(table.index.names)
     header = [str(a) for a in axes] + list(metrics) + [RUNS_COLUMN]
@@ -205,7 +219,7 @@ def cells(
         keys = index if isinstance(index, tuple) else (index,)
         line: list[tuple[str, str | None, bool]] = [(str(k), None, False) for k in keys]
         for label, (_, _, fmt) in metrics.items():
-            std = row.get(f"{label} std", math.nan)
+            std = row.get(f"{label} std", math.nan)  # a table without std columns shows means only
             std_text = None if pd.isna(std) or row[RUNS_COLUMN] < 2 else _fmt(float(std), fmt)
             line.append((_fmt(row[label], fmt), std_text, i in best.get(label, set())))
         line.append((str(int(row[RUNS_COLUMN])), None, False))
