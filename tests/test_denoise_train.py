@@ -13,7 +13,7 @@ import torch
 from omegaconf import OmegaConf
 
 from src.data.denoise_dataset import FullImageDataset
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
 from src.io.exr import read_exr
 from src.metrics.image import relmse
@@ -21,6 +21,7 @@ from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
+from src.train.losses import get_loss
 from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
 
@@ -250,3 +251,35 @@ def test_the_objective_is_the_loss_of_what_the_model_predicts():
     with pytest.raises(DataError) as err:
         component_losses(_Fixed({"colour": ones}), batch, l1, eps=0.5)
     one_line_error(err, "_Fixed.forward", "'colour'", "'specular'")
+
+
+def test_the_optimiser_and_the_loss_are_built_from_config(smoke_data, tmp_path):
+    cfg = _untracked(
+        smoke_data,
+        tmp_path,
+        "model=dpcn",
+        "task.train.lr=0.02",
+        "task.train.optimizer._target_=torch.optim.SGD",
+        "+task.train.optimizer.momentum=0.5",
+        "task.train.loss={_target_: src.train.losses.smape, eps: 0.5}",
+    )
+    with job_run(cfg, run_name="x", tags={}) as tracker:
+        trainer = DenoiserTrainer(cfg, tracker)
+    assert isinstance(trainer.optimizer, torch.optim.SGD)
+    assert (
+        trainer.optimizer.param_groups[0]["lr"] == 0.02
+        and trainer.optimizer.param_groups[0]["momentum"] == 0.5
+    )
+    pred, target = torch.full((4,), 2.0), torch.ones(4)
+    assert float(trainer.loss(pred, target)) == pytest.approx(1 / 3.5)  # |2 - 1| / (2 + 1 + eps 0.5)
+
+    bad = _untracked(smoke_data, tmp_path, "model=dpcn", "task.train.optimizer._target_=torch.optim.Adamm")
+    with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
+        DenoiserTrainer(bad, tracker)
+    one_line_error(err, "task.train.optimizer", "Adamm")
+    with pytest.raises(ConfigError) as err:
+        get_loss("l3")
+    one_line_error(err, "task.train.loss", "'l3'", "smape")
+    with pytest.raises(ConfigError) as err:
+        get_loss({"_target_": "src.train.losses.nope"})
+    one_line_error(err, "task.train.loss._target_", "nope")

@@ -18,10 +18,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from src.errors import ConfigError, one_line
 from src.models.instantiate import build_method
 from src.models.parameters import count_parameters
 from src.train.checkpoint import (
@@ -66,13 +68,16 @@ class Means:
 class TrainingLoop:
     """Owns the model, optimiser, position, curves and checkpoints of one training run.
 
-    A subclass calls `super().__init__` (device, seed, model from `cfg.model`), sets `self.optimizer`,
-    and implements `batches`, `train_step`, `done`, and optionally the hooks `after_step`, `end_epoch`,
-    `before_training`, `progress` and `extra_summary`.
+    A subclass calls `super().__init__` (device, seed, model from `cfg.model`, optimiser from
+    `task.train.optimizer`) and implements `batches`, `train_step`, `done`, and optionally the hooks
+    `after_step`, `end_epoch`, `before_training`, `progress`, `extra_summary` and `checkpoint_extra`.
     """
 
     #: What the progress bar counts (`progress` says how many).
     unit = "step"
+
+    #: The `task.train` key holding the (initial) learning rate.
+    lr_key = "lr"
 
     def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None, **build_context: Any) -> None:
         self.cfg, self.t, self.tracker, self.on_step = cfg, cfg.task.train, tracker, on_step
@@ -80,7 +85,8 @@ class TrainingLoop:
         seed_everything(int(cfg.seed))
         self.model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
         self.model = build_method(self.model_cfg, **build_context).to(self.device)
-        self.optimizer: torch.optim.Optimizer
+        lr = float(self.t[self.lr_key])
+        self.optimizer = build_optimizer(self.t.optimizer, self.model.parameters(), lr)
         self.pos = Position()
         self.checkpoint_dir = Path(self.t.checkpoint_dir)
         self.train_seconds = 0.0
@@ -184,6 +190,16 @@ class TrainingLoop:
             "param_count": count_parameters(self.model),
             **self.extra_summary(),
         }
+
+
+def build_optimizer(node: DictConfig, parameters, lr: float) -> torch.optim.Optimizer:
+    """`task.train.optimizer` (a `_target_` with `_partial_: true`, e.g. torch.optim.Adam) on `parameters`
+    with learning rate `lr` (the task's own key: one place to set and sweep it); a bad target or argument
+    is one ConfigError line naming the key."""
+    try:
+        return hydra.utils.instantiate(node, _convert_="all")(parameters, lr=lr)
+    except Exception as err:  # Hydra wraps import and argument errors in several exception types
+        raise ConfigError(f"task.train.optimizer: {one_line(err)}") from err
 
 
 def run_training(

@@ -7,11 +7,13 @@ al. 2011 for relMSE). `eps` keeps the denominators away from zero in black regio
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import torch
 
 from src.errors import ConfigError
+from src.models.instantiate import TARGET_KEY, resolve_target
 
 Loss = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -40,7 +42,13 @@ def relmse(pred: torch.Tensor, target: torch.Tensor, eps: float = 0.01) -> torch
 LOSSES: dict[str, Loss] = {"l1": l1, "l2": l2, "smape": smape, "relmse": relmse}
 
 
-def get_loss(name: str) -> Loss:
-    if name not in LOSSES:
-        raise ConfigError(f"task.train.loss: unknown loss '{name}'; expected one of {sorted(LOSSES)}")
-    return LOSSES[name]
+def get_loss(spec) -> Loss:
+    """A loss by name (`LOSSES`), or a user's callable named by a `{_target_: ..., <keyword>: ...}`
+    mapping, its other keys bound as keyword arguments (`{_target_: src.train.losses.smape, eps: 0.1}`)."""
+    if isinstance(spec, str):
+        if spec not in LOSSES:
+            raise ConfigError(f"task.train.loss: unknown loss '{spec}'; expected one of {sorted(LOSSES)}")
+        return LOSSES[spec]
+    loss = resolve_target(spec, "task.train.loss")
+    options = {k: v for k, v in spec.items() if k != TARGET_KEY}
+    return functools.partial(loss, **options) if options else loss

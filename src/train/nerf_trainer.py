@@ -64,15 +64,11 @@ def split_metrics(split: str, values: dict[str, float]) -> dict[str, float]:
 class NerfTrainer(TrainingLoop):
     """Random ray batches of one scene, validation every `val_every` steps."""
 
+    lr_key = "lr_init"
+
     def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
         super().__init__(cfg, tracker, on_step)
         t = self.t
-        self.optimizer = torch.optim.Adam(
-            self.model.parameters(),
-            lr=float(t.lr_init),
-            betas=(float(t.adam_beta1), float(t.adam_beta2)),
-            eps=float(t.adam_eps),
-        )
         near, far = float(cfg.dataset.near), float(cfg.dataset.far)
         train = load_split(cfg, "train", t.max_train_images)
         self.batcher = RayBatcher.from_split(

@@ -92,7 +92,6 @@ class DenoiserTrainer(TrainingLoop):
         super().__init__(cfg, tracker, on_step, whitening=whitening)
         self.eps = float(cfg.task.preprocess.eps_albedo)
         self.loss = get_loss(self.t.loss)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=float(self.t.lr))
         self.history: dict[str, float] = {}  # the last completed epoch's train/val losses
 
     def checkpoint_extra(self) -> dict[str, Any]:
