@@ -16,6 +16,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from src.io.srgb import srgb_oetf
 from src.render.multiview_cameras import mitsuba_to_world
 
 
@@ -57,14 +58,6 @@ def render_view(scene, sensor, spp: int, seeds: list[int], passes: list[int]) ->
         img = np.asarray(mi.render(scene, sensor=sensor, spp=n, seed=seed), dtype=np.float64) * n
         total = img if total is None else total + img
     return (total / spp).astype(np.float32)
-
-
-def srgb_oetf(linear: np.ndarray) -> np.ndarray:
-    """sRGB transfer function (IEC 61966-2-1) of linear values in [0, 1]."""
-    linear = np.asarray(linear)
-    return np.where(
-        linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(np.maximum(linear, 0.0031308), 1 / 2.4) - 0.055
-    )
 
 
 def encode_rgba8(rgba: np.ndarray) -> np.ndarray:

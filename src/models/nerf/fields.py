@@ -16,20 +16,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from src.io.srgb import linear_to_srgb
 from src.models.nerf.directional import ide_dim, integrated_dir_enc, l2_normalize, reflect
 from src.models.nerf.encodings import integrated_pos_enc
 
 ACTIVATIONS: dict[str, Callable[[Tensor], Tensor]] = {"relu": F.relu, "softplus": F.softplus}
 #: Colour channels of every head.
 RGB = 3
-
-
-def linear_to_srgb(linear: Tensor, eps: float = torch.finfo(torch.float32).eps) -> Tensor:
-    """The sRGB transfer curve (IEC 61966-2-1), Ref-NeRF's tone mapping (Sec. 3):
-    12.92 x for x <= 0.0031308, else 1.055 x^(1/2.4) - 0.055 (written 323/25 and (211 x^(5/12) - 11)/200)."""
-    srgb0 = 323 / 25 * linear
-    srgb1 = (211 * torch.clamp(linear, min=eps) ** (5 / 12) - 11) / 200
-    return torch.where(linear <= 0.0031308, srgb0, srgb1)
 
 
 def padded_sigmoid(x: Tensor, padding: float) -> Tensor:
