@@ -219,11 +219,13 @@ def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_pat
 
 def test_a_users_own_denoiser_runs_beside_a_builtin_one(smoke_data, tmp_path):
     """README "Add your own method": one module (tests/plugins/toy_denoiser.py) and one YAML each
-    (tests/conf/model/toy.yaml, a two-branch model; toy_color.yaml, one branch predicting colour) outside
-    src/ are trained, evaluated and reported beside DPCN by one multirun."""
-    sweep(["model=dpcn,toy,toy_color", "hydra.searchpath=[file://tests/conf]"], smoke_data, tmp_path)
+    (tests/conf/model/toy.yaml, a two-branch model; toy_color.yaml, one branch predicting colour;
+    toy_filter.yaml, a filter) outside src/ are trained (the learned ones), evaluated and reported beside
+    DPCN by one multirun."""
+    models = "model=dpcn,toy,toy_color,toy_filter"  # toy_filter: a non-learned filter, evaluated only
+    sweep([models, "hydra.searchpath=[file://tests/conf]"], smoke_data, tmp_path)
     table = pd.read_csv(tmp_path / "reports" / "denoise" / "comparison.csv", comment="#", index_col=0)
-    assert sorted(table.index) == ["dpcn", "toy", "toy_color"]
+    assert sorted(table.index) == ["dpcn", "toy", "toy_color", "toy_filter"]
     assert (table["PSNR"] > 0).all() and (table["runs"] == 1).all()
     checkpoints = [load_checkpoint(p) for p in (tmp_path / "sweep").glob("*/checkpoints/final.pt")]
     by_name = {c["model_config"]["name"]: c for c in checkpoints}

@@ -45,3 +45,30 @@ class ToyColorDenoiser(Denoiser):
 
     def forward(self, batch):
         return {"color": batch["color"] + self.net(torch.cat([batch["color"], batch["diffuse_in"]], dim=1))}
+
+
+class ToyBoxFilter(Denoiser):
+    """A non-learned filter: the mean of the noisy colour over a (2r+1)^2 window (zero-padded borders,
+    renormalised). Config: `tests/conf/model/toy_filter.yaml`; nothing to train, evaluated like the rest."""
+
+    learned = False
+
+    def __init__(self, radius: int) -> None:
+        super().__init__()
+        self.radius = radius
+
+    @property
+    def halo(self) -> int:
+        return self.radius
+
+    def forward(self, batch):
+        size = 2 * self.radius + 1
+        color = batch["color"]
+        ones = torch.ones_like(color[:, :1])
+        total = torch.nn.functional.avg_pool2d(
+            color, size, stride=1, padding=self.radius, count_include_pad=True
+        )
+        weight = torch.nn.functional.avg_pool2d(
+            ones, size, stride=1, padding=self.radius, count_include_pad=True
+        )
+        return {"color": total / weight}
