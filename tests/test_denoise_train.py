@@ -22,6 +22,7 @@ from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
 from src.train.losses import get_loss
+from src.train.schedules import log_linear_lr
 from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
 
@@ -283,3 +284,30 @@ def test_the_optimiser_and_the_loss_are_built_from_config(smoke_data, tmp_path):
     with pytest.raises(ConfigError) as err:
         get_loss({"_target_": "src.train.losses.nope"})
     one_line_error(err, "task.train.loss._target_", "nope")
+
+
+def test_a_learning_rate_schedule_from_config_sets_each_steps_rate(smoke_data, tmp_path):
+    schedule = "{_target_: src.train.schedules.log_linear_lr, _partial_: true, lr_final: 1.0e-5}"
+    cfg = _untracked(
+        smoke_data,
+        tmp_path,
+        "model=dpcn",
+        "task.train.lr=1e-3",
+        "task.train.max_steps=2",
+        f"task.train.schedule={schedule}",
+    )
+    seen = []
+    with job_run(cfg, run_name="x", tags={}) as tracker:
+        trainer = DenoiserTrainer(
+            cfg, tracker, on_step=lambda step: seen.append(trainer.optimizer.param_groups[0]["lr"])
+        )
+        trainer.fit()
+    assert seen == [pytest.approx(log_linear_lr(s, 1e-3, 1e-5, 2)) for s in (0, 1)]  # decays over max_steps
+    assert seen[1] == pytest.approx(1e-4)  # halfway: the geometric mean
+
+    bad = _untracked(
+        smoke_data, tmp_path, "model=dpcn", "task.train.schedule={_target_: src.train.schedules.nope}"
+    )
+    with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
+        DenoiserTrainer(bad, tracker)
+    one_line_error(err, "task.train.schedule", "nope")

@@ -85,8 +85,9 @@ class TrainingLoop:
         seed_everything(int(cfg.seed))
         self.model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
         self.model = build_method(self.model_cfg, **build_context).to(self.device)
-        lr = float(self.t[self.lr_key])
-        self.optimizer = build_optimizer(self.t.optimizer, self.model.parameters(), lr)
+        self.lr = float(self.t[self.lr_key])
+        self.optimizer = build_optimizer(self.t.optimizer, self.model.parameters(), self.lr)
+        self.schedule = build_schedule(self.t.get("schedule"))
         self.pos = Position()
         self.checkpoint_dir = Path(self.t.checkpoint_dir)
         self.train_seconds = 0.0
@@ -117,6 +118,10 @@ class TrainingLoop:
         """(total, done) in `unit`s, for the progress bar."""
         return int(self.t.max_steps), self.pos.step
 
+    def total_steps(self) -> int:
+        """The optimiser steps the whole run takes (what a schedule decays over)."""
+        return int(self.t.max_steps)
+
     def extra_summary(self) -> dict[str, Any]:
         """Task-specific entries of the run summary `fit` returns."""
         return {}
@@ -145,12 +150,21 @@ class TrainingLoop:
         max_steps = self.t.max_steps
         return max_steps is not None and self.pos.step >= int(max_steps)
 
+    def set_learning_rate(self) -> None:
+        """The schedule's learning rate for the coming step (nothing to do without a schedule)."""
+        if self.schedule is None:
+            return
+        lr = self.schedule(self.pos.step, lr_init=self.lr, max_steps=self.total_steps())
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+
     def run_epoch(self, bar: tqdm) -> bool:
         """Train the rest of the current epoch, or until `max_steps`; True if the epoch completed.
         `train_seconds` counts fetching each batch and the optimiser step, not logging or validation."""
         means = Means()
         start = time.perf_counter()
         for batch in self.batches(self.pos.epoch, skip=self.pos.batch_in_epoch):
+            self.set_learning_rate()
             values, size = self.train_step(batch)
             self.train_seconds += time.perf_counter() - start
             means.add(values, size)
@@ -200,6 +214,17 @@ def build_optimizer(node: DictConfig, parameters, lr: float) -> torch.optim.Opti
         return hydra.utils.instantiate(node, _convert_="all")(parameters, lr=lr)
     except Exception as err:  # Hydra wraps import and argument errors in several exception types
         raise ConfigError(f"task.train.optimizer: {one_line(err)}") from err
+
+
+def build_schedule(node: DictConfig | None) -> Callable[..., float] | None:
+    """`task.train.schedule` (a `_target_` with `_partial_: true`, called as (step, lr_init=, max_steps=)),
+    or None for a constant learning rate; a bad target is one ConfigError line naming the key."""
+    if node is None:
+        return None
+    try:
+        return hydra.utils.instantiate(node, _convert_="all")
+    except Exception as err:  # Hydra wraps import and argument errors in several exception types
+        raise ConfigError(f"task.train.schedule: {one_line(err)}") from err
 
 
 def run_training(

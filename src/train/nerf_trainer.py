@@ -29,7 +29,6 @@ from src.data.ray_batches import RayBatcher
 from src.data.rays import rays_for_pixels
 from src.train.curves import write_curves
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
-from src.train.schedules import log_linear_lr
 
 log = logging.getLogger(__name__)
 
@@ -108,15 +107,8 @@ class NerfTrainer(TrainingLoop):
     def done(self) -> bool:
         return self.pos.step >= int(self.t.max_steps)
 
-    def learning_rate(self, step: int) -> float:
-        t = self.t
-        decay = (float(t.lr_init), float(t.lr_final), int(t.max_steps))
-        return log_linear_lr(step, *decay, int(t.lr_delay_steps), float(t.lr_delay_mult))
-
     def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
         self.model.train()
-        for group in self.optimizer.param_groups:
-            group["lr"] = self.learning_rate(self.pos.step)
         outputs = self.model(batch, randomized=True)
         loss, components = self.model.loss(outputs, batch["rgb"])
         self.optimizer.zero_grad(set_to_none=True)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import math
 import operator
 from collections.abc import Iterator
 from pathlib import Path
@@ -109,6 +110,11 @@ class DenoiserTrainer(TrainingLoop):
 
     def done(self) -> bool:
         return self.pos.epoch >= int(self.t.epochs) or self.stop_inside_epoch()
+
+    def total_steps(self) -> int:
+        if self.t.max_steps is not None:
+            return int(self.t.max_steps)
+        return int(self.t.epochs) * math.ceil(len(self.train_data) / int(self.t.batch_size))
 
     def progress(self) -> tuple[int, int]:
         per_epoch = len(self.train_data)
