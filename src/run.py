@@ -11,6 +11,7 @@ from omegaconf import DictConfig
 from omegaconf.errors import InterpolationResolutionError
 
 from src.errors import NrbenchError
+from src.schema.run import validate_run
 from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run
 
 log = logging.getLogger("nrbench")
@@ -61,6 +62,7 @@ def main(cfg: DictConfig) -> dict[str, dict]:
     objective from it, e.g. `train.val_loss_color`)."""
     results: dict[str, dict] = {}
     try:
+        validate_run(cfg)  # every value checked before any data is read or any file written
         stages = stages_to_run(cfg)
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
         in_run = [s for s in stages if s not in AFTER_RUN]

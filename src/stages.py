@@ -12,7 +12,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from src.errors import ConfigError
+from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_text
 from src.provenance import data_fingerprint, result_config
 
@@ -26,6 +26,13 @@ def task_of(cfg: DictConfig):
     return resolve_target(cfg.task, "task")()
 
 
+def require_inputs(task, stage: str, cfg: DictConfig) -> None:
+    """Every input `stage` reads exists; else one line naming the first missing one and what makes it."""
+    for path, producer in task.inputs(stage, cfg).items():
+        if not path.exists():
+            raise DataError(f"{path}: not found, {stage} needs it; run {producer} first")
+
+
 def render(cfg: DictConfig, tracker=None) -> dict:
     """Render the task's dataset (denoising EXRs, or multi-view scenes)."""
     return task_of(cfg).render(cfg)
@@ -33,7 +40,9 @@ def render(cfg: DictConfig, tracker=None) -> dict:
 
 def preprocess(cfg: DictConfig, tracker=None) -> dict:
     """Turn the rendered data into what training reads (denoising: KPCN inputs, patches, full images)."""
-    return task_of(cfg).preprocess(cfg)
+    task = task_of(cfg)
+    require_inputs(task, "preprocess", cfg)
+    return task.preprocess(cfg)
 
 
 def train(cfg: DictConfig, tracker) -> dict:
@@ -43,6 +52,7 @@ def train(cfg: DictConfig, tracker) -> dict:
         print(f"train: {cfg.model.name} is not learned; nothing to train")
         return {}
     task = task_of(cfg)
+    require_inputs(task, "train", cfg)
     tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
     summary = task.train(cfg, tracker)
     tracker.log_artifact(summary["checkpoint"], "checkpoints")
@@ -56,6 +66,7 @@ def train(cfg: DictConfig, tracker) -> dict:
 def evaluate(cfg: DictConfig, tracker) -> dict:
     """Score the model on the held-out data; log metrics and images."""
     task = task_of(cfg)
+    require_inputs(task, "eval", cfg)
     tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
     return task.evaluate(cfg, tracker)
 

@@ -8,11 +8,20 @@ from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig
+from pydantic import BaseModel
 
 
 class Task:
     """One task (denoising, radiance fields, ...). Each method gets the resolved run config; `train` and
-    `evaluate` also get the MLflow tracker of the job's run. Every method returns the stage's summary."""
+    `evaluate` also get the MLflow tracker of the job's run. Every method returns the stage's summary.
+    `schema` is the pydantic model of its `task:` group (`src/schema/`), checked when a job starts."""
+
+    schema: type[BaseModel]
+
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        """What `stage` reads, each with what produces it (a stage or command), so that a stage started too
+        early says what to run first instead of failing on a missing file. Default: nothing."""
+        return {}
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""

@@ -12,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from src.data.features import CANDIDATE_CHANNELS
 from src.io.atomic import atomic_directory
 from src.provenance import data_fingerprint, write_summary
+from src.schema.denoise import DenoiseTaskSchema
 from src.tasks.base import Task
 
 PREPROCESS_PROVENANCE = "preprocess_provenance.json"
@@ -34,6 +35,23 @@ def _cached_preprocess(out: Path, key: str) -> dict | None:
 
 
 class DenoiseTask(Task):
+    schema = DenoiseTaskSchema
+
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        prepared = Path(cfg.paths.prepared)
+        if stage == "preprocess":
+            return {Path(cfg.paths.raw): "stage=render (or dvc repro)"}
+        if stage == "train":
+            return {prepared / "patches" / "train" / "index.json": "stage=preprocess (or dvc repro)"}
+        if stage == "eval":
+            needed = {
+                prepared / "full" / str(cfg.task.eval.split) / "index.json": "stage=preprocess (or dvc repro)"
+            }
+            if cfg.model.learned:
+                needed[Path(cfg.task.eval.checkpoint)] = "stage=train (or set task.eval.checkpoint)"
+            return needed
+        return {}
+
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data the runs' `nrbench.data_fingerprint` tag identifies: the raw EXRs."""
         return Path(cfg.paths.raw)

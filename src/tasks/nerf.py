@@ -8,10 +8,27 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.provenance import write_summary
+from src.schema.nerf import NerfTaskSchema
 from src.tasks.base import Task
 
 
 class NerfTask(Task):
+    schema = NerfTaskSchema
+
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        from src.train.nerf_trainer import scene_dir
+
+        producer = "stage=render (or dvc repro; for your own scenes, dataset=blender dataset.root=...)"
+        if stage == "train":
+            return {scene_dir(cfg) / "transforms_train.json": producer}
+        if stage == "eval":
+            views = scene_dir(cfg) / f"transforms_{cfg.task.eval.split}.json"
+            return {
+                views: producer,
+                Path(cfg.task.eval.checkpoint): "stage=train (or set task.eval.checkpoint)",
+            }
+        return {}
+
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data the runs' `nrbench.data_fingerprint` tag identifies: this job's scene."""
         from src.train.nerf_trainer import scene_dir

@@ -1,0 +1,108 @@
+"""Schema of `task:` for the denoising task (conf/task/denoise.yaml and its profiles)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from src.data.features import feature_channels
+from src.schema.types import (
+    AtLeastOne,
+    NonNegativeFloat,
+    NonNegativeInt,
+    Percentile,
+    PositiveFloat,
+    PositiveInt,
+    Probability,
+    Schema,
+    Target,
+    own_error,
+    passes,
+)
+
+
+class Split(Schema):
+    train: Probability
+    val: Probability
+    test: Probability
+
+    @model_validator(mode="after")
+    def _sums_to_one(self) -> Split:
+        total = self.train + self.val + self.test
+        if abs(total - 1.0) > 1e-6:
+            raise own_error(f"task.preprocess.split: fractions sum to {total:g}; expected 1")
+        return self
+
+
+class Repair(Schema):
+    nonfinite: Literal["error", "zero"]
+    negative: Literal["error", "clamp"]
+    firefly_clamp: PositiveFloat | None
+
+
+class Preprocess(Schema):
+    eps_albedo: PositiveFloat
+    patch_size: PositiveInt
+    patches_per_image: PositiveInt
+    candidates_factor: AtLeastOne
+    min_keep_prob: Probability
+    min_distance: NonNegativeFloat
+    importance_percentile: Percentile
+    split: Split
+    split_seed: NonNegativeInt
+    sample_seed: NonNegativeInt
+    whiten_eps: PositiveFloat
+    repair: Repair
+
+
+class Train(Schema):
+    lr: PositiveFloat
+    batch_size: PositiveInt
+    loss: str | Target
+    optimizer: Target
+    schedule: Target | None
+    epochs: PositiveInt
+    max_steps: PositiveInt | None
+    num_workers: NonNegativeInt
+    amp: bool
+    log_every: PositiveInt
+    resume: str | None
+    checkpoint_dir: str
+    curves_file: str
+
+    @field_validator("loss")
+    @classmethod
+    def _known_loss(cls, value: Any) -> Any:
+        from src.train.losses import LOSSES
+
+        if isinstance(value, str) and value not in LOSSES:
+            expected = f"expected one of {sorted(LOSSES)} or a {{_target_: ...}} mapping"
+            raise own_error(f"task.train.loss={value!r}: {expected}")
+        return value
+
+
+class Eval(Schema):
+    split: Literal["val", "test"]
+    tile: NonNegativeInt
+    save_exr: bool
+    strips: bool
+    crop_size: PositiveInt
+    crop_zoom: PositiveInt
+    checkpoint: str
+    out_dir: str
+
+
+class DenoiseTaskSchema(Schema):
+    name: str
+    target: str = Field(alias="_target_")
+    stages: list[Literal["render", "preprocess", "train", "eval", "report"]]
+    features: list[str]
+    preprocess: Preprocess
+    train: Train
+    eval: Eval
+
+    @field_validator("features")
+    @classmethod
+    def _known_features(cls, value: list[str]) -> list[str]:
+        return passes(feature_channels, value)

@@ -1,0 +1,48 @@
+"""Schema of `task:` for the radiance-field task (conf/task/nerf.yaml and its profiles)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from src.schema.types import NonNegativeInt, PositiveFloat, PositiveInt, Schema, Target
+
+
+class Train(Schema):
+    max_steps: PositiveInt
+    batch_size: PositiveInt
+    lr_init: PositiveFloat
+    schedule: Target | None
+    optimizer: Target
+    grad_max_norm: PositiveFloat | None
+    precrop_iters: NonNegativeInt
+    precrop_frac: float = Field(gt=0, le=1)
+    max_train_images: PositiveInt | None
+    max_val_images: PositiveInt | None
+    val_rays: PositiveInt
+    chunk: PositiveInt
+    log_every: PositiveInt
+    val_every: PositiveInt
+    checkpoint_every: PositiveInt
+    resume: str | None
+    checkpoint_dir: str
+    curves_file: str
+
+
+class Eval(Schema):
+    split: Literal["val", "test"]
+    max_images: PositiveInt | None
+    chunk: PositiveInt
+    save_images: bool
+    checkpoint: str
+    out_dir: str
+
+
+class NerfTaskSchema(Schema):
+    name: str
+    target: str = Field(alias="_target_")
+    stages: list[Literal["render", "train", "eval", "report"]]
+    scene: str = Field(min_length=1)
+    train: Train
+    eval: Eval

@@ -1,0 +1,87 @@
+"""The schema of a whole run config and the check `src/run.py` makes when a job starts."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from omegaconf import DictConfig, OmegaConf
+from pydantic import Field
+
+from src.schema.checks import check
+from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema
+
+
+class Ssim(Schema):
+    win_size: PositiveInt
+    sigma: PositiveFloat
+    k1: PositiveFloat
+    k2: PositiveFloat
+
+
+class Lpips(Schema):
+    enabled: bool
+    trunk_weights: str | None
+    lin_weights: str | None
+    seed: NonNegativeInt
+
+
+class Flip(Schema):
+    enabled: bool
+    mode: Literal["hdr", "ldr"]
+
+
+class Metrics(Schema):
+    tonemap: Literal["clip_gamma", "reinhard_gamma", "clip"]
+    gamma: PositiveFloat
+    relmse_eps: PositiveFloat
+    relmse_crop: NonNegativeInt
+    smape_eps: PositiveFloat
+    ssim: Ssim
+    lpips: Lpips
+    flip: Flip
+
+
+class Tracking(Schema):
+    enabled: bool
+    uri: str
+    artifact_root: str
+    experiment: str = Field(min_length=1)
+    group: str | None
+
+
+class Render(Schema):
+    variant: Literal["auto", "cuda_ad_rgb", "llvm_ad_rgb"]
+
+
+class RunSchema(Schema):
+    """The root keys; `task`, `dataset` and `model` are checked by their own schemas (`validate_run`)."""
+
+    stage: str  # which stages exist depends on the task: `stages_to_run` checks it, naming them
+    seed: NonNegativeInt
+    data_seed: NonNegativeInt
+    device: Literal["auto", "cpu", "cuda"]
+    profile_name: str
+    paths: Open
+    tracking: Tracking
+    metrics: Metrics
+    report: Open
+    render: Render
+    compare: Open
+    task: Open
+    dataset: Open
+    model: Open
+
+
+def validate_run(cfg: DictConfig) -> dict[str, Any]:
+    """Check the resolved config against the schemas: the root keys and the task's `schema`; then build
+    the method once (its constructor is the schema of `model:`: keys, types and ranges) and drop it.
+    Raises a one-line ConfigError; returns the resolved values."""
+    from src.models.instantiate import build_method
+    from src.stages import task_of
+
+    values = OmegaConf.to_container(cfg, resolve=True)
+    check(RunSchema, values)
+    task = task_of(cfg)
+    check(task.schema, values["task"], "task")
+    build_method(values["model"])
+    return values
