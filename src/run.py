@@ -8,7 +8,6 @@ from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
-from omegaconf.errors import InterpolationResolutionError
 
 from src.errors import NrbenchError
 from src.schema.run import validate_run
@@ -78,20 +77,6 @@ def main(cfg: DictConfig) -> dict[str, dict]:
         # One line for the user; the traceback adds nothing for a bad input or config value.
         log.error("%s", err)
         raise SystemExit(2) from None
-    except InterpolationResolutionError as err:
-        # A resolver of ours (e.g. nrbench.channels) rejected a config value: report its line alone.
-        cause = _our_error(err)
-        if cause is None:
-            raise
-        log.error("%s", cause)
-        raise SystemExit(2) from None
-
-
-def _our_error(err: BaseException | None) -> NrbenchError | None:
-    """The NrbenchError an OmegaConf error wraps (OmegaConf chains it as the context, not the cause)."""
-    while err is not None and not isinstance(err, NrbenchError):
-        err = err.__cause__ or err.__context__
-    return err
 
 
 if __name__ == "__main__":

@@ -9,6 +9,8 @@ gives ranges, unions and cross-field checks in plain annotations.
 
 from __future__ import annotations
 
+import types
+import typing
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -32,18 +34,46 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def _noun(value: Any) -> str:
-    return "integer" if isinstance(value, int) and not isinstance(value, bool) else "number"
+def _field(model: type[BaseModel], loc: Sequence[Any]):
+    """The schema field at `loc` (None when loc leaves the schema models)."""
+    field = None
+    for part in loc:
+        if field is not None:
+            candidates = _plain_types(field.annotation)
+            model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+            if model is None:
+                return None
+        field = model.model_fields.get(str(part))
+        if field is None:
+            return None
+    return field
+
+
+def _noun(model: type[BaseModel], loc: Sequence[Any]) -> str:
+    """ "integer" for an int field, else "number" (the field's type, not the value's: lr=0 is a number)."""
+    field = _field(model, loc)
+    kinds = _plain_types(field.annotation) if field is not None else set()
+    return "integer" if int in kinds and float not in kinds else "number"
+
+
+def _plain_types(annotation: Any) -> set[Any]:
+    """The plain types in an annotation: unions flattened, `Annotated[...]` unwrapped."""
+    if typing.get_origin(annotation) is typing.Annotated:
+        return _plain_types(typing.get_args(annotation)[0])
+    args = typing.get_args(annotation)
+    if args and typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return set().union(*(_plain_types(a) for a in args))
+    return {annotation}
 
 
 def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
     """What the schema expected, in words, for one pydantic error."""
-    kind, ctx, value = error["type"], error.get("ctx", {}), error.get("input")
+    kind, ctx = error["type"], error.get("ctx", {})
     bound = next((ctx[k] for k in ("gt", "ge", "lt", "le") if k in ctx), None)
     if kind == "greater_than" and bound == 0:
-        return f"expected a positive {_noun(value)}"
+        return f"expected a positive {_noun(model, error['loc'])}"
     if kind == "greater_than_equal" and bound == 0:
-        return f"expected a non-negative {_noun(value)}"
+        return f"expected a non-negative {_noun(model, error['loc'])}"
     words = {
         "greater_than": f"expected a value > {bound}",
         "greater_than_equal": f"expected a value >= {bound}",
@@ -58,6 +88,7 @@ def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
         "dict_type": "expected a mapping",
         "model_type": "expected a mapping",
         "literal_error": f"expected one of {ctx.get('expected', '')}",
+        "string_too_short": "expected a non-empty string",
         "missing": "missing; expected a value",
         "extra_forbidden": f"unknown key; expected one of {_known_keys(model, error['loc'][:-1])}",
     }

@@ -5,8 +5,10 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from pydantic import Field
 
+from src.errors import ConfigError, NrbenchError, one_line
 from src.schema.checks import check
 from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema
 
@@ -72,6 +74,18 @@ class RunSchema(Schema):
     model: Open
 
 
+def resolved(cfg: DictConfig) -> dict[str, Any]:
+    """The config as plain data, every interpolation resolved; a resolver's own error (e.g. a bad
+    `task.features` met by `${nrbench.channels:...}`) comes out as its one line."""
+    try:
+        return OmegaConf.to_container(cfg, resolve=True)
+    except OmegaConfBaseException as err:
+        cause = err
+        while cause is not None and not isinstance(cause, NrbenchError):
+            cause = cause.__cause__ or cause.__context__  # OmegaConf chains it as the context
+        raise (cause or ConfigError(f"config: {one_line(err)}")) from None
+
+
 def validate_run(cfg: DictConfig) -> dict[str, Any]:
     """Check the resolved config against the schemas: the root keys and the task's `schema`; then build
     the method once (its constructor is the schema of `model:`: keys, types and ranges) and drop it.
@@ -79,7 +93,7 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
     from src.models.instantiate import build_method
     from src.stages import task_of
 
-    values = OmegaConf.to_container(cfg, resolve=True)
+    values = resolved(cfg)
     check(RunSchema, values)
     task = task_of(cfg)
     check(task.schema, values["task"], "task")

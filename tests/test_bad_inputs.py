@@ -1,0 +1,100 @@
+"""Bad config values and stages started too early: one line naming the key (or file), the value found and
+what is expected; exit status 2 and no traceback through the real CLI. Every row of the table is checked
+in-process (fast); a sample goes through `python -m src.run`, the whole table with `-m slow`."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from src.errors import ConfigError
+from src.schema.run import validate_run
+from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config
+
+#: (overrides, what the one line must contain)
+BAD_VALUES = [
+    (["task.train.batch_size=-4"], ["task.train.batch_size=-4: expected a positive integer"]),
+    (["task.train.lr=abc"], ["task.train.lr='abc': expected a number"]),
+    (["task.train.lr=0"], ["task.train.lr=0: expected a positive number"]),
+    (["+task.train.batchsize=4"], ["task.train.batchsize: unknown key", "'batch_size'"]),
+    (["task.train.amp=1"], ["task.train.amp=1: expected true or false"]),
+    (["task.train.max_steps=0"], ["task.train.max_steps=0: expected a positive integer"]),
+    (["task.train.epochs=2.5"], ["task.train.epochs=2.5: expected an integer"]),
+    (["task.train.loss=l3"], ["task.train.loss='l3'", "'smape'"]),
+    (["task.preprocess.split.val=0.5"], ["task.preprocess.split: fractions sum to 1.35; expected 1"]),
+    (["task.preprocess.min_keep_prob=1.5"], ["task.preprocess.min_keep_prob=1.5: expected a value <= 1"]),
+    (["task.preprocess.repair.negative=drop"], ["task.preprocess.repair.negative='drop'", "'clamp'"]),
+    (["task.features=[color,colour]"], ["task.features[1]='colour'", ".var or .grad"]),
+    (["task.eval.split=train"], ["task.eval.split='train': expected one of 'val' or 'test'"]),
+    (["task.eval.tile=-1"], ["task.eval.tile=-1: expected a non-negative integer"]),
+    (["device=gpu"], ["device='gpu': expected one of 'auto', 'cpu' or 'cuda'"]),
+    (["seed=-1"], ["seed=-1: expected a non-negative integer"]),
+    (["metrics.tonemap=aces"], ["metrics.tonemap='aces'", "'clip_gamma'"]),
+    (["metrics.ssim.win_size=0"], ["metrics.ssim.win_size=0: expected a positive integer"]),
+    (["render.variant=vulkan"], ["render.variant='vulkan'", "'llvm_ad_rgb'"]),
+    (["tracking.experiment="], ["tracking.experiment=''", "non-empty"]),
+    (["+foo=1"], ["foo: unknown key"]),
+    (["model.width=-3"], ["model.width", "-3"]),
+    (["+model.widht=3"], ["model.widht: not an argument of conv_stack_denoiser"]),
+    (["model=kpcn", "model.kernel_size=4"], ["model.kernel_size", "odd"]),
+    (["task=nerf", "task.train.val_every=0"], ["task.train.val_every=0: expected a positive integer"]),
+    (["task=nerf", "task.train.precrop_frac=1.5"], ["task.train.precrop_frac=1.5: expected a value <= 1"]),
+    (["task=nerf", "task.eval.split=train"], ["task.eval.split='train'"]),
+    (["task=nerf", "model.num_coarse_samples=0"], ["model.num_coarse_samples", "0"]),
+]
+#: Run through the real CLI in the default suite (the rest with `-m slow`).
+CLI_SAMPLE = {0, 3, 11, 22}
+
+
+@pytest.mark.parametrize(("overrides", "needles"), BAD_VALUES, ids=lambda v: " ".join(v) if v else "")
+def test_a_bad_config_value_is_one_line_before_anything_runs(overrides, needles, tmp_path):
+    cfg = smoke_config(tmp_path / "data", tmp_path / "run", overrides)
+    with pytest.raises(ConfigError) as excinfo:
+        validate_run(cfg)
+    one_line_error(excinfo, *needles)
+
+
+def test_the_shipped_configs_pass_the_schema(tmp_path):
+    for overrides in ([], ["profile=paper"], ["task=nerf"], ["task=nerf", "profile=paper", "model=refnerf"]):
+        validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))
+
+
+def run_cli(args, data):
+    env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{data}/mlflow.db"}
+    cmd = [sys.executable, "-m", "src.run", *args, f"hydra.run.dir={data}/run", "profile=smoke"]
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+
+
+def _cli_cases(slow: bool):
+    marks = [pytest.mark.slow] if slow else []
+    return [
+        pytest.param(o, n, marks=marks, id=" ".join(o))
+        for i, (o, n) in enumerate(BAD_VALUES)
+        if (i in CLI_SAMPLE) != slow
+    ]
+
+
+@pytest.mark.parametrize(("overrides", "needles"), _cli_cases(slow=False) + _cli_cases(slow=True))
+def test_the_cli_exits_2_with_the_line_and_writes_nothing(overrides, needles, tmp_path):
+    data = tmp_path / "data"
+    result = run_cli(overrides, data)
+    one_line_cli_error(result, *needles)
+    assert not (data / "procedural").exists() and not (data / "nerf_procedural").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "needles"),
+    [
+        (["stage=train"], ["prepared/patches/train/index.json", "run stage=preprocess (or dvc repro) first"]),
+        pytest.param(["stage=preprocess"], ["raw: not found", "run stage=render"], marks=pytest.mark.slow),
+        pytest.param(["stage=eval"], ["run stage=preprocess"], marks=pytest.mark.slow),
+        pytest.param(
+            ["task=nerf", "stage=train"],
+            ["transforms_train.json", "run stage=render"],
+            marks=pytest.mark.slow,
+        ),
+    ],
+)
+def test_a_stage_started_too_early_names_the_stage_to_run_first(args, needles, tmp_path):
+    one_line_cli_error(run_cli(args, tmp_path / "data"), *needles)
