@@ -42,6 +42,17 @@ BAD_VALUES = [
     (["task=nerf", "task.train.precrop_frac=1.5"], ["task.train.precrop_frac=1.5: expected a value <= 1"]),
     (["task=nerf", "task.eval.split=train"], ["task.eval.split='train'"]),
     (["task=nerf", "model.num_coarse_samples=0"], ["model.num_coarse_samples", "0"]),
+    (["dataset.width=0"], ["dataset.width=0: expected a positive integer"]),
+    (
+        ["dataset.reference_spp=16"],
+        ["dataset.reference_spp=16: expected more than the largest noisy_spp (16)"],
+    ),
+    (["dataset.randomize.fov=[60,30]"], ["dataset.randomize.fov=[60, 30]: expected [lo, hi] with lo <= hi"]),
+    (["dataset.randomize.materials=[wood]"], ["dataset.randomize.materials[0]='wood'", "'plastic'"]),
+    (["dataset.noisy_spp=[]"], ["dataset.noisy_spp=[]: expected at least 1 items"]),
+    (["task=nerf", "dataset.far=1.0"], ["dataset.far=1: expected more than dataset.near=2"]),
+    (["task=nerf", "dataset.views.train=0"], ["dataset.views.train=0: expected a positive integer"]),
+    (["task=nerf", "dataset=blender"], ["dataset.root='???': missing; expected the folder"]),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 3, 11, 22}
@@ -56,7 +67,8 @@ def test_a_bad_config_value_is_one_line_before_anything_runs(overrides, needles,
 
 
 def test_the_shipped_configs_pass_the_schema(tmp_path):
-    for overrides in ([], ["profile=paper"], ["task=nerf"], ["task=nerf", "profile=paper", "model=refnerf"]):
+    shipped = ([], ["profile=paper"], ["task=nerf"], ["task=nerf", "profile=paper", "model=refnerf"])
+    for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
         validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))
 
 

@@ -19,8 +19,10 @@ from pydantic_core import ErrorDetails
 
 from src.errors import ConfigError
 
-#: Error type of our own validators (`NrbenchCheck`): their message is already the whole line.
+#: Error type of our own validators (`types.own_error`): their message is already the whole line.
 OWN_ERROR = "nrbench"
+#: Error type of a validator that states what it expected (`types.expected`).
+EXPECTED = "nrbench_expected"
 
 
 def _show(value: Any) -> str:
@@ -69,6 +71,8 @@ def _plain_types(annotation: Any) -> set[Any]:
 def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
     """What the schema expected, in words, for one pydantic error."""
     kind, ctx = error["type"], error.get("ctx", {})
+    if kind == EXPECTED:
+        return error["msg"]
     bound = next((ctx[k] for k in ("gt", "ge", "lt", "le") if k in ctx), None)
     if kind == "greater_than" and bound == 0:
         return f"expected a positive {_noun(model, error['loc'])}"
@@ -85,6 +89,8 @@ def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
         "bool_type": "expected true or false",
         "string_type": "expected a string",
         "list_type": "expected a list",
+        "too_short": f"expected at least {ctx.get('min_length')} items",
+        "too_long": f"expected at most {ctx.get('max_length')} items",
         "dict_type": "expected a mapping",
         "model_type": "expected a mapping",
         "literal_error": f"expected one of {ctx.get('expected', '')}",

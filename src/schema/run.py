@@ -10,6 +10,7 @@ from pydantic import Field
 
 from src.errors import ConfigError, NrbenchError, one_line
 from src.schema.checks import check
+from src.schema.dataset import DATASET_SCHEMAS
 from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema
 
 
@@ -87,7 +88,8 @@ def resolved(cfg: DictConfig) -> dict[str, Any]:
 
 
 def validate_run(cfg: DictConfig) -> dict[str, Any]:
-    """Check the resolved config against the schemas: the root keys and the task's `schema`; then build
+    """Check the resolved config against the schemas: the root keys, the task's `schema` and the dataset's
+    (`DATASET_SCHEMAS`, by name); then build
     the method once (its constructor is the schema of `model:`: keys, types and ranges) and drop it.
     Raises a one-line ConfigError; returns the resolved values."""
     from src.models.instantiate import build_method
@@ -97,5 +99,8 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
     check(RunSchema, values)
     task = task_of(cfg)
     check(task.schema, values["task"], "task")
+    dataset_schema = DATASET_SCHEMAS.get(values["dataset"].get("name"))
+    if dataset_schema is not None:
+        check(dataset_schema, values["dataset"], "dataset")
     build_method(values["model"])
     return values

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 from pydantic_core import PydanticCustomError
 
 from src.errors import ConfigError
-from src.schema.checks import OWN_ERROR
+from src.schema.checks import EXPECTED, OWN_ERROR
 
 PositiveInt = Annotated[int, Field(gt=0)]
 NonNegativeInt = Annotated[int, Field(ge=0)]
@@ -38,6 +38,22 @@ class Target(BaseModel):
     model_config = ConfigDict(extra="allow", populate_by_name=True, strict=True)
     target: str = Field(alias="_target_", min_length=1)
     partial: bool = Field(default=False, alias="_partial_")
+
+
+def expected(text: str) -> PydanticCustomError:
+    """An error of a value whose expectation a validator states (`<key>=<value>: <text>`)."""
+    return PydanticCustomError(EXPECTED, "{text}", {"text": text})
+
+
+def _ordered(pair: list[float]) -> list[float]:
+    if pair[0] > pair[1]:
+        raise expected("expected [lo, hi] with lo <= hi")
+    return pair
+
+
+#: A uniform range [lo, hi] of the procedural scene families.
+Range = Annotated[list[float], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+Colour = Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=3, max_length=3)]
 
 
 def own_error(message: str) -> PydanticCustomError:
