@@ -52,6 +52,48 @@ class Tracking(Schema):
     group: str | None
 
 
+class Report(Schema):
+    name: str = Field(min_length=1)
+    out_dir: str
+    experiment: str = Field(min_length=1)
+    parent_run_id: str | None
+    sweep_dir: str | None
+    group: str | None
+    tags: dict[str, str]
+    filter: str | None
+    axes: list[str] = Field(min_length=1)
+    columns_by: str | None
+    keep: Literal["latest", "all"]
+    images: NonNegativeInt
+
+
+class Paths(Schema):
+    root: str
+    data: str
+    dataset: str
+    raw: str
+    prepared: str
+    run_dir: str
+    scenes: str | None = None  # the radiance-field task's scene folders
+
+
+class DenoiseCompare(Schema):
+    learned: list[str]
+    baselines: list[str]
+
+
+class NerfCompare(Schema):
+    models: list[str]
+    scenes: list[str]
+
+
+class Compare(Schema):
+    """conf/compare.yaml: the models and scenes the sweeps and dvc.yaml compare."""
+
+    denoise: DenoiseCompare
+    nerf: NerfCompare
+
+
 class Render(Schema):
     variant: Literal["auto", "cuda_ad_rgb", "llvm_ad_rgb"]
 
@@ -64,12 +106,12 @@ class RunSchema(Schema):
     data_seed: NonNegativeInt
     device: Literal["auto", "cpu", "cuda"]
     profile_name: str
-    paths: Open
+    paths: Paths
     tracking: Tracking
     metrics: Metrics
-    report: Open
+    report: Report
     render: Render
-    compare: Open
+    compare: Compare
     task: Open
     dataset: Open
     model: Open
