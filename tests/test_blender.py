@@ -12,7 +12,7 @@ from src.data.blender import load_blender_split
 from src.data.ray_batches import RayBatcher, step_seed
 from src.data.rays import RADIUS_SCALE, generate_rays, pixel_footprint_radii, rays_for_pixels
 from src.data.rgba import downscale_rgba
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from tests.conftest import one_line_error
 
 ANGLE = 0.6911112070083618
@@ -279,3 +279,23 @@ def test_batcher_from_a_loaded_split(tmp_path):
     b = batcher.batch(0)
     np.testing.assert_allclose(b["rgb"].numpy(), split.images[b["cam"], b["row"], b["col"]])
     np.testing.assert_allclose(b["radii"].numpy(), RADIUS_SCALE / split.focal, rtol=1e-6)
+
+
+def test_alpha_is_present_in_every_frame_or_explicitly_absent(tmp_path):
+    rgba = fixture_images()
+    write_scene(tmp_path / "mixed", images=[rgba[0], rgba[1][..., :3]])  # frame 1 lost its alpha
+    with pytest.raises(DataError) as excinfo:
+        load_blender_split(tmp_path / "mixed", "train")
+    one_line_error(excinfo, "r_1.png", "has no alpha channel", "expected RGBA", "like", "r_0.png")
+
+    write_scene(tmp_path / "rgb", images=[img[..., :3] for img in rgba])
+    assert (load_blender_split(tmp_path / "rgb", "train", alpha="rgb").alphas == 1).all()
+    with pytest.raises(DataError) as excinfo:
+        load_blender_split(tmp_path / "rgb", "train", alpha="rgba")
+    one_line_error(excinfo, "r_0.png", "has no alpha channel", "dataset.alpha=rgba")
+    with pytest.raises(DataError) as excinfo:
+        load_blender_split(tmp_path / "mixed", "train", alpha="rgb")
+    one_line_error(excinfo, "r_0.png", "has an alpha channel", "expected RGB (dataset.alpha=rgb)")
+    with pytest.raises(ConfigError) as excinfo:
+        load_blender_split(tmp_path / "rgb", "train", alpha="maybe")
+    one_line_error(excinfo, "dataset.alpha='maybe'", "'rgba'")

@@ -134,9 +134,9 @@ def _check_options(background, downscale, max_images) -> tuple[np.ndarray, int]:
     return background, downscale
 
 
-def _read_frame(scene_dir: Path, transforms: Path, index: int, frame) -> tuple[np.ndarray, Path, np.ndarray]:
-    """Frame ``index`` of ``transforms``: its checked camera-to-world, its image file and that image's
-    (H, W, 4) RGBA."""
+def _read_frame(scene_dir: Path, transforms: Path, index: int, frame):
+    """Frame ``index`` of ``transforms``: its checked camera-to-world, its image file, that image's
+    (H, W, 4) RGBA and whether the file has an alpha channel."""
     if not isinstance(frame, dict):
         raise DataError(f"{transforms}: frames[{index}] is a {type(frame).__name__}; expected an object")
     for key in ("file_path", "transform_matrix"):
@@ -144,7 +144,23 @@ def _read_frame(scene_dir: Path, transforms: Path, index: int, frame) -> tuple[n
             raise DataError(f"{transforms}: frames[{index}] is missing key '{key}'; found {sorted(frame)}")
     matrix = _check_matrix(transforms, index, frame["transform_matrix"])
     path = _image_file(scene_dir, transforms, index, frame["file_path"])
-    return matrix, path, read_rgba(path)
+    return matrix, path, *read_rgba(path)
+
+
+#: `alpha` choices: every frame has an alpha channel (rgba), none has (rgb), or all are alike (auto).
+ALPHA_POLICIES = ("auto", "rgba", "rgb")
+
+
+def _check_alpha(path: Path, has_alpha: bool, policy: str, first: tuple[Path, bool] | None):
+    """The (path, has_alpha) of the split's first image; every image must have an alpha channel if
+    `policy` is rgba, none if rgb, and the same as the first one if auto (a scene mixing the two would be
+    composited on the background in some views only)."""
+    wanted = {"rgba": True, "rgb": False}.get(policy, has_alpha if first is None else first[1])
+    if has_alpha != wanted:
+        found = "has an alpha channel" if has_alpha else "has no alpha channel"
+        reason = f"like {first[0]}" if policy == "auto" else f"dataset.alpha={policy}"
+        raise DataError(f"{path}: image {found}; expected {'RGBA' if wanted else 'RGB'} ({reason})")
+    return first or (path, has_alpha)
 
 
 def _check_size(path: Path, rgba: np.ndarray, first: tuple[Path, tuple[int, int]] | None, downscale: int):
@@ -171,27 +187,33 @@ def load_blender_split(
     background: Sequence[float] = (1.0, 1.0, 1.0),
     downscale: int = 1,
     max_images: int | None = None,
+    alpha: str = "auto",
 ) -> BlenderSplit:
     """Load ``<scene_dir>/transforms_<split>.json`` and its images (the first ``max_images`` frames).
 
     Images are downscaled by the integer ``downscale`` (see ``downscale_rgba``; the focal length scales
-    with them) and composited on ``background``. Every malformed input raises a one-line ``DataError``.
+    with them) and composited on ``background``. ``alpha`` says whether frames must have an alpha channel
+    (``ALPHA_POLICIES``). Every malformed input raises a one-line ``DataError``.
     """
     scene_dir = Path(scene_dir)
     background, downscale = _check_options(background, downscale, max_images)
+    if alpha not in ALPHA_POLICIES:
+        raise ConfigError(f"dataset.alpha={alpha!r}: expected one of {list(ALPHA_POLICIES)}")
     transforms = scene_dir / f"transforms_{split}.json"
     meta = _read_transforms(transforms)
     frames = meta["frames"][:max_images]
 
     images, alphas, c2w, names, files = [], [], [], [], []
     first: tuple[Path, tuple[int, int]] | None = None
+    first_alpha: tuple[Path, bool] | None = None
     for index, frame in enumerate(frames):
-        matrix, path, rgba = _read_frame(scene_dir, transforms, index, frame)
+        matrix, path, rgba, has_alpha = _read_frame(scene_dir, transforms, index, frame)
         first = _check_size(path, rgba, first, downscale)
+        first_alpha = _check_alpha(path, has_alpha, alpha, first_alpha)
         rgba = downscale_rgba(rgba, downscale)
-        alpha = rgba[..., 3:]
-        images.append(rgba[..., :3] * alpha + background * (1.0 - alpha))
-        alphas.append(alpha[..., 0])
+        opacity = rgba[..., 3:]
+        images.append(rgba[..., :3] * opacity + background * (1.0 - opacity))
+        alphas.append(opacity[..., 0])
         c2w.append(matrix)
         names.append(path.stem)
         files.append(path)

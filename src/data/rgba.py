@@ -10,8 +10,9 @@ from PIL import Image
 from src.errors import DataError
 
 
-def read_rgba(path: Path) -> np.ndarray:
-    """(H, W, 4) float32 in [0, 1] (straight alpha; alpha 1 when the file has none)."""
+def read_rgba(path: Path) -> tuple[np.ndarray, bool]:
+    """(H, W, 4) float32 in [0, 1] (straight alpha; alpha 1 when the file has none), and whether the file
+    has an alpha channel."""
     try:
         with Image.open(path) as img:
             img.load()
@@ -28,9 +29,10 @@ def read_rgba(path: Path) -> np.ndarray:
     if pixels.dtype != np.uint8:
         raise DataError(f"{path}: image samples are {pixels.dtype}; expected 8-bit")
     rgba = pixels.astype(np.float32) / 255.0
-    if rgba.shape[-1] == 3:
+    has_alpha = rgba.shape[-1] == 4
+    if not has_alpha:
         rgba = np.concatenate([rgba, np.ones_like(rgba[..., :1])], axis=-1)
-    return rgba
+    return rgba, has_alpha
 
 
 def downscale_rgba(rgba: np.ndarray, factor: int) -> np.ndarray:

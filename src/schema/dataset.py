@@ -100,6 +100,7 @@ class NearFar(Schema):
     near: PositiveFloat
     far: PositiveFloat
     background: Colour
+    alpha: Literal["auto", "rgba", "rgb"]
 
     @model_validator(mode="after")
     def _far_beyond_near(self) -> NearFar:

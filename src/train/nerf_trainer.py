@@ -46,6 +46,7 @@ def load_split(cfg: DictConfig, split: str, max_images: int | None = None):
         background=tuple(cfg.dataset.background),
         downscale=int(cfg.dataset.get("downscale", 1) or 1),
         max_images=max_images,
+        alpha=str(cfg.dataset.alpha),
     )
 
 
