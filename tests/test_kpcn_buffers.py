@@ -5,13 +5,8 @@ import logging
 import numpy as np
 import pytest
 
-from src.data.kpcn_buffers import (
-    KPCN_BUFFERS,
-    RepairPolicy,
-    buffers_to_channels,
-    load_kpcn_exr,
-    write_kpcn_exr,
-)
+from src.data.exr_buffers import BufferLayout, RepairPolicy, buffers_to_channels, load_buffers, write_buffers
+from src.data.kpcn_buffers import KPCN_BUFFERS, KPCN_LAYOUT, load_kpcn_exr, write_kpcn_exr
 from src.errors import ConfigError, DataError
 from src.io.exr import read_exr, write_exr
 from tests.conftest import one_line_error
@@ -28,7 +23,7 @@ def make_buffers(seed=0, h=H, w=W):
 
 def write_channels(path, **overrides):
     """Write a valid KPCN file with some channels replaced (value) or dropped (None)."""
-    channels = buffers_to_channels(make_buffers())
+    channels = buffers_to_channels(KPCN_LAYOUT, make_buffers())
     for name, value in overrides.items():
         name = name.replace("__", ".")
         if value is None:
@@ -73,10 +68,10 @@ def test_single_channel_buffers_accept_2d_and_subset_load(tmp_path):
 
 def test_buffers_to_channels_rejects_bad_input():
     with pytest.raises(DataError) as excinfo:
-        buffers_to_channels({"colour": np.zeros((H, W, 3))})
+        buffers_to_channels(KPCN_LAYOUT, {"colour": np.zeros((H, W, 3))})
     one_line_error(excinfo, "'colour'")
     with pytest.raises(DataError) as excinfo:
-        buffers_to_channels({"normal": np.zeros((H, W, 1))})
+        buffers_to_channels(KPCN_LAYOUT, {"normal": np.zeros((H, W, 1))})
     one_line_error(excinfo, "'normal'", "(H, W, 3)")
 
 
@@ -111,7 +106,7 @@ def test_non_float_channel_rejected(tmp_path):
 
 
 def _with(channel, index, value, dtype=np.float32):
-    arr = np.asarray(buffers_to_channels(make_buffers())[channel], dtype=dtype).copy()
+    arr = np.asarray(buffers_to_channels(KPCN_LAYOUT, make_buffers())[channel], dtype=dtype).copy()
     for i in np.atleast_1d(index):
         arr.flat[i] = value
     return arr
@@ -190,7 +185,7 @@ def test_combined_repairs_counted_per_channel(tmp_path):
 
 
 def test_aliases_map_differently_named_files(tmp_path):
-    channels = buffers_to_channels(make_buffers())
+    channels = buffers_to_channels(KPCN_LAYOUT, make_buffers())
     for c, alias in zip("RGB", "XYZ", strict=True):
         channels[f"normal.{alias}"] = channels.pop(f"normal.{c}")
     path = write_exr(tmp_path / "xyz.exr", channels)
@@ -230,3 +225,25 @@ def test_unreadable_file_is_data_error(tmp_path):
     with pytest.raises(DataError) as excinfo:
         load_kpcn_exr(path)
     one_line_error(excinfo, "junk.exr")
+
+
+def test_another_kind_of_data_gets_every_check_by_declaring_its_layout(tmp_path):
+    """A layout other than KPCN's (e.g. volumetric frames) is validated by the same loader."""
+    channels = {"scatter": ("scatter.R", "scatter.G", "scatter.B"), "densityVariance": ("densityVariance.Z",)}
+    layout = BufferLayout("volume", channels, radiance=("scatter",), variance=("densityVariance",))
+    good = {"scatter": np.ones((H, W, 3)), "densityVariance": np.zeros((H, W, 1))}
+    write_buffers(tmp_path / "ok.exr", layout, good)
+    loaded, _ = load_buffers(tmp_path / "ok.exr", layout)
+    np.testing.assert_array_equal(loaded["scatter"], good["scatter"])
+    bad = {**good, "densityVariance": -np.ones((H, W, 1))}
+    write_buffers(tmp_path / "neg.exr", layout, bad)
+    with pytest.raises(DataError) as excinfo:
+        load_buffers(tmp_path / "neg.exr", layout)
+    one_line_error(excinfo, "neg.exr", "densityVariance.Z", "negative variance")
+    write_buffers(tmp_path / "part.exr", layout, {"scatter": good["scatter"]})
+    with pytest.raises(DataError) as excinfo:
+        load_buffers(tmp_path / "part.exr", layout)
+    one_line_error(excinfo, "part.exr", "missing EXR channel", "densityVariance.Z")
+    with pytest.raises(ConfigError) as excinfo:
+        load_buffers(tmp_path / "ok.exr", layout, buffers=["color"])
+    one_line_error(excinfo, "unknown volume buffers", "'color'")

@@ -1,28 +1,20 @@
 """KPCN/Tungsten EXR buffer convention, shared by our renderer and by real KPCN data users already have.
 
 One EXR per (scene, spp) holds every buffer as flat channels: `R,G,B` (color), `diffuse.R/G/B`, ...,
-`depth.Z`, and one-channel variances of the pixel mean (`colorVariance.Z`, ...). Loading validates what
-later stages silently assume (all channels present, one size, finite, non-negative radiance and
-variance), because a NaN or a wrong channel name otherwise surfaces hours later as a diverged training
-run. Files named differently can be mapped with `aliases` instead of guessing alternative names.
+`depth.Z`, and one-channel variances of the pixel mean (`colorVariance.Z`, ...). It is one
+`BufferLayout` of `src.data.exr_buffers`, whose loader checks every file against it.
 """
 
 from __future__ import annotations
 
-import logging
 import os
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Literal
 
 import numpy as np
 
-from src.errors import ConfigError, DataError
-from src.io.exr import format_names, read_exr, write_exr
-
-log = logging.getLogger(__name__)
+from src.data.exr_buffers import BufferLayout, RepairPolicy, RepairReport, load_buffers, write_buffers
 
 _RGB = ("R", "G", "B")
 KPCN_BUFFERS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -41,129 +33,14 @@ KPCN_BUFFERS: Mapping[str, tuple[str, ...]] = MappingProxyType(
 
 RADIANCE_BUFFERS = ("color", "diffuse", "specular")
 VARIANCE_BUFFERS = tuple(b for b in KPCN_BUFFERS if b.endswith("Variance"))
-_CHANNEL_BUFFER = {ch: b for b, chans in KPCN_BUFFERS.items() for ch in chans}
-
-
-#: Where a RepairPolicy comes from in the config (its errors name these keys).
-REPAIR_KEY = "task.preprocess.repair"
-
-
-@dataclass(frozen=True)
-class RepairPolicy:
-    """What to do with bad values instead of failing; everything off (= fail) by default.
-
-    nonfinite: "zero" replaces NaN/Inf in any channel by 0.
-    negative: "clamp" sets negative radiance (color/diffuse/specular) and negative variance to 0.
-    firefly_clamp: caps color/diffuse/specular at this value. Each buffer is clamped on its own and nothing
-        is recomputed, so in clamped pixels color may differ from diffuse + specular (and the variances
-        still describe the unclamped samples).
-    """
-
-    nonfinite: Literal["error", "zero"] = "error"
-    negative: Literal["error", "clamp"] = "error"
-    firefly_clamp: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.nonfinite not in ("error", "zero"):
-            raise ConfigError(f"{REPAIR_KEY}.nonfinite={self.nonfinite!r}; expected 'error' or 'zero'")
-        if self.negative not in ("error", "clamp"):
-            raise ConfigError(f"{REPAIR_KEY}.negative={self.negative!r}; expected 'error' or 'clamp'")
-        if self.firefly_clamp is not None and not (
-            np.isfinite(self.firefly_clamp) and self.firefly_clamp > 0
-        ):
-            raise ConfigError(
-                f"{REPAIR_KEY}.firefly_clamp={self.firefly_clamp!r}; expected null or a positive number"
-            )
-
-
-@dataclass
-class RepairReport:
-    """Repairs applied to one file: counts[kind][channel] = number of values changed.
-
-    kind is "nonfinite" (set to 0), "negative" (clamped to 0) or "firefly" (clamped to firefly_clamp).
-    """
-
-    path: str
-    counts: dict[str, dict[str, int]] = field(default_factory=dict)
-
-    def add(self, kind: str, channel: str, count: int) -> None:
-        if count:
-            self.counts.setdefault(kind, {})[channel] = count
-
-    @property
-    def total(self) -> int:
-        return sum(n for per_channel in self.counts.values() for n in per_channel.values())
-
-    def summary(self) -> str:
-        """One line, e.g. `nonfinite: R=3, diffuse.G=1; firefly: R=12` or `no repairs`."""
-        if not self.total:
-            return "no repairs"
-        return "; ".join(
-            f"{kind}: " + ", ".join(f"{ch}={n}" for ch, n in per_channel.items())
-            for kind, per_channel in self.counts.items()
-        )
-
-
-def buffers_to_channels(buffers: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """(H, W, C) buffers (any subset of KPCN_BUFFERS; (H, W) allowed when C = 1) -> flat float32 channels."""
-    out = {}
-    for name, arr in buffers.items():
-        if name not in KPCN_BUFFERS:
-            raise DataError(f"unknown KPCN buffer {name!r}; known: {format_names(KPCN_BUFFERS)}")
-        chans = KPCN_BUFFERS[name]
-        arr = np.asarray(arr)
-        if arr.ndim == 2 and len(chans) == 1:
-            arr = arr[..., None]
-        if arr.ndim != 3 or arr.shape[-1] != len(chans):
-            raise DataError(f"KPCN buffer {name!r} has shape {arr.shape}; expected (H, W, {len(chans)})")
-        for i, ch in enumerate(chans):
-            out[ch] = np.ascontiguousarray(arr[..., i], dtype=np.float32)
-    return out
+KPCN_LAYOUT = BufferLayout("KPCN", KPCN_BUFFERS, radiance=RADIANCE_BUFFERS, variance=VARIANCE_BUFFERS)
 
 
 def write_kpcn_exr(
     path: str | os.PathLike[str], buffers: Mapping[str, np.ndarray], compression: str = "zip"
 ) -> Path:
     """Write KPCN buffers as one float32 EXR in the Tungsten channel naming (atomically)."""
-    return write_exr(path, buffers_to_channels(buffers), compression=compression)
-
-
-def _label(ch: str, file_ch: str) -> str:
-    alias = f"alias of {ch!r}, " if file_ch != ch else ""
-    return f"{file_ch!r} ({alias}buffer {_CHANNEL_BUFFER[ch]!r})"
-
-
-def _repair_channel(
-    path: Path, ch: str, file_ch: str, arr: np.ndarray, policy: RepairPolicy, report: RepairReport
-) -> np.ndarray:
-    """Check one float32 channel against the buffer's value range; repair in place if the policy says so."""
-    buf = _CHANNEL_BUFFER[ch]
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        if policy.nonfinite != "zero":
-            n_nan = int(np.isnan(arr).sum())
-            raise DataError(
-                f"{path}: channel {_label(ch, file_ch)} has {int(bad.sum())} non-finite values "
-                f"({n_nan} NaN, {int(bad.sum()) - n_nan} Inf); repair with {REPAIR_KEY}.nonfinite=zero"
-            )
-        arr[bad] = 0.0
-        report.add("nonfinite", file_ch, int(bad.sum()))
-    if buf in RADIANCE_BUFFERS or buf in VARIANCE_BUFFERS:
-        neg = arr < 0
-        if neg.any():
-            if policy.negative != "clamp":
-                what = "variance" if buf in VARIANCE_BUFFERS else "radiance"
-                raise DataError(
-                    f"{path}: channel {_label(ch, file_ch)} has {int(neg.sum())} negative {what} values "
-                    f"(min {arr.min():g}); repair with {REPAIR_KEY}.negative=clamp"
-                )
-            arr[neg] = 0.0
-            report.add("negative", file_ch, int(neg.sum()))
-    if buf in RADIANCE_BUFFERS and policy.firefly_clamp is not None:
-        hot = arr > policy.firefly_clamp
-        arr[hot] = policy.firefly_clamp
-        report.add("firefly", file_ch, int(hot.sum()))
-    return arr
+    return write_buffers(path, KPCN_LAYOUT, buffers, compression=compression)
 
 
 def load_kpcn_exr(
@@ -173,74 +50,5 @@ def load_kpcn_exr(
     aliases: Mapping[str, str] | None = None,
     buffers: Iterable[str] | None = None,
 ) -> tuple[dict[str, np.ndarray], RepairReport]:
-    """Load and validate a KPCN EXR -> ({buffer: float32 (H, W, C)}, repairs applied).
-
-    buffers: which buffers to load (default: all of KPCN_BUFFERS, in that order).
-    aliases: our channel name -> the name in this file, for data named differently, e.g.
-        `{"normal.R": "normal.X", "normal.G": "normal.Y", "normal.B": "normal.Z"}`. Only exactly the
-        listed names are accepted; no alternative spellings are guessed.
-    Raises a one-line DataError for a missing channel, a size different from `expected_size` (H, W) or
-    between channels, a non-float channel, NaN/Inf, or negative radiance/variance, unless `repair`
-    allows fixing the value errors; repairs are counted in the report and logged once per file.
-    """
-    path = Path(path)
-    policy = repair or RepairPolicy()
-    aliases = dict(aliases or {})
-    names = _buffer_names(aliases, buffers)
-    data = read_exr(path)
-    wanted = [(ch, aliases.get(ch, ch)) for b in names for ch in KPCN_BUFFERS[b]]
-    _check_channels(path, data, wanted, expected_size)
-
-    report = RepairReport(str(path))
-    out = {}
-    for b in names:
-        chans = [
-            _repair_channel(
-                path, ch, aliases.get(ch, ch), data[aliases.get(ch, ch)].astype(np.float32), policy, report
-            )
-            for ch in KPCN_BUFFERS[b]
-        ]
-        out[b] = np.stack(chans, axis=-1)
-    if report.total:
-        log.warning("%s: repaired %d values (%s)", path, report.total, report.summary())
-    return out, report
-
-
-def _buffer_names(aliases: Mapping[str, str], buffers: Iterable[str] | None) -> list[str]:
-    """The buffers to load (all of KPCN_BUFFERS by default, duplicates dropped), after checking that the
-    aliases and the buffers name known channels and buffers (one-line ConfigError otherwise)."""
-    unknown = [a for a in aliases if a not in _CHANNEL_BUFFER]
-    if unknown:
-        raise ConfigError(f"aliases for unknown KPCN channels {format_names(map(repr, unknown))}")
-    names = list(KPCN_BUFFERS) if buffers is None else list(dict.fromkeys(buffers))
-    unknown = [b for b in names if b not in KPCN_BUFFERS]
-    if unknown:
-        raise ConfigError(
-            f"unknown KPCN buffers {format_names(map(repr, unknown))}; known: {format_names(KPCN_BUFFERS)}"
-        )
-    return names
-
-
-def _check_channels(
-    path: Path, data: Mapping[str, np.ndarray], wanted: list[tuple[str, str]], expected_size
-) -> None:
-    """One-line DataError unless every wanted (our name, file name) channel is in the file, float, and of
-    `expected_size` (H, W), or else of the first channel's size."""
-    missing = [_label(ch, file_ch) for ch, file_ch in wanted if file_ch not in data]
-    if missing:
-        noun = "channel" if len(missing) == 1 else "channels"
-        raise DataError(f"{path}: missing EXR {noun} {format_names(missing, 8)}; found: {format_names(data)}")
-
-    first_ch = wanted[0][1]
-    size = expected_size or data[first_ch].shape
-    for _, file_ch in wanted:
-        shape = data[file_ch].shape
-        if tuple(shape) != tuple(size):
-            ref = "expected" if expected_size else f"channel {first_ch!r} is"
-            raise DataError(
-                f"{path}: channel {file_ch!r} is {shape[0]}x{shape[1]} (HxW), {ref} {size[0]}x{size[1]}"
-            )
-        if data[file_ch].dtype.kind != "f":
-            raise DataError(
-                f"{path}: channel {file_ch!r} has pixel type {data[file_ch].dtype}; expected float"
-            )
+    """Load and validate a KPCN EXR (`load_buffers` with `KPCN_LAYOUT`; see it for the checks)."""
+    return load_buffers(path, KPCN_LAYOUT, repair, expected_size, aliases, buffers)

@@ -80,7 +80,8 @@ class DenoiseTask(Task):
 
         Skipped when the prepared directory was made from the same settings and raw data (each job of a
         multirun would otherwise redo it)."""
-        from src.data.kpcn_buffers import RepairPolicy, load_kpcn_exr
+        from src.data.exr_buffers import RepairPolicy
+        from src.data.kpcn_buffers import load_kpcn_exr
         from src.data.shards import preprocess_dataset
 
         p = cfg.task.preprocess
