@@ -36,19 +36,21 @@ def _show(value: Any) -> str:
     return str(value)
 
 
-def _field(model: type[BaseModel], loc: Sequence[Any]):
-    """The schema field at `loc` (None when loc leaves the schema models)."""
-    field = None
+def _model_at(model: type[BaseModel] | None, loc: Sequence[Any]) -> type[BaseModel] | None:
+    """The schema model of the mapping at `loc` (None when loc leaves the schema models)."""
     for part in loc:
-        if field is not None:
-            candidates = _plain_types(field.annotation)
-            model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
-            if model is None:
-                return None
-        field = model.model_fields.get(str(part))
+        field = model.model_fields.get(str(part)) if model is not None else None
         if field is None:
             return None
-    return field
+        candidates = _plain_types(field.annotation)
+        model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+    return model
+
+
+def _field(model: type[BaseModel], loc: Sequence[Any]):
+    """The schema field at `loc` (None when loc leaves the schema models)."""
+    parent = _model_at(model, loc[:-1]) if loc else None
+    return parent.model_fields.get(str(loc[-1])) if parent is not None else None
 
 
 def _noun(model: type[BaseModel], loc: Sequence[Any]) -> str:
@@ -103,13 +105,8 @@ def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
 
 def _known_keys(model: type[BaseModel], loc: Sequence[Any]) -> list[str]:
     """The keys the schema allows at `loc` (for an unknown key's message)."""
-    for part in loc:
-        field = model.model_fields.get(str(part))
-        annotation = field.annotation if field is not None else None
-        if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
-            return []
-        model = annotation
-    return [field.alias or name for name, field in model.model_fields.items()]
+    found = _model_at(model, loc)
+    return [] if found is None else [field.alias or name for name, field in found.model_fields.items()]
 
 
 def _key(prefix: str, loc: Sequence[Any]) -> str:
