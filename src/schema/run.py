@@ -131,9 +131,8 @@ def resolved(cfg: DictConfig) -> dict[str, Any]:
 
 def validate_run(cfg: DictConfig) -> dict[str, Any]:
     """Check the resolved config against the schemas: the root keys, the task's `schema` and the dataset's
-    (`DATASET_SCHEMAS`, by name); then build
-    the method once (its constructor is the schema of `model:`: keys, types and ranges) and drop it.
-    Raises a one-line ConfigError; returns the resolved values."""
+    (`DATASET_SCHEMAS`, by name); then build the method once (its constructor is the schema of `model:`:
+    keys, types and ranges) and drop it. Raises a one-line ConfigError; returns the resolved values."""
     from src.models.instantiate import build_method
     from src.stages import task_of
 
