@@ -147,6 +147,25 @@ def test_resume_after_a_crash_continues_from_the_periodic_checkpoint(nerf_data, 
     _resume_and_compare(nerf_data, tmp_path, common, reference)
 
 
+def test_the_rng_states_of_a_checkpoint_restore_every_seeded_generator():
+    """What `seed_everything` seeds, a checkpoint restores: torch's CPU and CUDA generators (NeRF's
+    sample jitter draws on the training device) and Python's."""
+    import random
+
+    from src.train.checkpoint import rng_states, set_rng_states
+
+    def draws():
+        cuda = torch.rand(3, device="cuda").cpu() if torch.cuda.is_available() else None
+        return torch.rand(3), cuda, random.random()
+
+    saved = rng_states()
+    first = draws()
+    set_rng_states(saved)
+    again = draws()
+    assert torch.equal(first[0], again[0]) and first[2] == again[2]
+    assert first[1] is None or torch.equal(first[1], again[1])
+
+
 def test_a_missing_scene_is_one_clear_line(nerf_data, tmp_path):
     cfg = _cfg(nerf_data, tmp_path, "task.scene=lego", "tracking.enabled=false")
     with job_run(cfg, run_name="x", tags={}) as tracker, pytest.raises(DataError) as excinfo:
