@@ -1,3 +1,5 @@
+import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -60,6 +62,20 @@ def assert_loads_from_legacy_checkpoint(cfg, legacy_cfg, path):
 
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def cli_job(args, data_dir, store=None):
+    """(command, environment) of `python -m src.run *args` with the datasets under `data_dir` and MLflow
+    (database, artifacts) and reports under `store` (default `data_dir`): for `subprocess.run` or, to
+    signal the job, `subprocess.Popen`."""
+    store = store or data_dir
+    env = {
+        **os.environ,
+        "NRBENCH_DATA_DIR": str(data_dir),
+        "MLFLOW_TRACKING_URI": f"sqlite:///{store}/mlflow.db",
+    }
+    paths = [f"tracking.artifact_root={store}/mlartifacts", f"report.out_dir={store}/reports"]
+    return [sys.executable, "-m", "src.run", *args, *paths], env
 
 
 def stop_at(step):

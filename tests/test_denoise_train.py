@@ -1,9 +1,7 @@
 """Training, resume, checkpoints, tiled evaluation and MLflow logging of the denoisers (smoke profile)."""
 
 import json
-import os
 import subprocess
-import sys
 
 import mlflow
 import numpy as np
@@ -24,7 +22,7 @@ from src.train.checkpoint import load_checkpoint, save_checkpoint
 from src.train.losses import get_loss
 from src.train.schedules import log_linear_lr
 from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
-from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config, stop_at
+from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config, stop_at
 
 
 def _untracked(data, run_dir, *overrides):
@@ -159,9 +157,7 @@ def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
 
 
 def _run_cli(args, data, cwd=ROOT):
-    env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{data}/mlflow.db"}
-    paths = [f"tracking.artifact_root={data}/mlartifacts", f"report.out_dir={data}/reports"]
-    cmd = [sys.executable, "-m", "src.run", *args, *paths]
+    cmd, env = cli_job(args, data)
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 

@@ -2,11 +2,15 @@
 test views, resume exactly, and report per scene."""
 
 import json
+import signal
+import subprocess
+import time
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
+from mlflow.tracking import MlflowClient
 
 from src.errors import DataError
 from src.report.build import build_report
@@ -14,7 +18,7 @@ from src.stages import evaluate, render, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint
 from src.train.nerf_trainer import NerfTrainer, train_nerf
-from tests.conftest import one_line_error, smoke_config, stop_at
+from tests.conftest import ROOT, cli_job, one_line_error, smoke_config, stop_at
 
 
 def _cfg(data, run_dir, *overrides):
@@ -145,6 +149,96 @@ def test_resume_after_a_crash_continues_from_the_periodic_checkpoint(nerf_data, 
         train_nerf(interrupted, tracker, on_step=crash)
     assert load_checkpoint(tmp_path / "b" / "checkpoints")["step"] == 10
     _resume_and_compare(nerf_data, tmp_path, common, reference)
+
+
+def _job(args, data, store, **popen):
+    """`python -m src.run task=nerf profile=smoke *args` on the scenes in `data`, MLflow in `store`."""
+    cmd, env = cli_job(["task=nerf", "profile=smoke", *args], data, store)
+    return subprocess.Popen(cmd, cwd=ROOT, env=env, text=True, **popen)
+
+
+@pytest.mark.slow
+def test_a_run_killed_with_sigkill_resumes_to_the_same_weights_and_metrics(nerf_data, tmp_path):
+    """The real CLI, killed with SIGKILL (no handler runs) once a periodic checkpoint past the first
+    exists, then resumed from it in its run dir: the same final weights, curves, MLflow history (one
+    point per step) and test metrics as an uninterrupted run."""
+    common = ["task.train.max_steps=50", "task.train.checkpoint_every=5", "task.train.log_every=1"]
+
+    def train_and_eval(name, *extra):
+        for stage in ("train", "eval"):
+            args = [f"stage={stage}", f"hydra.run.dir={tmp_path}/{name}", *common, *extra]
+            job = _job(args, nerf_data, tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            out, err = job.communicate(timeout=600)
+            assert job.returncode == 0, out[-3000:] + err[-3000:]
+
+    train_and_eval("a")
+    args = ["stage=train", f"hydra.run.dir={tmp_path}/b", *common]
+    job = _job(args, nerf_data, tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    last = tmp_path / "b" / "checkpoints" / "last.pt"
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+
+    def logged_past_a_checkpoint():
+        """A periodic checkpoint past the first exists and the job has logged steps after it (which
+        the resumed job replays)."""
+        if not last.exists():  # written atomically: a file there is whole
+            return False
+        state = load_checkpoint(last)
+        logged = [m.step for m in client.get_metric_history(state["mlflow_run_id"], "train_psnr")]
+        return state["step"] >= 10 and max(logged) > state["step"] + 1
+
+    deadline = time.monotonic() + 300
+    while not logged_past_a_checkpoint():
+        assert job.poll() is None and time.monotonic() < deadline, "the job ended before it was killed"
+        time.sleep(0.05)
+    job.send_signal(signal.SIGKILL)
+    job.wait()
+    killed_at = load_checkpoint(last)
+    assert not (tmp_path / "b" / "checkpoints" / "final.pt").exists()  # killed mid-training
+    train_and_eval("b", f"task.train.resume={last.parent}")
+
+    a, b = (load_checkpoint(tmp_path / n / "checkpoints" / "final.pt") for n in ("a", "b"))
+    assert a["step"] == b["step"] == 50 and killed_at["step"] < 50
+    for key, value in a["model"].items():
+        assert torch.equal(b["model"][key], value), key
+    pd.testing.assert_frame_equal(
+        pd.read_csv(tmp_path / "b" / "curves.csv"), pd.read_csv(tmp_path / "a" / "curves.csv")
+    )
+
+    def timed(key):  # seconds and rates: they differ between any two runs
+        return "time" in key or "per_s" in key or "ms_per" in key
+
+    means = [json.loads((tmp_path / n / "eval" / "metrics.json").read_text())["mean"] for n in ("a", "b")]
+    assert {k: v for k, v in means[1].items() if not timed(k)} == {
+        k: v for k, v in means[0].items() if not timed(k)
+    }
+
+    # The killed run was continued, not restarted, and holds what the uninterrupted one holds.
+    assert b["mlflow_run_id"] == killed_at["mlflow_run_id"]
+    runs = [client.get_run(c["mlflow_run_id"]) for c in (a, b)]
+    assert [r.info.status for r in runs] == ["FINISHED", "FINISHED"]
+    assert runs[1].data.metrics.keys() == runs[0].data.metrics.keys()
+    for key in filter(lambda k: not timed(k), runs[0].data.metrics):
+        history = [[(m.step, m.value) for m in client.get_metric_history(r.info.run_id, key)] for r in runs]
+        assert sorted(history[1]) == sorted(history[0]), key
+
+
+def test_the_rng_states_of_a_checkpoint_restore_every_seeded_generator():
+    """What `seed_everything` seeds, a checkpoint restores: torch's CPU and CUDA generators (NeRF's
+    sample jitter draws on the training device) and Python's."""
+    import random
+
+    from src.train.checkpoint import rng_states, set_rng_states
+
+    def draws():
+        cuda = torch.rand(3, device="cuda").cpu() if torch.cuda.is_available() else None
+        return torch.rand(3), cuda, random.random()
+
+    saved = rng_states()
+    first = draws()
+    set_rng_states(saved)
+    again = draws()
+    assert torch.equal(first[0], again[0]) and first[2] == again[2]
+    assert first[1] is None or torch.equal(first[1], again[1])
 
 
 def test_a_missing_scene_is_one_clear_line(nerf_data, tmp_path):

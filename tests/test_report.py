@@ -2,7 +2,9 @@
 
 import base64
 import io
+import os
 import re
+from pathlib import Path
 
 import mlflow
 import numpy as np
@@ -267,6 +269,31 @@ def test_build_report_sweep_children_only(store, tmp_path):
     assert summary["runs"] == 2
     table = pd.read_csv(tmp_path / "sweep" / "comparison.csv", comment="#")
     assert sorted(table["model"]) == ["dpcn", "resnet"]
+
+
+def test_every_report_file_reaches_its_name_only_by_an_atomic_rename(store, tmp_path, monkeypatch):
+    """A report over other runs, into the directory of an earlier one, killed just before each rename
+    (here: every rename into the directory is dropped): every file of the earlier report is intact, so
+    none was written in place, and each file of the new one was bound for a rename."""
+    out = tmp_path / "reports" / "denoise"
+    build_report(_cfg(store, tmp_path / "reports"))
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    renamed = []
+    real_replace = os.replace
+
+    def crash_before_rename(src, dst):
+        if Path(dst).parent == out:
+            renamed.append(Path(dst).name)  # the temporary file is deleted, the old one stays
+        else:
+            real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", crash_before_rename)
+    summary = build_report(_cfg(store, tmp_path / "reports", sweep_dir=str(store["sweep_dir"])))
+    assert summary["runs"] == 2  # other tables, figures and page than the first report's
+    after = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert after.keys() == before.keys()  # nothing new, no temporary file left
+    assert [name for name in before if after[name] != before[name]] == []  # none written in place
+    assert sorted(renamed) == sorted(Path(f).name for f in summary["files"].values())
 
 
 @pytest.mark.parametrize(

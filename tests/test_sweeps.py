@@ -160,7 +160,8 @@ def test_bad_sweeper_settings_name_the_key():
 
 
 def sweep(args, data, out):
-    """`python -m src.run -m ...` at the smoke profile on the shared smoke dataset; outputs under `out`."""
+    """`python -m src.run -m ...` at the smoke profile on the shared smoke dataset; outputs under `out`.
+    Returns its output (stdout, then stderr)."""
     env = {**os.environ, "NRBENCH_DATA_DIR": str(data), "MLFLOW_TRACKING_URI": f"sqlite:///{out}/mlflow.db"}
     cmd = [
         sys.executable,
@@ -175,7 +176,7 @@ def sweep(args, data, out):
     ]
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
-    return result.stdout
+    return result.stdout + result.stderr
 
 
 def read_csv(path):
@@ -205,6 +206,26 @@ def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp
     losses = read_csv(report / "losses.csv")
     assert len(losses) == 2 and {"val specular", "train specular"} <= set(losses[0])
     assert (report / "learning_curves.png").is_file() and (report / "index.html").is_file()
+
+
+@pytest.mark.slow
+def test_six_jobs_on_two_workers_share_one_sqlite_store_without_a_database_error(smoke_data, tmp_path):
+    """Two joblib workers write one SQLite MLflow store at once (experiment creation, runs, params,
+    metrics, artifacts): every job's run ends FINISHED with its test metrics, under one parent run."""
+    args = ["hydra/launcher=parallel", "hydra.launcher.n_jobs=2", "model=cross_bilateral,oidn", "seed=0,1,2"]
+    out = sweep(args, smoke_data, tmp_path)
+    assert "database is locked" not in out and "Traceback" not in out, out[-3000:]
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path}/mlflow.db")
+    runs = mlflow.search_runs(experiment_names=["nrbench-denoise"])
+    parents = runs[runs["tags.mlflow.parentRunId"].isna()]
+    children = runs[runs["tags.mlflow.parentRunId"].notna()]
+    assert len(parents) == 1 and set(parents["status"]) == {"FINISHED"}
+    assert len(children) == 6 and set(children["status"]) == {"FINISHED"}
+    assert set(children["tags.mlflow.parentRunId"]) == set(parents["run_id"])
+    settings = sorted(zip(children["params.model.name"], children["params.seed"], strict=True))
+    assert settings == sorted((m, s) for m in ("cross_bilateral", "oidn") for s in "012")
+    for key in ("metrics.eval_psnr", "metrics.eval_relmse", "metrics.eval_ssim"):
+        assert children[key].notna().all(), key
 
 
 def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_path):

@@ -142,6 +142,21 @@ def test_resume_continues_the_same_run(store):
     assert len(mlflow.search_runs(experiment_names=["nrbench-test"])) == 1
 
 
+def test_a_resumed_training_does_not_log_the_steps_a_crash_left_logged_again(store):
+    """Killed (SIGKILL) at step 5 after a checkpoint at step 3: the resumed job replays steps 4 and 5 and
+    logs each step once."""
+    with job_run(make_cfg(store), run_name="r", tags={}) as first:
+        for step in range(1, 6):
+            first.log_metrics({"loss": 1.0 / step, "psnr": float(step)}, step=step)
+    with job_run(make_cfg(store), run_name="r", tags={}, resume_run_id=first.run_id) as resumed:
+        resumed.skip_logged_after(3)
+        for step in range(4, 8):
+            resumed.log_metrics({"loss": 1.0 / step, "psnr": float(step)}, step=step)
+    for key in ("loss", "psnr"):
+        history = MlflowClient().get_metric_history(first.run_id, key)
+        assert sorted(m.step for m in history) == list(range(1, 8)), key
+
+
 def test_resume_of_an_unknown_run_starts_a_new_one(store, caplog):
     with job_run(make_cfg(store), run_name="r", tags={}, resume_run_id="f" * 32) as tracker:
         pass

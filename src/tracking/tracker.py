@@ -24,10 +24,26 @@ class Tracker:
     def __init__(self, run_id: str | None = None):
         self.run_id = run_id
         self._client = MlflowClient() if run_id else None
+        self._logged: set[tuple[str, int]] = set()  # (key, step) points not to log again (see below)
 
     @property
     def enabled(self) -> bool:
         return self.run_id is not None
+
+    def skip_logged_after(self, step: int) -> None:
+        """A training resumed from its checkpoint of `step` replays the steps after it, and a crash no
+        handler saw (SIGKILL, OOM) left some of them logged in this run already: those (key, step) points
+        are not logged again, so the run's history is the uninterrupted run's, one point per step (the
+        replayed values are the same: training is deterministic given the checkpoint)."""
+        if not self.enabled:
+            return
+        keys = self._client.get_run(self.run_id).data.metrics
+        self._logged = {
+            (m.key, m.step)
+            for key in keys
+            for m in self._client.get_metric_history(self.run_id, key)
+            if m.step > step
+        }
 
     def log_metrics(self, metrics: Mapping[str, float], step: int | None = None) -> None:
         """Log several metrics at one step (and one timestamp)."""
@@ -35,6 +51,7 @@ class Tracker:
             return
         stamp = int(time.time() * 1000)
         entries = [Metric(param_key(k), float(v), stamp, step or 0) for k, v in metrics.items()]
+        entries = [m for m in entries if (m.key, m.step) not in self._logged]
         for i in range(0, len(entries), MAX_METRICS_PER_BATCH):
             self._client.log_batch(self.run_id, metrics=entries[i : i + MAX_METRICS_PER_BATCH])
 

@@ -9,6 +9,7 @@ instead of a wall of state_dict key errors).
 from __future__ import annotations
 
 import os
+import random
 from pathlib import Path
 from typing import Any
 
@@ -98,9 +99,28 @@ def load_weights(model: torch.nn.Module, model_cfg: dict[str, Any], path: str | 
     return state
 
 
+def rng_states() -> dict[str, Any]:
+    """Every generator `seed_everything` seeds: torch's CPU one, each CUDA device's (NeRF's sample
+    jitter draws on the device it trains on) and Python's."""
+    return {
+        "torch_rng": torch.get_rng_state(),
+        "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+        "python_rng": random.getstate(),
+    }
+
+
+def set_rng_states(state: dict[str, Any]) -> None:
+    """Restore what `rng_states` saved (checkpoints from before `cuda_rng` / `python_rng` lack them)."""
+    torch.set_rng_state(state["torch_rng"])
+    if state.get("cuda_rng") is not None and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda_rng"])
+    if state.get("python_rng") is not None:
+        random.setstate(state["python_rng"])
+
+
 def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **extra: Any) -> dict[str, Any]:
     """What both training loops checkpoint: model config, model, optimiser, position, training time,
-    torch RNG (the data order and sample jitter draw from it), MLflow run id and the curves so far.
+    RNG states (the sample jitter draws from them), MLflow run id and the curves so far.
 
     `trainer` has `model_cfg`, `model`, `optimizer`, `train_seconds`, `tracker` and `curves`."""
     return {
@@ -112,18 +132,18 @@ def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **e
         "batch_in_epoch": batch_in_epoch,
         "step": step,
         "train_seconds": trainer.train_seconds,
-        "torch_rng": torch.get_rng_state(),
+        **rng_states(),
         "mlflow_run_id": trainer.tracker.run_id,
         "curves": trainer.curves,
     }
 
 
 def restore_training_state(trainer: Any, path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Load checkpoint `path` into `trainer` (checked against its model config): model, optimiser, torch
-    RNG, training time and curves; returns the checkpoint for the caller's position fields."""
+    """Load checkpoint `path` into `trainer` (checked against its model config): model, optimiser, RNG
+    states, training time and curves; returns the checkpoint for the caller's position fields."""
     state = load_weights(trainer.model, trainer.model_cfg, path)
     trainer.optimizer.load_state_dict(state["optimizer"])
-    torch.set_rng_state(state["torch_rng"])
+    set_rng_states(state)
     trainer.train_seconds = float(state.get("train_seconds", 0.0))
     trainer.curves = list(state.get("curves", []))
     return state

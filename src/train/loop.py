@@ -143,6 +143,7 @@ class TrainingLoop:
     def restore(self, path: str) -> None:
         state = restore_training_state(self, path)
         self.pos = Position(state["epoch"], state["batch_in_epoch"], state["step"])
+        self.tracker.skip_logged_after(self.pos.step)  # what a crash after this checkpoint logged
         log.info("resumed from %s at epoch %d, batch %d, step %d", path, *vars(self.pos).values())
 
     # -- the loop ---------------------------------------------------------------------------------------

@@ -9,7 +9,8 @@ level's PSNR are logged; per `val_every` steps the same on a fixed subset of val
 
 The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`: a
 NeRF run is one epoch of `max_steps` batches. The checkpoint holds the step, the model, the optimiser, the
-torch RNG (stratified sampling draws from it) and the curves, so a resumed run ends with the same weights.
+RNG states (stratified sampling draws from them, on the training device) and the curves, so a resumed run
+ends with the same weights.
 """
 
 from __future__ import annotations
