@@ -152,3 +152,16 @@ def test_every_stage_declares_what_it_reads_and_writes(tmp_path, monkeypatch, mi
         if missing := [o for o in outs if not (tmp_path / o).exists()]:
             problems.append(f"{name} did not write its declared outs {missing}")
     assert not problems, "\n".join(problems)
+
+
+def test_no_two_stages_write_the_same_file():
+    """Every out (metrics and plots included) belongs to one stage and none lies inside another's, so two
+    stages (e.g. parallel `dvc repro -j`) never write the same file."""
+    owner: dict[str, str] = {}
+    for stage in Repo(ROOT).index.stages:
+        for out in stage.outs:
+            path = str(out.def_path)
+            clash = [p for p in owner if p == path or _inside(path, [p]) or _inside(p, [path])]
+            assert not clash, f"{stage.addressing} writes {path}, which {owner[clash[0]]} writes ({clash[0]})"
+            owner[path] = stage.addressing
+    assert len(owner) > 20  # every stage of the study was seen (render ... report)
