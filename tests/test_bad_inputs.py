@@ -53,6 +53,19 @@ BAD_VALUES = [
     (["task=nerf", "dataset.far=1.0"], ["dataset.far=1: expected more than dataset.near=2"]),
     (["task=nerf", "dataset.views.train=0"], ["dataset.views.train=0: expected a positive integer"]),
     (["task=nerf", "dataset=blender"], ["dataset.root='???': missing; expected the folder"]),
+    (
+        ["dataset.base_scenes.tabletop.light.radiance=-1"],
+        ["dataset.base_scenes.tabletop.light.radiance=-1: expected a non-negative number"],
+    ),
+    (
+        ["+dataset.base_scenes.cornell.lights=2"],
+        ["dataset.base_scenes.cornell.lights: unknown key", "'camera'"],
+    ),
+    (
+        ["task=nerf", "dataset.scene_params.busy.shapes=[torus]"],
+        ["dataset.scene_params.busy.shapes[0]='torus'"],
+    ),
+    (["task=nerf", "dataset.scene_params.materials.env.res=0"], ["materials.env.res=0: expected a positive"]),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 3, 11, 22}

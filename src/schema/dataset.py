@@ -1,6 +1,5 @@
 """Schemas of `dataset:`, one per shipped dataset (chosen by `dataset.name`; a user's own dataset config
-is checked where it is read). The scene families' nested layout blocks (`base_scenes`, `scene_params`)
-are checked by their builders."""
+is checked where it is read), down to the scene families' layout, light and material blocks."""
 
 from __future__ import annotations
 
@@ -10,6 +9,7 @@ from pydantic import Field, field_validator, model_validator
 
 from src.schema.types import (
     Colour,
+    NonNegativeFloat,
     NonNegativeInt,
     Open,
     PositiveFloat,
@@ -63,6 +63,72 @@ class Randomize(Schema):
     materials: list[Literal["diffuse", "conductor", "dielectric", "plastic"]] = Field(min_length=1)
 
 
+Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Jitter = float | Range  # a fixed value, or a uniform [lo, hi] range
+
+
+class Objects(Schema):
+    centre: Vector3
+    spread: PositiveFloat
+    ground_y: float
+    scale: PositiveFloat
+
+
+class CornellCamera(Schema):
+    distance: PositiveFloat
+    origin_x: Jitter
+    origin_y: Jitter
+    target_x: Jitter
+    target_y: Jitter
+    target_z: Jitter
+
+
+class OrbitCamera(Schema):
+    distance: PositiveFloat
+    target_height: float
+    target_jitter: NonNegativeFloat
+
+
+class Plane(Schema):
+    size: PositiveFloat
+    y: float
+
+
+class AreaLight(Schema):
+    elevation: Range
+    distance: PositiveFloat
+    target: Vector3
+    size: PositiveFloat
+    radiance: NonNegativeFloat
+
+
+class Cornell(Schema):
+    objects: Objects
+    camera: CornellCamera
+
+
+class Tabletop(Schema):
+    table: Plane
+    objects: Objects
+    light: AreaLight
+    sky_scale: NonNegativeFloat
+    camera: OrbitCamera
+
+
+class Outdoor(Schema):
+    ground: Plane
+    objects: Objects
+    camera: OrbitCamera
+
+
+class BaseScenes(Schema):
+    """`dataset.base_scenes`: the layout, light and camera of each base scene."""
+
+    cornell: Cornell
+    tabletop: Tabletop
+    outdoor: Outdoor
+
+
 class ProceduralDataset(Schema):
     name: Literal["procedural"]
     bases: list[Literal["cornell", "tabletop", "outdoor"]] = Field(min_length=1)
@@ -76,7 +142,7 @@ class ProceduralDataset(Schema):
     integrator: Integrator
     max_pass_samples: PositiveInt
     randomize: Randomize
-    base_scenes: Open
+    base_scenes: BaseScenes
 
     @model_validator(mode="after")
     def _reference_above_noisy(self) -> ProceduralDataset:
@@ -109,6 +175,71 @@ class NearFar(Schema):
         return self
 
 
+class Stripes(Schema):
+    count: NonNegativeInt
+    width_deg: PositiveFloat
+    elevation_deg: Range
+    intensity: NonNegativeFloat
+    colors: list[Colour] = Field(min_length=1)
+
+
+class StudioSun(Schema):
+    elevation_deg: float
+    azimuth_deg: float
+    radius_deg: PositiveFloat
+    intensity: NonNegativeFloat
+
+
+class StudioEnv(Schema):
+    res: PositiveInt
+    scale: NonNegativeFloat
+    rotation_deg: float
+    zenith: Colour
+    horizon: Colour
+    ground: Colour
+    stripes: Stripes
+    sun: StudioSun
+
+
+class Materials(Schema):
+    rows: list[Literal["conductor", "plastic", "dielectric"]] = Field(min_length=1)
+    roughness: list[PositiveFloat] = Field(min_length=1)
+    sphere_radius: PositiveFloat
+    spacing: PositiveFloat
+    conductor: str = Field(min_length=1)
+    plastic_color: Colour
+    dielectric_ior: PositiveFloat
+    env: StudioEnv
+
+
+class DirectionalSun(Schema):
+    direction: Vector3
+    irradiance: NonNegativeFloat
+
+
+class Busy(Schema):
+    n_objects: PositiveInt
+    shapes: list[Literal["sphere", "cube", "cylinder"]] = Field(min_length=1)
+    size: Range
+    textured_fraction: Probability
+    checker_probability: Probability
+    color: Range
+    texture_res: PositiveInt
+    noise_octaves: PositiveInt
+    noise_base_cells: PositiveInt
+    noise_persistence: PositiveFloat
+    checker_scale: Range
+    ambient: NonNegativeFloat
+    sun: DirectionalSun
+
+
+class SceneParams(Schema):
+    """`dataset.scene_params`: each multi-view scene's materials, layout and lights."""
+
+    materials: Materials
+    busy: Busy
+
+
 class NerfProceduralDataset(NearFar):
     name: Literal["nerf_procedural"]
     scenes: Names
@@ -127,7 +258,7 @@ class NerfProceduralDataset(NearFar):
     test_azimuth_start_deg: float
     bound_radius: PositiveFloat
     seed: NonNegativeInt
-    scene_params: Open
+    scene_params: SceneParams
 
 
 class BlenderDataset(NearFar):
