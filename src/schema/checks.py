@@ -91,7 +91,11 @@ def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
         "bool_type": "expected true or false",
         "string_type": "expected a string",
         "list_type": "expected a list",
-        "too_short": f"expected at least {ctx.get('min_length')} items",
+        "too_short": (
+            "expected a non-empty list"
+            if ctx.get("min_length") == 1
+            else f"expected at least {ctx.get('min_length')} items"
+        ),
         "too_long": f"expected at most {ctx.get('max_length')} items",
         "dict_type": "expected a mapping",
         "model_type": "expected a mapping",
