@@ -203,7 +203,7 @@ def test_summary_stage_prints_parameters_without_training(tmp_path):
 
 def test_a_model_trains_and_evaluates_on_the_features_configured(smoke_data, tmp_path):
     features = "task.features=[color,albedo,normal,visibility,visibility.grad]"
-    cfg = _untracked(smoke_data, tmp_path, "model=dpcn", "task.train.epochs=1", features)
+    cfg = _untracked(smoke_data, tmp_path, "model=dpcn", "model.whiten=true", "task.train.epochs=1", features)
     with job_run(cfg, run_name="x", tags={}) as tracker:
         summary = train_denoiser(cfg, tracker)
         state = load_checkpoint(summary["checkpoint"])
@@ -211,9 +211,8 @@ def test_a_model_trains_and_evaluates_on_the_features_configured(smoke_data, tmp
         assert state["model_config"]["in_channels"] == 12
         assert state["model"]["diffuse_mean"].numel() == 12  # whitening statistics of those channels
         assert evaluate_denoiser(cfg, tracker)["images"] > 0
-        other = _untracked(
-            smoke_data, tmp_path, "model=dpcn", "task.features=[color,normal,albedo,depth,depth.grad]"
-        )
+        features = "task.features=[color,normal,albedo,depth,depth.grad]"
+        other = _untracked(smoke_data, tmp_path, "model=dpcn", "model.whiten=true", features)
         with pytest.raises(DataError) as err:
             evaluate_denoiser(other, tracker)
     one_line_error(err, "final.pt", "task.features=[color,albedo,normal,visibility,visibility.grad]")
