@@ -19,9 +19,11 @@ from src.data.kpcn_preprocess import (
     transform_diffuse_variance,
     transform_specular,
     transform_specular_variance,
+    transform_specular_variance_thesis,
     whiten,
 )
-from src.errors import DataError
+from src.errors import ConfigError, DataError
+from tests.conftest import one_line_error
 
 EPS = 0.00316
 
@@ -272,3 +274,28 @@ def test_float64_buffers_give_the_same_bits_as_float32_ones():
 #   (`self.mean is None` decides), and finalize refuses to run before one.
 # - RunningMoments.update reshape(-1, C) -> reshape(-2, C) and whiten shape[axis] = -1 -> -2: numpy
 #   treats any negative size as "infer this dimension".
+
+
+def test_the_thesis_specular_variance_is_an_option_for_replication():
+    """Default: the first-order variance (matches Monte Carlo above). `thesis`: var / (log1p(s) + 1e-5)^2,
+    the seed thesis's Sec. 4.3 formula as its author's code has it, which is far off for small and large s."""
+    mu, sigma = np.array([0.05, 0.5, 2.0, 10.0]), 0.01
+    var = np.full((4, 1, 1), sigma**2)
+    spec = np.repeat(mu[:, None, None], 3, axis=2)
+    thesis = transform_specular_variance_thesis(var, spec)[:, 0, 0]
+    np.testing.assert_allclose(thesis, sigma**2 / (np.log1p(mu) + 1e-5) ** 2, rtol=1e-12)
+    ratio = thesis / _mc_var(np.log1p, mu, sigma)
+    assert ratio.max() > 100 and not np.allclose(ratio, 1, rtol=0.1)  # why it is not the default
+    b = synthetic_buffers()
+    x = make_network_inputs(b, EPS, specular_variance="thesis")
+    channel = list(CANDIDATE_CHANNELS).index("color_var")
+    np.testing.assert_allclose(
+        x["specular_in"][..., channel],
+        transform_specular_variance_thesis(b["specularVariance"], b["specular"])[..., 0],
+    )
+    np.testing.assert_array_equal(
+        x["diffuse_in"], make_network_inputs(b, EPS)["diffuse_in"]
+    )  # diffuse unchanged
+    with pytest.raises(ConfigError) as excinfo:
+        make_network_inputs(b, EPS, specular_variance="exact")
+    one_line_error(excinfo, "task.preprocess.specular_variance='exact'", "'thesis'")

@@ -26,7 +26,7 @@ import numpy as np
 
 from src.data.features import FEATURE_BUFFERS
 from src.data.kpcn_buffers import KPCN_BUFFERS
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 
 #: The value of eps used by Bako et al. 2017 (configs pass it in; functions never assume it).
@@ -78,6 +78,26 @@ def transform_specular_variance(var: np.ndarray, specular: np.ndarray) -> np.nda
     `var` is one channel, so s is replaced by its channel mean (exact for grey specular).
     """
     return var / (1.0 + specular.mean(axis=-1, keepdims=True)) ** 2
+
+
+#: Guard of the thesis author's code against dividing by log(1 + 0) = 0.
+THESIS_SPECULAR_EPS = 1e-5
+
+
+def transform_specular_variance_thesis(var: np.ndarray, specular: np.ndarray) -> np.ndarray:
+    """The seed thesis's propagation (Bunjevac 2019, Sec. 4.3): var / (log(1 + s))^2, as its author's
+    code computes it, var / (log1p(s) + 1e-5)^2 (s: channel mean).
+
+    It divides by the square of the *transformed* value rather than by the derivative's inverse
+    (1 + s)^2, so it differs from the first-order variance by up to several hundred times for small or
+    large s; offered only to replicate the thesis exactly (`task.preprocess.specular_variance=thesis`).
+    """
+    return var / (np.log1p(specular.mean(axis=-1, keepdims=True)) + THESIS_SPECULAR_EPS) ** 2
+
+
+#: `task.preprocess.specular_variance` choices: the first-order (delta-method) propagation, or the seed
+#: thesis's formula as its author's code computes it (for exact replication).
+SPECULAR_VARIANCES = {"delta": transform_specular_variance, "thesis": transform_specular_variance_thesis}
 
 
 def normalize_depth(depth: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +154,9 @@ def _candidate_stack(color: tuple[np.ndarray, np.ndarray], guides: Mapping[str, 
     return np.concatenate(parts, axis=-1)
 
 
-def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[str, np.ndarray]:
+def make_network_inputs(
+    buffers: Mapping[str, np.ndarray], eps: float, specular_variance: str = "delta"
+) -> dict[str, np.ndarray]:
     """Build both branches' candidate inputs (order: `CANDIDATE_CHANNELS`, from which a run selects
     `task.features`; see `src.data.features`) from one noisy image.
 
@@ -142,6 +164,7 @@ def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[s
     the transformed noisy colours, = channels 0:3 of the inputs, what a KPCN kernel filters) and
     `albedo` (H, W, 3, needed by `rebuild_color`), `normal` (H, W, 3) and the normalised `depth` (H, W, 1)
     (the guides of the non-learned baselines). The auxiliary features are shared by both branches.
+    `specular_variance` picks the specular branch's variance propagation (`SPECULAR_VARIANCES`).
     """
     _check_buffers(buffers, REQUIRED_BUFFERS, "noisy image")
     b = {k: np.asarray(buffers[k], dtype=np.float32) for k in REQUIRED_BUFFERS}
@@ -156,7 +179,12 @@ def make_network_inputs(buffers: Mapping[str, np.ndarray], eps: float) -> dict[s
         "visibility": (b["visibility"], b["visibilityVariance"]),
     }
     diffuse_var = transform_diffuse_variance(b["diffuseVariance"], albedo, eps)
-    specular_var = transform_specular_variance(b["specularVariance"], b["specular"])
+    if specular_variance not in SPECULAR_VARIANCES:
+        expected = list(SPECULAR_VARIANCES)
+        raise ConfigError(
+            f"task.preprocess.specular_variance={specular_variance!r}: expected one of {expected}"
+        )
+    specular_var = SPECULAR_VARIANCES[specular_variance](b["specularVariance"], b["specular"])
     out = {
         "diffuse_in": _candidate_stack((diffuse_t, diffuse_var), guides),
         "specular_in": _candidate_stack((specular_t, specular_var), guides),

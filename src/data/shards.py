@@ -110,12 +110,14 @@ def _default_load_fn(path: Path) -> Mapping[str, np.ndarray]:
     return load_kpcn_exr(path)[0]
 
 
-def _image_arrays(noisy: Mapping, ref: Mapping, noisy_path: Path, ref_path: Path, eps: float) -> dict:
+def _image_arrays(
+    noisy: Mapping, ref: Mapping, noisy_path: Path, ref_path: Path, eps: float, specular_variance: str
+) -> dict:
     """Everything stored for one noisy image (H, W, C arrays): network inputs, targets, guides, colours."""
     color, ref_color = _color(noisy, noisy_path), _color(ref, ref_path)
     if color.shape != ref_color.shape:
         raise DataError(f"{noisy_path}: {color.shape} vs reference {ref_color.shape}")
-    inputs = make_network_inputs(noisy, eps)
+    inputs = make_network_inputs(noisy, eps, specular_variance)
     return {
         "diffuse_in": inputs["diffuse_in"],
         "specular_in": inputs["specular_in"],
@@ -219,6 +221,7 @@ def preprocess_dataset(
     whiten_eps: float,
     load_fn: Callable[[Path], Mapping[str, np.ndarray]] | None = None,
     importance_percentile: float = 99.0,
+    specular_variance: str = "delta",
     progress: bool = True,
 ) -> dict[str, Any]:
     """Raw `<scene>-<NNNNN>spp.exr` files -> splits, patch shards, full images, whitening stats.
@@ -242,6 +245,7 @@ def preprocess_dataset(
         "min_distance": min_distance,
         "whiten_eps": whiten_eps,
         "importance_percentile": importance_percentile,
+        "specular_variance": specular_variance,
     }
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
@@ -256,7 +260,8 @@ def preprocess_dataset(
             ref = load_fn(groups[scene][ref_spp])
             for spp in sorted(groups[scene])[:-1]:
                 noisy = load_fn(groups[scene][spp])
-                image = _image_arrays(noisy, ref, groups[scene][spp], groups[scene][ref_spp], eps)
+                paths = (groups[scene][spp], groups[scene][ref_spp])
+                image = _image_arrays(noisy, ref, *paths, eps, specular_variance)
                 entry = {"file": shard_name(scene, spp), "scene": scene, "spp": spp, "reference_spp": ref_spp}
                 writer.add(split, entry, image, noisy)
                 bar.update(1)

@@ -43,6 +43,7 @@ class Repair(Schema):
 
 class Preprocess(Schema):
     eps_albedo: PositiveFloat
+    specular_variance: Literal["delta", "thesis"]
     patch_size: PositiveInt
     patches_per_image: PositiveInt
     candidates_factor: AtLeastOne

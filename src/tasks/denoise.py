@@ -115,6 +115,7 @@ class DenoiseTask(Task):
                 min_distance=p.min_distance * p.patch_size,
                 whiten_eps=p.whiten_eps,
                 importance_percentile=p.importance_percentile,
+                specular_variance=p.specular_variance,
                 load_fn=load,
             )
             summary["repairs"] = repairs
