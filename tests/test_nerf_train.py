@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 import torch
 from mlflow.tracking import MlflowClient
+from PIL import Image
 
 from src.errors import DataError
 from src.report.build import build_report
@@ -79,6 +80,15 @@ def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
     np.testing.assert_allclose(rows["rays_per_s"], 24 * 16 / (rows["ms_per_image"] / 1e3), rtol=1e-9)
     pngs = {p.name for p in (run_dir / "eval" / "png").iterdir()}
     assert {"materials-r_0-rendered.png", "materials-r_0-reference.png"} <= pngs
+    # Scored on 8-bit images (task.eval.quantize_metrics, as multinerf and the thesis): exactly the PSNR
+    # of the saved rendered and reference PNGs.
+    for i, view in enumerate(rows["view"]):
+        rendered, reference = (
+            np.asarray(Image.open(run_dir / "eval" / "png" / f"{view}-{kind}.png"), dtype=np.float64) / 255
+            for kind in ("rendered", "reference")
+        )
+        png_psnr = -10 * np.log10(np.mean((rendered - reference) ** 2))
+        assert rows["psnr"][i] == pytest.approx(png_psnr, rel=1e-6), view
     buffers = {p.name for p in (run_dir / "eval" / "buffers").iterdir()}
     assert "materials-r_0-depth.png" in buffers
     assert ("materials-r_0-normals.png" in buffers) == (model == "refnerf")

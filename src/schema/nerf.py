@@ -35,6 +35,7 @@ class Eval(Schema):
     max_images: PositiveInt | None
     chunk: PositiveInt
     save_images: bool
+    quantize_metrics: bool
     checkpoint: str
     out_dir: str
 
