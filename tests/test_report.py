@@ -18,6 +18,7 @@ from PIL import Image
 from src.errors import DataError
 from src.report.build import build_report
 from src.report.collect import differing_params, find_runs, keep_latest
+from src.report.figures import curve_series
 from src.report.tables import comparison_table, cost_table, to_csv, to_latex, to_markdown
 from tests.conftest import compose_config, one_line_error
 
@@ -73,6 +74,10 @@ def _log_run(
         for split, scale in (("train", 1.0), ("val", 2.0))
         for c in ("diffuse", "specular", "color")
         for step in (10, 20, 30)
+    ] + [
+        Metric(f"train_step_loss_{c}", 1.5 / (step + 1), 0, step)
+        for c in ("diffuse", "color")
+        for step in range(1, 31)
     ]
     client.log_batch(
         run_id,
@@ -330,3 +335,15 @@ def test_a_table_without_its_metric_specs_is_an_error_not_a_table_without_metric
     table = pd.DataFrame({"PSNR": [30.0], "runs": [1]}, index=pd.Index(["kpcn"], name="model"))
     with pytest.raises(ValueError, match="attrs"):
         to_markdown(table)
+
+
+def test_learning_curves_include_the_per_step_losses(store):
+    """The seed thesis plots per-minibatch losses: the figure draws `train_step_loss_*` (faint) beside the
+    epoch means of train and validation, when a run logged them."""
+    mlflow.set_tracking_uri(store["uri"])
+    run_id = store["ids"][("kpcn", 0)]
+    series = {name: (xs, ys) for name, xs, ys in curve_series(MlflowClient(), run_id, "diffuse")}
+    assert set(series) == {"train_step", "train", "val"}
+    assert series["train_step"][0] == list(range(1, 31)) and series["train"][0] == [10, 20, 30]
+    assert series["train_step"][1][0] == pytest.approx(1.5 / 2)
+    assert set(n for n, *_ in curve_series(MlflowClient(), run_id, "specular")) == {"train", "val"}

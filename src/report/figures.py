@@ -85,10 +85,29 @@ def _history(client: MlflowClient, run_id: str, key: str) -> tuple[list[int], li
     return [m.step for m in points], [m.value for m in points]
 
 
+#: The curves of one loss component: (metric prefix, line style, alpha, legend suffix). Denoisers log a
+#: loss per `log_every` steps (`train_step_loss_*`, drawn faint, as the seed thesis plots per-minibatch
+#: losses) and epoch means of train and validation; NeRF logs its train losses per step.
+CURVES = (("train_step", "-", 0.3, "per step"), ("train", "-", 1.0, "train"), ("val", "--", 1.0, "val"))
+
+
+def curve_series(client: MlflowClient, run_id: str, component: str) -> list[tuple[str, list, list]]:
+    """The (curve name, steps, values) of every curve of `component` the run logged, positive and finite
+    values only (the axes are logarithmic)."""
+    series = []
+    for name, *_ in CURVES:
+        steps, values = _history(client, run_id, f"{name}_loss_{component}")
+        positive = [(s, v) for s, v in zip(steps, values, strict=True) if v > 0 and np.isfinite(v)]
+        if positive:
+            xs, ys = zip(*positive, strict=True)
+            series.append((name, list(xs), list(ys)))
+    return series
+
+
 def learning_curves(
     runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] | None = None
 ) -> Path | None:
-    """Train (solid) and validation (dashed) diffuse / specular / colour losses per run, against the
+    """Per-step (faint), train (solid) and validation (dashed) losses per run (`CURVES`), against the
     optimiser step, one subplot per component, log-scale y. None when no run logged any of them."""
     components = loss_components(runs)
     if not components:
@@ -102,15 +121,10 @@ def learning_curves(
     for i, (label, run_id) in enumerate(zip(labels, runs["run_id"], strict=True)):
         color = colors[i % len(colors)]
         for ax, component in zip(panels[0], components, strict=True):
-            for split, style in (("train", "-"), ("val", "--")):
-                steps, values = _history(client, run_id, f"{split}_loss_{component}")
-                positive = [(s, v) for s, v in zip(steps, values, strict=True) if v > 0 and np.isfinite(v)]
-                if not positive:
-                    continue
-                xs, ys = zip(*positive, strict=True)
-                ax.plot(
-                    xs, ys, style, color=color, marker="." if len(xs) < 30 else None, label=f"{label} {split}"
-                )
+            for name, xs, ys in curve_series(client, run_id, component):
+                _, style, alpha, suffix = next(c for c in CURVES if c[0] == name)
+                marker = "." if len(xs) < 30 and alpha == 1.0 else None
+                ax.plot(xs, ys, style, color=color, alpha=alpha, marker=marker, label=f"{label} {suffix}")
                 drawn += 1
     if drawn == 0:
         plt.close(fig)
@@ -121,7 +135,7 @@ def learning_curves(
         ax.set_title(f"{component} loss")
         ax.set_xlabel("optimiser step")
         ax.grid(True, which="both", alpha=0.3)
-    panels[0][0].set_ylabel("loss (solid: train, dashed: validation)")
+    panels[0][0].set_ylabel("loss (faint: per step, solid: train, dashed: validation)")
     handles, names = panels[0][-1].get_legend_handles_labels()
     if not handles:
         handles, names = panels[0][0].get_legend_handles_labels()
