@@ -27,10 +27,24 @@ def task_of(cfg: DictConfig):
 
 
 def require_inputs(task, stage: str, cfg: DictConfig) -> None:
-    """Every input `stage` reads exists; else one line naming the first missing one and what makes it."""
-    for path, producer in task.inputs(stage, cfg).items():
+    """Every input `stage` reads exists; else one line naming the first missing one and what makes it.
+    The task names its data (`Task.inputs`); a learned method's evaluation also needs its checkpoint,
+    whatever the task."""
+    needed = dict(task.inputs(stage, cfg))
+    if stage == "eval" and cfg.model.learned:
+        needed[Path(cfg.task.eval.checkpoint)] = "stage=train (or set task.eval.checkpoint)"
+    for path, producer in needed.items():
         if not path.exists():
             raise DataError(f"{path}: not found, {stage} needs it; run {producer} first")
+
+
+def _start_tracked(cfg: DictConfig, stage: str, tracker):
+    """The task of a stage that logs to MLflow, after checking its inputs; the run is tagged with the
+    fingerprint of the data it reads."""
+    task = task_of(cfg)
+    require_inputs(task, stage, cfg)
+    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
+    return task
 
 
 def render(cfg: DictConfig, tracker=None) -> dict:
@@ -51,10 +65,7 @@ def train(cfg: DictConfig, tracker) -> dict:
     if not cfg.model.learned:
         print(f"train: {cfg.model.name} is not learned; nothing to train")
         return {}
-    task = task_of(cfg)
-    require_inputs(task, "train", cfg)
-    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
-    summary = task.train(cfg, tracker)
+    summary = _start_tracked(cfg, "train", tracker).train(cfg, tracker)
     tracker.log_artifact(summary["checkpoint"], "checkpoints")
     print(
         f"train: {cfg.model.name} {summary['steps']} steps in {summary['train_time_s']:.1f} s "
@@ -65,10 +76,7 @@ def train(cfg: DictConfig, tracker) -> dict:
 
 def evaluate(cfg: DictConfig, tracker) -> dict:
     """Score the model on the held-out data; log metrics and images."""
-    task = task_of(cfg)
-    require_inputs(task, "eval", cfg)
-    tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
-    return task.evaluate(cfg, tracker)
+    return _start_tracked(cfg, "eval", tracker).evaluate(cfg, tracker)
 
 
 def report(cfg: DictConfig, tracker=None) -> dict:

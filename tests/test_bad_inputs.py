@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from src.errors import ConfigError
+from src.errors import ConfigError, DataError
 from src.schema.run import validate_run
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config
 
@@ -166,3 +166,24 @@ def test_bad_data_is_one_line_through_the_cli(make, tmp_path):
     data.mkdir()
     args, needles = make(data)
     one_line_cli_error(run_cli(args, data), *needles)
+
+
+@pytest.mark.parametrize(
+    ("task", "made"), [("denoise", "procedural/prepared/full/test/index.json"), ("nerf", None)]
+)
+def test_a_learned_methods_evaluation_needs_its_checkpoint_whatever_the_task(task, made, tmp_path):
+    """`stages.require_inputs` adds the checkpoint of a learned method to what the task's eval reads."""
+    from src.stages import require_inputs, task_of
+
+    models = {"denoise": ("kpcn", "oidn"), "nerf": ("mipnerf", None)}[task]
+    overrides = [f"task={task}"]
+    cfg = smoke_config(tmp_path / "data", tmp_path / "run", [*overrides, f"model={models[0]}"])
+    made = made or f"nerf_procedural/scenes/{cfg.task.scene}/transforms_test.json"
+    (tmp_path / "data" / made).parent.mkdir(parents=True)
+    (tmp_path / "data" / made).touch()
+    with pytest.raises(DataError) as excinfo:
+        require_inputs(task_of(cfg), "eval", cfg)
+    one_line_error(excinfo, str(tmp_path / "run" / "checkpoints" / "final.pt"), "run stage=train")
+    if models[1] is not None:  # a filter is evaluated without one
+        cfg = smoke_config(tmp_path / "data", tmp_path / "run", [*overrides, f"model={models[1]}"])
+        require_inputs(task_of(cfg), "eval", cfg)

@@ -20,7 +20,8 @@ class Task:
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
         """What `stage` reads, each with what produces it (a stage or command), so that a stage started too
-        early says what to run first instead of failing on a missing file. Default: nothing."""
+        early says what to run first instead of failing on a missing file. Default: nothing. (A learned
+        method's checkpoint, which every task's evaluation needs, is added by `stages.require_inputs`.)"""
         return {}
 
     def data_dir(self, cfg: DictConfig) -> Path:

@@ -38,18 +38,13 @@ class DenoiseTask(Task):
     schema = DenoiseTaskSchema
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
-        prepared = Path(cfg.paths.prepared)
+        prepared, preprocessed = Path(cfg.paths.prepared), "stage=preprocess (or dvc repro)"
         if stage == "preprocess":
             return {Path(cfg.paths.raw): "stage=render (or dvc repro)"}
         if stage == "train":
-            return {prepared / "patches" / "train" / "index.json": "stage=preprocess (or dvc repro)"}
+            return {prepared / "patches" / "train" / "index.json": preprocessed}
         if stage == "eval":
-            needed = {
-                prepared / "full" / str(cfg.task.eval.split) / "index.json": "stage=preprocess (or dvc repro)"
-            }
-            if cfg.model.learned:
-                needed[Path(cfg.task.eval.checkpoint)] = "stage=train (or set task.eval.checkpoint)"
-            return needed
+            return {prepared / "full" / str(cfg.task.eval.split) / "index.json": preprocessed}
         return {}
 
     def data_dir(self, cfg: DictConfig) -> Path:

@@ -22,11 +22,7 @@ class NerfTask(Task):
         if stage == "train":
             return {scene_dir(cfg) / "transforms_train.json": producer}
         if stage == "eval":
-            views = scene_dir(cfg) / f"transforms_{cfg.task.eval.split}.json"
-            return {
-                views: producer,
-                Path(cfg.task.eval.checkpoint): "stage=train (or set task.eval.checkpoint)",
-            }
+            return {scene_dir(cfg) / f"transforms_{cfg.task.eval.split}.json": producer}
         return {}
 
     def data_dir(self, cfg: DictConfig) -> Path:
