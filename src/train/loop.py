@@ -207,25 +207,27 @@ class TrainingLoop:
         }
 
 
+def _built(key: str, build: Callable[[], Any]) -> Any:
+    """`build()` of the `task.train.<key>` node; any error (Hydra wraps import and argument errors in
+    several exception types) as one ConfigError line naming the key."""
+    try:
+        return build()
+    except Exception as err:
+        raise ConfigError(f"task.train.{key}: {one_line(err)}") from err
+
+
 def build_optimizer(node: DictConfig, parameters, lr: float) -> torch.optim.Optimizer:
     """`task.train.optimizer` (a `_target_` with `_partial_: true`, e.g. torch.optim.Adam) on `parameters`
-    with learning rate `lr` (the task's own key: one place to set and sweep it); a bad target or argument
-    is one ConfigError line naming the key."""
-    try:
-        return hydra.utils.instantiate(node, _convert_="all")(parameters, lr=lr)
-    except Exception as err:  # Hydra wraps import and argument errors in several exception types
-        raise ConfigError(f"task.train.optimizer: {one_line(err)}") from err
+    with learning rate `lr` (the task's own key: one place to set and sweep it)."""
+    return _built("optimizer", lambda: hydra.utils.instantiate(node, _convert_="all")(parameters, lr=lr))
 
 
 def build_schedule(node: DictConfig | None) -> Callable[..., float] | None:
     """`task.train.schedule` (a `_target_` with `_partial_: true`, called as (step, lr_init=, max_steps=)),
-    or None for a constant learning rate; a bad target is one ConfigError line naming the key."""
-    if node is None:
-        return None
-    try:
-        return hydra.utils.instantiate(node, _convert_="all")
-    except Exception as err:  # Hydra wraps import and argument errors in several exception types
-        raise ConfigError(f"task.train.schedule: {one_line(err)}") from err
+    or None for a constant learning rate."""
+    return (
+        None if node is None else _built("schedule", lambda: hydra.utils.instantiate(node, _convert_="all"))
+    )
 
 
 def run_training(
