@@ -14,6 +14,7 @@ import logging
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
@@ -40,7 +41,7 @@ class BufferLayout:
     radiance: tuple[str, ...] = ()
     variance: tuple[str, ...] = ()
 
-    @property
+    @cached_property  # read once per channel of every file loaded: built once per layout
     def channel_buffer(self) -> dict[str, str]:
         """EXR channel name -> the buffer it belongs to."""
         return {ch: b for b, chans in self.buffers.items() for ch in chans}
