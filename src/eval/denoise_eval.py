@@ -109,7 +109,7 @@ class DenoiseEvaluation(Evaluation):
         per_spp = {
             spp: mean_rows([r for r in rows if r["spp"] == spp]) for spp in sorted({r["spp"] for r in rows})
         }
-        return {"images": len(rows), "mean": mean_rows(rows), "per_spp": per_spp}
+        return {**super().summarise(rows), "per_spp": per_spp}
 
     def logged_metrics(self, summary: dict[str, Any]) -> dict[str, float]:
         metrics = super().logged_metrics(summary)
