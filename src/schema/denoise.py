@@ -75,11 +75,12 @@ class Train(Schema):
     @field_validator("loss")
     @classmethod
     def _known_loss(cls, value: Any) -> Any:
-        from src.train.losses import LOSSES
+        """The trainer's own check (`get_loss`): a known name, or an importable `_target_`."""
+        from src.train.losses import get_loss
 
-        if isinstance(value, str) and value not in LOSSES:
-            expected = f"expected one of {sorted(LOSSES)} or a {{_target_: ...}} mapping"
-            raise own_error(f"task.train.loss={value!r}: {expected}")
+        passes(
+            get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True)
+        )
         return value
 
 

@@ -47,7 +47,8 @@ def get_loss(spec) -> Loss:
     mapping, its other keys bound as keyword arguments (`{_target_: src.train.losses.smape, eps: 0.1}`)."""
     if isinstance(spec, str):
         if spec not in LOSSES:
-            raise ConfigError(f"task.train.loss: unknown loss '{spec}'; expected one of {sorted(LOSSES)}")
+            expected = f"expected one of {sorted(LOSSES)} or a {{_target_: ...}} mapping"
+            raise ConfigError(f"task.train.loss={spec!r}: {expected}")
         return LOSSES[spec]
     loss = resolve_target(spec, "task.train.loss")
     options = {k: v for k, v in spec.items() if k != TARGET_KEY}
