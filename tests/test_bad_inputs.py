@@ -51,6 +51,7 @@ BAD_VALUES = [
     (["dataset.randomize.fov=[60,30]"], ["dataset.randomize.fov=[60, 30]: expected [lo, hi] with lo <= hi"]),
     (["dataset.randomize.materials=[wood]"], ["dataset.randomize.materials[0]='wood'", "'plastic'"]),
     (["dataset.noisy_spp=[]"], ["dataset.noisy_spp=[]: expected a non-empty list"]),
+    (["dataset.noisy_spp=[1,16]"], ["dataset.noisy_spp=[1, 16]: expected sample counts >= 2"]),
     (["task=nerf", "dataset.far=1.0"], ["dataset.far=1: expected more than dataset.near=2"]),
     (["task=nerf", "dataset.views.train=0"], ["dataset.views.train=0: expected a positive integer"]),
     (["task=nerf", "dataset=blender"], ["dataset.root='???': missing; expected the folder"]),

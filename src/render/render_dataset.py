@@ -178,7 +178,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
 
     from src.render.backend import set_mitsuba_variant
 
-    noisy, reference = _spp_counts(ds)
+    noisy, reference = spp_counts(ds)
     variant = set_mitsuba_variant(variant)
     integrator = mi.load_dict({"type": "kpcn_aov", **dict(ds["integrator"])})
     raw_dir.mkdir(parents=True, exist_ok=True)
@@ -201,15 +201,17 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     }
 
 
-def _spp_counts(ds: Mapping) -> tuple[list[int], int]:
+def spp_counts(ds: Mapping) -> tuple[list[int], int]:
     """The sorted noisy sample counts and the reference count; a `ConfigError` unless every noisy count is
-    >= 2 and the reference is above them all."""
+    >= 2 and the reference is above them all (also the dataset schema's check, at job start)."""
     noisy = sorted(int(s) for s in ds["noisy_spp"])
     reference = int(ds["reference_spp"])
-    if not noisy or min(noisy) < 2 or reference <= max(noisy):
+    if not noisy or min(noisy) < 2:
+        raise ConfigError(f"dataset.noisy_spp={noisy}: expected sample counts >= 2")
+    if reference <= max(noisy):
         raise ConfigError(
-            f"dataset.noisy_spp={noisy} / dataset.reference_spp={reference}: expected noisy counts >= 2 "
-            "and a reference count above all of them"
+            f"dataset.reference_spp={reference}: expected more than the largest noisy_spp ({max(noisy)}) of "
+            f"dataset.noisy_spp={noisy}; the reference is the highest sample count of a scene"
         )
     return noisy, reference
 

@@ -19,6 +19,7 @@ from src.schema.types import (
     Schema,
     expected,
     own_error,
+    passes,
 )
 
 SppList = Annotated[list[PositiveInt], Field(min_length=1)]
@@ -146,11 +147,10 @@ class ProceduralDataset(Schema):
 
     @model_validator(mode="after")
     def _reference_above_noisy(self) -> ProceduralDataset:
-        if self.reference_spp <= max(self.noisy_spp):
-            raise own_error(
-                f"dataset.reference_spp={self.reference_spp}: expected more than the largest noisy_spp "
-                f"({max(self.noisy_spp)}); the reference is the highest sample count of a scene"
-            )
+        """The renderer's own check of the sample counts (`spp_counts`)."""
+        from src.render.render_dataset import spp_counts
+
+        passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
         return self
 
 
