@@ -13,4 +13,4 @@ OmegaConf.register_new_resolver(
 
 # `in_channels: ${nrbench.channels:${task.features}}`: a denoiser's input channel count, derived from the
 # configured feature list (src/data/features.py) instead of typed by hand.
-OmegaConf.register_new_resolver("nrbench.channels", lambda features: _feature_count(features), replace=True)
+OmegaConf.register_new_resolver("nrbench.channels", _feature_count, replace=True)
