@@ -1,11 +1,11 @@
 """Did a change keep the numbers? Timing-free comparisons used to check refactors (README, Tests).
 
-    python scripts/compare_metrics.py dump  MLFLOW_DB OUT.csv
-        every FINISHED job run's eval metrics (timings left out), one row per (model, scene, seed), sorted,
-        17 significant digits: dump before and after a change and compare the files byte for byte;
-    python scripts/compare_metrics.py dvc   BEFORE.json REPO_DIR
-        the metrics files of a `dvc metrics show --json` taken before, against the same files in REPO_DIR
-        now (timings left out); prints "identical: N files; differing: M; not yet there: K".
+python scripts/compare_metrics.py dump  MLFLOW_DB OUT.csv
+    every FINISHED job run's eval metrics (timings left out), one row per (model, scene, seed), sorted,
+    17 significant digits: dump before and after a change and compare the files byte for byte;
+python scripts/compare_metrics.py dvc   BEFORE.json REPO_DIR
+    the metrics files of a `dvc metrics show --json` taken before, against the same files in REPO_DIR
+    now (timings left out); prints "identical: N files; differing: M; not yet there: K".
 """
 
 from __future__ import annotations
@@ -26,9 +26,12 @@ def numbers(tree: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
     for key, value in tree.items():
         if isinstance(value, Mapping):
             out |= numbers(value, f"{prefix}{key}.")
-        elif isinstance(value, int | float) and not isinstance(value, bool):
-            if not any(t in key for t in TIMING):
-                out[prefix + key] = value
+        elif (
+            isinstance(value, int | float)
+            and not isinstance(value, bool)
+            and not any(t in key for t in TIMING)
+        ):
+            out[prefix + key] = value
     return out
 
 
