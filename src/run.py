@@ -37,13 +37,15 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
     if not any(s in TRACKED for s in stages):
         return contextlib.nullcontext(None)
     from src.tracking.mlflow_tracking import job_run
-    from src.train.device import pick_device
+    from src.train.device import pick_device, precision
 
+    device = pick_device(cfg.device)
     tags = {
         "nrbench.task": cfg.task.name,
         "nrbench.model": cfg.model.name,
         "nrbench.profile": cfg.profile_name,
-        "nrbench.device": str(pick_device(cfg.device)),
+        "nrbench.device": str(device),
+        "nrbench.precision": precision(bool(cfg.task.train.get("amp", False)), device),
     }
     if cfg.tracking.get("group"):
         tags["nrbench.group"] = str(cfg.tracking.group)

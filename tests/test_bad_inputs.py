@@ -68,6 +68,14 @@ BAD_VALUES = [
         ["dataset.scene_params.busy.shapes[0]='torus'"],
     ),
     (["task=nerf", "dataset.scene_params.materials.env.res=0"], ["materials.env.res=0: expected a positive"]),
+    (
+        ["task.preprocess.patches_per_split={train: 0, val: 3}"],
+        ["patches_per_split.train=0: expected a positive"],
+    ),
+    (
+        ["task=nerf", "profile_tasks=[denoise]"],
+        ["profile=smoke: has sizes for task ['denoise'], not task=nerf"],
+    ),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}
@@ -82,7 +90,13 @@ def test_a_bad_config_value_is_one_line_before_anything_runs(overrides, needles,
 
 
 def test_the_shipped_configs_pass_the_schema(tmp_path):
-    shipped = ([], ["profile=paper"], ["task=nerf"], ["task=nerf", "profile=paper", "model=refnerf"])
+    shipped = (
+        [],
+        ["profile=paper"],
+        ["profile=bako"],
+        ["task=nerf"],
+        ["task=nerf", "profile=paper", "model=refnerf"],
+    )
     for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
         validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))
 

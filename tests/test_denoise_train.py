@@ -19,10 +19,19 @@ from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
+from src.train.device import precision
 from src.train.losses import get_loss
 from src.train.schedules import log_linear_lr
 from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
-from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config, stop_at
+from tests.conftest import (
+    ROOT,
+    cli_job,
+    compose_config,
+    one_line_cli_error,
+    one_line_error,
+    smoke_config,
+    stop_at,
+)
 
 
 def _untracked(data, run_dir, *overrides):
@@ -306,3 +315,14 @@ def test_a_learning_rate_schedule_from_config_sets_each_steps_rate(smoke_data, t
     with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
         DenoiserTrainer(bad, tracker)
     one_line_error(err, "task.train.schedule", "nope")
+
+
+def test_precision_is_fp32_unless_amp_on_cuda():
+    """bf16 autocast is an opt-in for speed on CUDA (tagged nrbench.precision); the papers train fp32."""
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert [precision(False, cuda), precision(True, cpu), precision(True, cuda)] == [
+        "fp32",
+        "fp32",
+        "bf16-autocast",
+    ]
+    assert compose_config().task.train.amp is False

@@ -54,7 +54,7 @@ def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, ca
     assert tracker.run_id == first
     client = MlflowClient()
     run = client.get_run(first)
-    assert run.info.status == "FINISHED"
+    assert run.info.status == "FINISHED" and run.data.tags["nrbench.precision"] == "fp32"
     # One run holds the whole training: per-step losses from before and after the interrupt, once each.
     steps = [m.step for m in client.get_metric_history(first, "train_step_loss_diffuse")]
     assert steps == list(range(1, summary["steps"] + 1))

@@ -9,7 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.conftest import compose_config, one_line_cli_error
+from src.errors import ConfigError
+from src.schema.run import validate_run
+from tests.conftest import compose_config, one_line_cli_error, one_line_error, smoke_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -44,10 +46,29 @@ def test_profiles_compose(profile, size, reference_spp, patch):
     assert max(cfg.dataset.noisy_spp) < cfg.dataset.reference_spp
 
 
-def test_default_profile_is_cpu_and_paper_matches_the_kpcn_set():
+def test_default_profile_is_cpu_and_paper_is_the_thesis_set_up(tmp_path):
+    """Bunjevac 2019, Sec. 4.1 and 6: 1280x720 at 128-1024 spp (8192 reference), 65x65 patches, 16,867 of
+    them split 80/20, batch 64, 40 epochs (DPCN 80), fp32. `bako` keeps Bako et al.'s 1500 scenes."""
     assert compose_config().profile_name == "cpu"
-    paper = compose_config(["profile=paper"]).dataset
-    assert list(paper.noisy_spp) == [128, 256, 512, 1024] and paper.scenes_per_base * len(paper.bases) == 1500
+    paper = compose_config(["profile=paper"])
+    assert list(paper.dataset.noisy_spp) == [128, 256, 512, 1024]
+    assert dict(paper.task.preprocess.patches_per_split) == {"train": 13494, "val": 3373}
+    assert 13494 + 3373 == 16867 and round(0.8 * 16867) == 13494
+    split = paper.task.preprocess.split
+    assert split.train / (split.train + split.val) == pytest.approx(0.8)
+    assert (paper.task.train.batch_size, paper.task.train.amp) == (64, False)
+    epochs = {
+        m: compose_config(["profile=paper", f"model={m}"]).task.train.epochs for m in ("kpcn", "resnet")
+    }
+    assert epochs == {"kpcn": 40, "resnet": 40}
+    assert compose_config(["profile=paper", "model=dpcn"]).task.train.epochs == 80
+    bako = compose_config(["profile=bako"])
+    assert bako.dataset.scenes_per_base * len(bako.dataset.bases) == 1500
+    assert (bako.task.preprocess.patches_per_image, bako.task.preprocess.patches_per_split) == (400, None)
+    assert (bako.dataset.width, bako.task.preprocess.patch_size, bako.task.train.epochs) == (1280, 65, 100)
+    with pytest.raises(ConfigError) as excinfo:
+        validate_run(smoke_config(tmp_path, tmp_path / "run", ["profile=bako", "task=nerf"]))
+    one_line_error(excinfo, "profile=bako: has sizes for task ['denoise'], not task=nerf")
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
 from src.data.shards import SHARD_CHANNELS, SHARD_KEYS, preprocess_dataset, save_tensors
-from src.data.splits import group_dataset, parse_exr_name, split_scenes
+from src.data.splits import group_dataset, parse_exr_name, patch_quota, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from tests.conftest import one_line_error
@@ -102,12 +102,42 @@ def synthetic_image(scene, spp, h=24, w=40):
     return b
 
 
-def _preprocess(raw, out, load_fn):
+def _preprocess(raw, out, load_fn, patches_per_split=None):
     return preprocess_dataset(
         raw, out, eps=0.00316, patch_size=8, patches_per_image=6, split_fractions=FRACTIONS, split_seed=0,
         sample_seed=1, candidates_factor=4, min_keep_prob=0.1, min_distance=None, whiten_eps=1e-4,
-        load_fn=load_fn, progress=False,
+        load_fn=load_fn, progress=False, patches_per_split=patches_per_split,
     )  # fmt: skip
+
+
+def test_patch_quota_spreads_a_split_total_evenly():
+    assert patch_quota(32, 13494) == [422] * 22 + [421] * 10
+    assert sum(patch_quota(8, 3373)) == 3373 and max(patch_quota(8, 3373)) - min(patch_quota(8, 3373)) == 1
+    with pytest.raises(ConfigError) as excinfo:
+        patch_quota(0, 5)
+    one_line_error(excinfo, "task.preprocess.patches_per_split", "no images")
+
+
+def _synthetic_raw(tmp_path, scenes, spps=(4, 16, 1024)):
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    for s in scenes:
+        for spp in spps:
+            (raw / f"{s}-{spp:05d}spp.exr").touch()
+    return raw
+
+
+def _load_synthetic(path):
+    return synthetic_image(*parse_exr_name(path))
+
+
+def test_patches_per_split_fixes_each_split_s_patch_count(tmp_path):
+    """The thesis's budget is a patch count per split (16,867 split 80/20), not a count per image."""
+    raw = _synthetic_raw(tmp_path, ["a", "b", "c", "d", "e"])
+    summary = _preprocess(raw, tmp_path / "out", _load_synthetic, patches_per_split={"train": 11, "val": 3})
+    assert summary["patches"] == {"train": 11, "val": 3}
+    counts = [e["n_patches"] for e in PatchShardDataset(tmp_path / "out", "train").shards]
+    assert sum(counts) == 11 and max(counts) - min(counts) <= 1
 
 
 def test_preprocess_dataset_end_to_end(tmp_path):

@@ -38,7 +38,7 @@ from src.data.kpcn_preprocess import (
     save_whitening_stats,
 )
 from src.data.patch_sampling import extract_patches, importance_map, sample_patches
-from src.data.splits import SPLITS, group_dataset, split_scenes
+from src.data.splits import SPLITS, group_dataset, patch_quota, split_scenes
 from src.errors import DataError
 from src.io.atomic import atomic_path, atomic_write_json
 
@@ -130,15 +130,15 @@ def _image_arrays(
     }
 
 
-def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any]):
-    """(patches of every array of `image`, their corners), sampled where the noisy image is noisiest."""
+def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any], n: int):
+    """(`n` patches of every array of `image`, their corners), sampled where the noisy image is noisiest."""
     imp = importance_map(
         noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
     )
     corners = sample_patches(
         imp,
         sampling["patch_size"],
-        sampling["patches_per_image"],
+        n,
         rng,
         candidates_factor=sampling["candidates_factor"],
         min_keep_prob=sampling["min_keep_prob"],
@@ -169,10 +169,11 @@ class _ShardWriter:
             for s in ss
         }
 
-    def add(self, split: str, entry: dict[str, Any], image: dict, noisy: Mapping) -> None:
+    def add(self, split: str, entry: dict[str, Any], image: dict, noisy: Mapping, n_patches: int) -> None:
+        """Store one noisy image: `n_patches` patches (train, val) and/or the whole image (val, test)."""
         if split in ("train", "val"):
             rng = _image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
-            patches, corners = _patches(image, noisy, rng, self.sampling)
+            patches, corners = _patches(image, noisy, rng, self.sampling, n_patches)
             if split == "train":
                 for k, m in self.moments.items():
                     m.update(patches[k])
@@ -205,6 +206,15 @@ class _ShardWriter:
         return summary
 
 
+def _split_quota(
+    groups: Mapping[str, Mapping[int, Path]], scenes: list[str], per_image: int, total: int | None
+):
+    """Patches per noisy image of one split, in processing order: `per_image` each, or `total` spread
+    evenly when the split's patch count is fixed (`patches_per_split`)."""
+    n_images = sum(len(groups[sc]) - 1 for sc in scenes)
+    return [per_image] * n_images if total is None else patch_quota(n_images, total)
+
+
 def preprocess_dataset(
     raw_dir: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -212,6 +222,7 @@ def preprocess_dataset(
     eps: float,
     patch_size: int,
     patches_per_image: int,
+    patches_per_split: Mapping[str, int] | None = None,
     split_fractions: Mapping[str, float],
     split_seed: int,
     sample_seed: int,
@@ -228,15 +239,17 @@ def preprocess_dataset(
 
     Scenes are split (by scene) with `split_fractions` / `split_seed`. For every scene the highest spp is
     the reference and each lower spp a noisy input: train and val images give importance-sampled patch
-    shards (`patches_per_image` each); val and test images are also stored whole, for full-image
-    validation and evaluation. Whitening statistics come from the train patches only. `load_fn` maps a
-    path to a buffer dict (default: `load_kpcn_exr(path)[0]`, imported lazily). Deterministic given the
-    seeds. Returns (and writes to summary.json) the counts and settings.
+    shards (`patches_per_image` each, or `patches_per_split[split]` spread evenly over the split); val
+    and test images are also stored whole, for full-image validation and evaluation. Whitening statistics
+    come from the train patches only. `load_fn` maps a path to a buffer dict (default:
+    `load_kpcn_exr(path)[0]`, imported lazily). Deterministic given the seeds. Returns (and writes to
+    summary.json) the counts and settings.
     """
     settings = {
         "eps": eps,
         "patch_size": patch_size,
         "patches_per_image": patches_per_image,
+        "patches_per_split": dict(patches_per_split) if patches_per_split else None,
         "split_fractions": dict(split_fractions),
         "split_seed": split_seed,
         "sample_seed": sample_seed,
@@ -255,6 +268,9 @@ def preprocess_dataset(
     n_images = sum(len(groups[sc]) - 1 for sc in groups)
     bar = tqdm(total=n_images, desc="preprocess", unit="img", disable=not progress)
     for split in SPLITS:
+        quota = iter(
+            _split_quota(groups, splits[split], patches_per_image, (patches_per_split or {}).get(split))
+        )
         for scene in splits[split]:
             ref_spp = max(groups[scene])
             ref = load_fn(groups[scene][ref_spp])
@@ -263,7 +279,7 @@ def preprocess_dataset(
                 paths = (groups[scene][spp], groups[scene][ref_spp])
                 image = _image_arrays(noisy, ref, *paths, eps, specular_variance)
                 entry = {"file": shard_name(scene, spp), "scene": scene, "spp": spp, "reference_spp": ref_spp}
-                writer.add(split, entry, image, noisy)
+                writer.add(split, entry, image, noisy, next(quota))
                 bar.update(1)
     bar.close()
     return writer.finish(raw_dir, splits, n_images)

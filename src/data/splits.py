@@ -91,3 +91,13 @@ def split_scenes(
     order = [names[i] for i in np.random.default_rng(seed).permutation(n)]
     parts = {"val": order[:n_val], "test": order[n_val : n_val + n_test], "train": order[n_val + n_test :]}
     return {s: sorted(parts[s]) for s in SPLITS}
+
+
+def patch_quota(n_images: int, total: int) -> list[int]:
+    """How many patches each of `n_images` images gives so that a split holds exactly `total`: an even
+    share, the first `total % n_images` images one more (the seed thesis states a patch count, 16,867
+    split 80/20, not a per-image one: Bunjevac 2019, Sec. 6)."""
+    if n_images < 1:
+        raise ConfigError(f"task.preprocess.patches_per_split: a split with {total} patches has no images")
+    share, extra = divmod(int(total), n_images)
+    return [share + (i < extra) for i in range(n_images)]

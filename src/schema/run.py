@@ -106,6 +106,7 @@ class RunSchema(Schema):
     data_seed: NonNegativeInt
     device: Literal["auto", "cpu", "cuda"]
     profile_name: str
+    profile_tasks: list[str] = Field(min_length=1)  # the tasks a profile has sizes for
     paths: Paths
     tracking: Tracking
     metrics: Metrics
@@ -138,6 +139,11 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
 
     values = resolved(cfg)
     check(RunSchema, values)
+    if values["task"]["name"] not in values["profile_tasks"]:
+        raise ConfigError(
+            f"profile={values['profile_name']}: has sizes for task {values['profile_tasks']}, "
+            f"not task={values['task']['name']}"
+        )
     task = task_of(cfg)
     check(task.schema, values["task"], "task")
     dataset_schema = DATASET_SCHEMAS.get(values["dataset"].get("name"))

@@ -102,6 +102,7 @@ class DenoiseTask(Task):
                 eps=p.eps_albedo,
                 patch_size=p.patch_size,
                 patches_per_image=p.patches_per_image,
+                patches_per_split=OmegaConf.to_container(p, resolve=True)["patches_per_split"],
                 split_fractions=dict(p.split),
                 split_seed=p.split_seed,
                 sample_seed=p.sample_seed,

@@ -21,6 +21,12 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def precision(amp: bool, device: torch.device) -> str:
+    """What arithmetic training runs in: `bf16-autocast` when `amp` is on and the device is CUDA (the only
+    place autocast is used), else `fp32` (the papers' precision)."""
+    return "bf16-autocast" if amp and device.type == "cuda" else "fp32"
+
+
 def seed_everything(seed: int) -> None:
     """Seed Python and torch, and ask cuDNN for deterministic kernels (same config + seed on the same
     machine -> same numbers). numpy randomness in this harness uses explicitly seeded Generators."""

@@ -32,6 +32,7 @@ from src.data.features import input_features
 from src.errors import DataError
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.train.curves import write_curves
+from src.train.device import precision
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 from src.train.losses import Loss, get_loss
 
@@ -67,11 +68,10 @@ def _to(batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
     return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
 
 
-def _autocast(device: torch.device, enabled: bool):
-    """bfloat16 autocast on CUDA (mixed precision; bf16 needs no loss scaling); a no-op on CPU."""
-    return torch.autocast(
-        device_type=device.type, dtype=torch.bfloat16, enabled=enabled and device.type == "cuda"
-    )
+def _autocast(device: torch.device, amp: bool):
+    """bfloat16 autocast on CUDA when `amp` (mixed precision; bf16 needs no loss scaling); else fp32."""
+    enabled = precision(amp, device) == "bf16-autocast"
+    return torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=enabled)
 
 
 class DenoiserTrainer(TrainingLoop):
