@@ -96,6 +96,11 @@ def _check_eval_values(cfg, eval_dir, logged):
     assert relmse(denoised, reference, cfg.metrics.relmse_eps) == pytest.approx(row["relmse"], rel=1e-6)
     noisy = item["color"].permute(1, 2, 0).numpy()
     assert relmse(noisy, reference, cfg.metrics.relmse_eps) == pytest.approx(row["noisy_relmse"], rel=1e-6)
+    # The GP thesis's convention (Eq. 3.5) on the same images: 1.5 spp times Bako's, and its fitness ratio.
+    gp = 1.5 * row["spp"] * np.array([row["relmse"], row["noisy_relmse"]])
+    np.testing.assert_allclose([row["relmse_spp"], row["noisy_relmse_spp"]], gp, rtol=1e-9)
+    assert row["relmse_ratio"] == pytest.approx(row["relmse"] / row["noisy_relmse"], rel=1e-9)
+    assert logged["eval_relmse_ratio"] == pytest.approx(rows["relmse_ratio"].mean(), rel=1e-12)
 
 
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):

@@ -16,6 +16,7 @@ from src.metrics.image import (
     mse,
     psnr,
     relmse,
+    relmse_spp,
     smape,
     ssim,
     tonemap,
@@ -86,6 +87,21 @@ def test_relmse_and_smape_by_hand():
     assert relmse(x, y, eps) == pytest.approx((0.25 / 0.26 + 0.0 + 1.0 / 1.01) / 3)
     # per channel: 0.5 / 1.51, 0 / 0.01, 1 / 3.01
     assert smape(x, y, eps) == pytest.approx((0.5 / 1.51 + 0.0 + 1.0 / 3.01) / 3)
+
+
+def test_relmse_of_the_gp_thesis_sums_channels_and_scales_by_half_the_spp():
+    """Davletaliyev 2016, Eq. 3.5: (1/N) sum_i (m/2) sum_rgb (x - y)^2 / (y^2 + eps): two pixels by hand,
+    1.5 m times Bako et al.'s mean-over-channels relMSE, and the factor cancels in the fitness ratio."""
+    x = np.array([[[1.0, 0.0, 2.0], [0.5, 0.5, 0.5]]])
+    y = np.array([[[0.5, 0.0, 1.0], [0.5, 0.5, 0.0]]])
+    per_pixel = [0.25 / 0.26 + 0.0 + 1.0 / 1.01, 0.25 / 0.01]
+    assert relmse_spp(x, y, spp=8, eps=0.01) == pytest.approx(8 / 2 * sum(per_pixel) / 2)
+    assert relmse_spp(x, y, spp=8) == pytest.approx(1.5 * 8 * relmse(x, y, 0.01))
+    noisy = x + 0.3
+    ratio = relmse_spp(x, y, 16) / relmse_spp(noisy, y, 16)
+    assert ratio == pytest.approx(relmse(x, y) / relmse(noisy, y))
+    with pytest.raises(ValueError, match="spp must be >= 1"):
+        relmse_spp(x, y, spp=0)
 
 
 def test_relmse_border_crop_ignores_the_border():

@@ -191,7 +191,13 @@ def test_comparison_table_aggregates_seeds_and_renders(store):
     lpips = f"LPIPS ({LPIPS_VARIANT})"
     assert table.index.name == "model"
     assert list(table.index) == ["kpcn", "dpcn", "resnet"]  # order of first run
-    assert [c for c in table.columns if not c.endswith(" std")] == ["PSNR", "SSIM", lpips, "relMSE", "runs"]
+    assert [c for c in table.columns if not c.endswith(" std")] == [
+        "PSNR",
+        "SSIM",
+        lpips,
+        "relMSE (Bako)",
+        "runs",
+    ]
     assert table.loc["kpcn", "PSNR"] == pytest.approx(30.5)
     assert table.loc["kpcn", "PSNR std"] == pytest.approx(np.std([30.0, 31.0], ddof=1))
     assert np.isnan(table.loc["dpcn", "PSNR std"])

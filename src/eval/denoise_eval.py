@@ -3,9 +3,12 @@
 For every image of `task.eval.split` (every scene x noisy spp): denoise it (tiled, so memory stays bounded
 on large frames), time it, score it against the reference with `src.metrics.image` (PSNR/SSIM on the
 tone-mapped image, relMSE/SMAPE/MSE on linear HDR), and score the noisy input the same way for
-reference. Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json`
-(resolved config, git commit, data fingerprint), denoised EXRs and PNG comparison strips under
-`task.eval.out_dir`.
+reference. relMSE comes in two conventions: `relmse` (Bako et al. 2017: mean over pixels and channels)
+and `relmse_spp` (Davletaliyev 2016, Eq. 3.5: summed over channels, times spp/2), with `relmse_ratio`,
+the denoised image's Eq. 3.5 value over the noisy one's (the GP thesis's fitness term).
+
+Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json` (resolved config,
+git commit, data fingerprint), denoised EXRs and PNG comparison strips under `task.eval.out_dir`.
 """
 
 from __future__ import annotations
@@ -25,14 +28,14 @@ from src.eval.common import mean_rows
 from src.eval.loop import Evaluation
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
-from src.metrics.image import image_metrics, tonemap
+from src.metrics.image import image_metrics, relmse_spp, tonemap
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 
 log = logging.getLogger(__name__)
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>).
-SCORES = ("psnr", "ssim", "relmse", "smape", "mse", "lpips", "flip")
+SCORES = ("psnr", "ssim", "relmse", "relmse_spp", "relmse_ratio", "smape", "mse", "lpips", "flip")
 
 
 @torch.no_grad()
@@ -45,6 +48,16 @@ def denoise_tiled(model: Denoiser, batch: Batch, tile: int, eps: float) -> torch
 
 def _hwc(x: torch.Tensor) -> np.ndarray:
     return x[0].permute(1, 2, 0).cpu().numpy().astype(np.float32)
+
+
+def gp_relmse(
+    denoised: np.ndarray, noisy: np.ndarray, reference: np.ndarray, spp: int, eps: float
+) -> dict[str, float]:
+    """The GP thesis's relMSE (Davletaliyev 2016, Eq. 3.5) of the denoised and the noisy image, and their
+    ratio: that image's term of the thesis's fitness (its scenes' ratios averaged)."""
+    ours, noisy_value = relmse_spp(denoised, reference, spp, eps), relmse_spp(noisy, reference, spp, eps)
+    ratio = ours / noisy_value if noisy_value > 0 else float("nan")
+    return {"relmse_spp": ours, "noisy_relmse_spp": noisy_value, "relmse_ratio": ratio}
 
 
 class _Images(Sequence):
@@ -99,6 +112,7 @@ class DenoiseEvaluation(Evaluation):
         row: dict[str, Any] = {"scene": item["item"]["scene"], "spp": int(item["item"]["spp"])}
         row |= image_metrics(denoised, reference, m)
         row |= {f"noisy_{k}": v for k, v in image_metrics(noisy, reference, m).items()}
+        row |= gp_relmse(denoised, noisy, reference, row["spp"], float(m.relmse_eps))
         row |= {"ms_per_image": seconds * 1e3, "ms_per_mpixel": seconds * 1e3 / megapixels}
         return row
 

@@ -142,6 +142,18 @@ def relmse(x: np.ndarray, y: np.ndarray, eps: float = 0.01, crop: int = 0) -> fl
     return float(np.mean((x - y) ** 2 / (y**2 + eps)))
 
 
+def relmse_spp(x: np.ndarray, y: np.ndarray, spp: int, eps: float = 0.01) -> float:
+    """Relative MSE as the GP filter thesis defines it (Davletaliyev 2016, Eq. 3.5, after Rousselle et al.
+    2011 and Kalantari et al. 2015): (1/N) sum_i (m/2) sum_{q in rgb} (x_iq - y_iq)^2 / (y_iq^2 + eps),
+    with N pixels and m = `spp` the input's samples per pixel. Summed (not averaged) over the channels and
+    scaled by m/2, it is 1.5 m times `relmse` with the same eps; the factor cancels in the thesis's
+    fitness, relmse_spp(filtered) / relmse_spp(noisy) (`relmse_ratio`)."""
+    x, y = _check_pair(x, y)
+    if spp < 1:
+        raise ValueError(f"relmse_spp: spp must be >= 1, got {spp}")
+    return float(0.5 * spp * np.mean(np.sum((x - y) ** 2 / (y**2 + eps), axis=-1)))
+
+
 def smape(x: np.ndarray, y: np.ndarray, eps: float = 0.01) -> float:
     """Symmetric mean absolute percentage error mean(|x - y| / (|x| + |y| + eps)) on linear HDR (Vogels et
     al. 2018); per channel, averaged over all channels and pixels."""

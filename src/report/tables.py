@@ -24,7 +24,9 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     "PSNR": ("eval_psnr", True, "{:.2f}"),
     "SSIM": ("eval_ssim", True, "{:.4f}"),
     "LPIPS": ("eval_lpips", False, "{:.4f}"),
-    "relMSE": ("eval_relmse", False, "{:.4g}"),
+    "relMSE (Bako)": ("eval_relmse", False, "{:.4g}"),  # mean over pixels and RGB, eps metrics.relmse_eps
+    "relMSE (Eq. 3.5)": ("eval_relmse_spp", False, "{:.4g}"),  # GP thesis: RGB sum x spp/2 (denoising)
+    "relMSE / noisy": ("eval_relmse_ratio", False, "{:.4g}"),  # the GP thesis's fitness term
     "FLIP": ("eval_flip", False, "{:.4f}"),
 }
 COST_METRICS: dict[str, MetricSpec] = {

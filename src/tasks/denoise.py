@@ -134,7 +134,7 @@ class DenoiseTask(Task):
         mean = summary["mean"]
         print(
             f"eval: {cfg.model.name} on {summary['images']} images: PSNR {mean['psnr']:.2f} dB "
-            f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE {mean['relmse']:.5f} "
+            f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE (Bako) {mean['relmse']:.5f} "
             f"(noisy {mean['noisy_relmse']:.5f}), {mean['ms_per_mpixel']:.1f} ms/MP "
             f"-> {cfg.task.eval.out_dir}"
         )
