@@ -45,6 +45,10 @@ BAD_VALUES = [
     (["task=nerf", "model.num_coarse_samples=0"], ["model.num_coarse_samples", "0"]),
     (["dataset.width=0"], ["dataset.width=0: expected a positive integer"]),
     (
+        ["dataset.integrator.albedo_samples=0"],
+        ["dataset.integrator.albedo_samples=0: expected a positive integer"],
+    ),
+    (
         ["dataset.reference_spp=16"],
         ["dataset.reference_spp=16: expected more than the largest noisy_spp (16)"],
     ),

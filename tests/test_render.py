@@ -194,3 +194,100 @@ def test_first_bounce_lobe_decides_the_buffer(mitsuba_variant, ds, tmp_path, bsd
     assert b[lobe][inside].min() > 0 and np.all(b[empty][inside] == 0)
     # Albedo is a reflectance: never above 1 (a BRDF value at its glossy peak would be).
     assert b["albedo"][inside].min() > 0 and b["albedo"][inside].max() <= 1.0 + 1e-3
+
+
+def test_render_key_tracks_the_albedo_samples(ds):
+    """A new `dataset.integrator.albedo_samples` re-renders every file (procedural and user scenes)."""
+    changed = {
+        **ds,
+        "integrator": {**ds["integrator"], "albedo_samples": ds["integrator"]["albedo_samples"] + 1},
+    }
+    for identity in ({"base": "tabletop", "seed": 1}, {"file": "a.xml", "sha256": "0"}):
+        assert render_key(identity, changed, 4, "noisy") != render_key(identity, ds, 4, "noisy")
+
+
+def bsdf_xml(kind: str, material: str | None = None, alpha: float | None = None) -> str:
+    """A Mitsuba XML ``<bsdf>`` of type ``kind`` with an optional conductor preset and GGX alpha."""
+    material_xml = f'<string name="material" value="{material}"/>' if material else ""
+    alpha_xml = f'<float name="alpha" value="{alpha}"/>' if alpha else ""
+    return f'<bsdf type="{kind}">{material_xml}{alpha_xml}</bsdf>'
+
+
+def sphere_on_floor(ds, tmp_path, bsdf: str):
+    """A unit sphere with ``bsdf`` (XML) standing on a diffuse floor under a sky and a sun: what the sphere
+    reflects or refracts is path traced, so its colour is noisy. Returns the scene source and a function
+    giving the pixels that see only the sphere."""
+    xml = tmp_path / "sphere.xml"
+    xml.write_text(
+        f"""<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="45"/>
+    <transform name="to_world"><lookat origin="0, 1.5, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+  </sensor>
+  <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+  <emitter type="directional">
+    <vector name="direction" value="-1, -2, -1"/><rgb name="irradiance" value="3"/>
+  </emitter>
+  <shape type="sphere">{bsdf}</shape>
+  <shape type="rectangle"><bsdf type="diffuse"/>
+    <transform name="to_world"><rotate x="1" angle="-90"/><scale value="6"/><translate y="-1"/></transform>
+  </shape>
+</scene>"""
+    )
+    (source,) = scene_sources({**ds, "bases": [], "scene_files": [str(xml)]})
+
+    def sphere_pixels(b):
+        # Every sample of a floor pixel has the normal +Y exactly; erode by one pixel so that no pixel on
+        # the silhouette (mixing sphere, floor or sky samples) remains.
+        n = b["normal"]
+        sphere = (b["depth"][..., 0] > 0) & ((np.abs(n[..., 1] - 1) > 1e-4) | (np.abs(n[..., 0]) > 1e-4))
+        h, w = sphere.shape
+        pad = np.pad(sphere, 1)
+        inside = np.all(
+            [pad[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], 0
+        )
+        assert inside.sum() > 20
+        return inside
+
+    return source, sphere_pixels
+
+
+def relative_variance(b, name, pixels):
+    """Mean variance of the pixel mean over ``pixels``, relative to the squared mean there."""
+    return b[f"{name}Variance"][pixels].mean() / np.square(b[name][pixels].mean())
+
+
+@pytest.mark.parametrize(
+    "bsdf",
+    [bsdf_xml("conductor", "Au"), bsdf_xml("roughconductor", "Au", 0.3), bsdf_xml("dielectric")],
+    ids=["conductor", "roughconductor", "dielectric"],
+)
+def test_glossy_and_glass_albedo_is_far_less_noisy_than_colour(mitsuba_variant, ds, tmp_path, bsdf):
+    """The albedo of a glossy or glass first hit is a several-sample estimate of its directional albedo,
+    so it carries far less noise than the colour; a smooth dielectric's is R + T = 1 exactly."""
+    source, sphere_pixels = sphere_on_floor(ds, tmp_path, bsdf)
+    b = render(ds, source, 8)
+    inside = sphere_pixels(b)
+    albedo, colour = relative_variance(b, "albedo", inside), relative_variance(b, "color", inside)
+    assert colour > 0 and albedo < colour / 20, (albedo, colour)
+    assert b["albedo"][inside].min() > 0 and b["albedo"][inside].max() <= 1.0 + 1e-4
+    if bsdf == bsdf_xml("dielectric"):
+        np.testing.assert_allclose(b["albedo"][inside], 1.0, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "bsdf",
+    [bsdf_xml("roughconductor", "Cu", 0.5), bsdf_xml("roughdielectric", alpha=0.5)],
+    ids=["roughconductor", "roughdielectric"],
+)
+def test_albedo_samples_cut_the_albedo_variance(mitsuba_variant, ds, tmp_path, bsdf):
+    """`albedo_samples: 16` (stratified) against one BSDF sample per camera sample: same mean, several
+    times less variance. 48x32 pixels, because the one-sample albedo of a rough dielectric is 1 but for
+    rare shadowed microfacets, so its variance needs many samples to be measured."""
+    ds = {**ds, "width": 48, "height": 32}
+    source, sphere_pixels = sphere_on_floor(ds, tmp_path, bsdf)
+    one = render({**ds, "integrator": {**ds["integrator"], "albedo_samples": 1}}, source, 8)
+    many = render({**ds, "integrator": {**ds["integrator"], "albedo_samples": 16}}, source, 8)
+    inside = sphere_pixels(one) & sphere_pixels(many)
+    ratio = one["albedoVariance"][inside].mean() / many["albedoVariance"][inside].mean()
+    assert ratio > 5, ratio
+    assert abs(one["albedo"][inside].mean() - many["albedo"][inside].mean()) < 0.02

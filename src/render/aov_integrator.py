@@ -9,11 +9,35 @@ variants) produces, per camera sample:
   the first vertex) goes to ``diffuse``, everything through glossy/delta lobes to ``specular``.
   Emission seen directly by the camera goes to ``diffuse``. ``color`` is computed as their sum, so
   color == diffuse + specular per sample and therefore per pixel mean;
-* ``albedo`` (diffuse reflectance at the first hit; for BSDFs without a diffuse lobe the sampled
-  BSDF weight, i.e. a one-sample estimate of the directional albedo; 1 where the camera ray escapes,
-  so that diffuse / (albedo + eps) stays finite on background pixels), ``normal`` (world-space shading
-  normal), ``depth`` (distance to the first hit, 0 on escape) and ``visibility`` (1 when the
-  next-event light sample at the first hit is unoccluded, 0 otherwise and on escape).
+* ``albedo``: at a first hit whose BSDF has a diffuse lobe, its diffuse reflectance
+  (``eval_diffuse_reflectance``); at a purely glossy/specular first hit (conductors, dielectrics) the
+  directional albedo, see below; 1 where the camera ray escapes, so that diffuse / (albedo + eps) stays
+  finite on background pixels. Also ``normal`` (world-space shading normal), ``depth`` (distance to the
+  first hit, 0 on escape) and ``visibility`` (1 when the next-event light sample at the first hit is
+  unoccluded, 0 otherwise and on escape).
+
+Albedo of glossy and glass surfaces. The albedo is a denoising guide: KPCN (Bako et al. 2017) divides
+diffuse by it and feeds it, its variance and its gradients to the network, and the cross-bilateral
+filter and OIDN use it as a guide; noise in it is copied into all of these. Mitsuba's BSDF interface has
+no albedo query for conductors and dielectrics (only ``eval_diffuse_reflectance``, for diffuse lobes),
+so at such a first hit we estimate the directional albedo rho(wi) = integral of f(wi, wo) |cos theta_o|
+dwo as the mean of ``albedo_samples`` (K, ``dataset.integrator.albedo_samples``) BSDF sample weights at
+that hit, drawn separately from the path's own sample. The K sample points are a 3D Hammersley set (k/K,
+phi_2(k), phi_3(k)) shifted by one uniform random offset per camera sample (Cranley-Patterson rotation):
+each point is uniform, so the mean is unbiased, and the set is stratified over the lobe choice and the
+microfacet normal, so its variance typically falls faster than 1/K (tests/test_render.py: a rough copper
+sphere's albedo variance is ~90x lower at K = 16 than at K = 1). The weights are taken in importance
+(adjoint) transport mode, i.e. without the eta^2 radiance scaling of refracted light: the albedo is the
+scattered fraction of energy, reflectance + transmittance, in [0, 1]. A smooth conductor gets its
+Fresnel reflectance at the viewing angle (deterministic, as before), a smooth dielectric gets R + T = 1
+for every sample (radiance mode would give R + T / eta^2, e.g. ~0.47 for glass, a random 1 or 1 / eta^2
+per sample, and values up to eta^2 > 1 seen from inside). This follows OIDN's documented convention
+(RenderKit/oidn doc/api.md, RT filter, "Albedos": the albedo of a dielectric should be 1, or for a
+perfect specular one the Fresnel blend of the reflected and transmitted albedos; a metal's the
+reflectivity at normal incidence or the average reflectivity, or 1; always in [0, 1]). BSDFs with a
+diffuse lobe (diffuse, plastic) keep their diffuse reflectance. The estimate costs K BSDF samples, no
+rays, per glossy first hit; K = 1 is one independent sample, as noisy as the former reuse of the path's
+BSDF sample but in importance mode.
 
 Mitsuba's film with a box reconstruction filter averages samples within a pixel, so the film gives
 the per-pixel *mean* of every channel. To get the variance of that mean we also output each buffer's
@@ -24,6 +48,7 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from src.data.kpcn_buffers import KPCN_BUFFERS
 
@@ -32,6 +57,10 @@ AOV_BUFFERS = ("diffuse", "specular", "albedo", "normal", "depth", "visibility")
 # Buffers whose per-sample square is also written (second moments for the variance of the mean).
 MOMENT_BUFFERS: tuple[str, ...] = ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility")
 CHANNEL_COUNT = {buf: len(KPCN_BUFFERS[buf]) for buf in ("color", *AOV_BUFFERS)}
+#: BSDF samples per glossy/specular first hit for the albedo when the config gives none.
+DEFAULT_ALBEDO_SAMPLES = 16
+#: The largest float32 below 1.
+ONE_MINUS_EPSILON = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 
 
 def aov_channel_names() -> list[str]:
@@ -50,6 +79,26 @@ def _mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(pdf_a > 0, a2 / dr.fma(pdf_b, pdf_b, a2), 0))
 
 
+def radical_inverse(k: int, base: int) -> float:
+    """Van der Corput radical inverse phi_base(k): k's digits in ``base`` mirrored about the point."""
+    inv, scale = 0.0, 1.0 / base
+    while k:
+        k, digit = divmod(k, base)
+        inv += digit * scale
+        scale /= base
+    return inv
+
+
+def hammersley_3d(n: int) -> np.ndarray:
+    """(n, 3) Hammersley points (k/n, phi_2(k), phi_3(k)), k = 0..n-1, in [0, 1)^3."""
+    return np.array([[k / n, radical_inverse(k, 2), radical_inverse(k, 3)] for k in range(n)], np.float32)
+
+
+def _wrap(x):
+    """x mod 1 for x in [0, 2), kept below 1 (a BSDF sample must lie in [0, 1))."""
+    return dr.minimum(x - dr.floor(x), ONE_MINUS_EPSILON)
+
+
 def _channels(x, n: int) -> list:
     return [x[i] for i in range(3)] if n == 3 else [x]
 
@@ -57,23 +106,52 @@ def _channels(x, n: int) -> list:
 class KPCNAovIntegrator(mi.SamplingIntegrator):
     """Path tracer with a first-bounce diffuse/specular split and KPCN feature AOVs.
 
-    Properties: ``max_depth`` (longest path, -1 for unbounded) and ``rr_depth`` (depth from which
-    Russian roulette starts), both from the dataset config.
+    Properties: ``max_depth`` (longest path, -1 for unbounded), ``rr_depth`` (depth from which
+    Russian roulette starts) and ``albedo_samples`` (BSDF samples per camera sample for the albedo of a
+    glossy/specular first hit), all from ``dataset.integrator``.
     """
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         self.max_depth = props.get("max_depth", 8)
         self.rr_depth = props.get("rr_depth", 5)
+        self.albedo_samples = props.get("albedo_samples", DEFAULT_ALBEDO_SAMPLES)
         if self.max_depth < -1 or self.max_depth == 0:
             raise ValueError(f"max_depth must be -1 or >= 1, got {self.max_depth}")
+        if self.albedo_samples < 1:
+            raise ValueError(f"albedo_samples must be >= 1, got {self.albedo_samples}")
         self._max_depth = 0xFFFFFFFF if self.max_depth == -1 else self.max_depth
+        points = hammersley_3d(self.albedo_samples)
+        self._albedo_points = [mi.Float(points[:, d]) for d in range(3)]
 
     def aov_names(self):
         return aov_channel_names()
 
     def to_string(self):
-        return f"KPCNAovIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}]"
+        return (
+            f"KPCNAovIntegrator[max_depth={self.max_depth}, rr_depth={self.rr_depth}, "
+            f"albedo_samples={self.albedo_samples}]"
+        )
+
+    @dr.syntax
+    def directional_albedo(self, bsdf, si, sampler, active):
+        """Mean importance-mode weight of ``albedo_samples`` BSDF samples at ``si``: an unbiased,
+        stratified estimate of the directional albedo (reflectance + transmittance) for ``si.wi``."""
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        shift1 = sampler.next_1d(active)
+        shift2 = sampler.next_2d(active)
+        total = mi.Spectrum(0.0)
+        k = mi.UInt32(0)
+        run = mi.Bool(active)
+        while dr.hint(run, label="KPCN albedo samples"):
+            u1, u2x, u2y = (dr.gather(mi.Float, pts, k, run) for pts in self._albedo_points)
+            sample1 = _wrap(shift1 + u1)
+            sample2 = mi.Point2f(_wrap(shift2.x + u2x), _wrap(shift2.y + u2y))
+            _, weight = bsdf.sample(ctx, si, sample1, sample2, run)
+            total += weight
+            k += 1
+            run &= k < self.albedo_samples
+        return total / self.albedo_samples
 
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
@@ -117,6 +195,11 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             hit_first = first & si.is_valid()
             has_diffuse_lobe = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
             surface_albedo = bsdf.eval_diffuse_reflectance(si, hit_first & has_diffuse_lobe)
+            # Purely glossy/specular surfaces have no diffuse reflectance: estimate their directional
+            # albedo from several BSDF samples (see the module docstring).
+            glossy_first = hit_first & ~has_diffuse_lobe
+            glossy_albedo = self.directional_albedo(bsdf, si, sampler, glossy_first)
+            surface_albedo = dr.select(has_diffuse_lobe, surface_albedo, glossy_albedo)
             albedo = dr.select(first, dr.select(hit_first, surface_albedo, 1.0), albedo)
             normal = dr.select(hit_first, mi.Vector3f(si.sh_frame.n), normal)
             hit_depth = dr.select(hit_first, si.t, hit_depth)
@@ -143,10 +226,6 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             bs, bsdf_weight = bsdf.sample(bsdf_ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
             sampled_diffuse = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Diffuse)
             on_diffuse_path = dr.select(first, sampled_diffuse, on_diffuse_path)
-            # Purely glossy/specular surfaces have no diffuse reflectance; their albedo is the sampled
-            # BSDF weight, a one-sample estimate of the directional albedo (Fresnel tint of a mirror).
-            glossy_first = hit_first & ~has_diffuse_lobe
-            albedo = dr.select(glossy_first, bsdf_weight, albedo)
             beta *= bsdf_weight
             eta *= bs.eta
             ray = si.spawn_ray(si.to_world(bs.wo))

@@ -30,6 +30,7 @@ Depth = Annotated[int, Field(ge=-1)]  # -1: unbounded
 class Integrator(Schema):
     max_depth: Depth
     rr_depth: NonNegativeInt
+    albedo_samples: PositiveInt
 
 
 class Randomize(Schema):
