@@ -25,6 +25,11 @@ BAD_VALUES = [
     (["task.preprocess.split.val=0.5"], ["task.preprocess.split: fractions sum to 1.35; expected 1"]),
     (["task.preprocess.min_keep_prob=1.5"], ["task.preprocess.min_keep_prob=1.5: expected a value <= 1"]),
     (["task.preprocess.specular_variance=exact"], ["task.preprocess.specular_variance='exact'", "'thesis'"]),
+    (["task.preprocess.importance=bako"], ["task.preprocess.importance='bako'", "'mc_variance'"]),
+    (
+        ["task.preprocess.importance_window=0"],
+        ["task.preprocess.importance_window=0: expected a positive number"],
+    ),
     (["task.preprocess.repair.negative=drop"], ["task.preprocess.repair.negative='drop'", "'clamp'"]),
     (["task.features=[color,colour]"], ["task.features[1]='colour'", ".var or .grad"]),
     (["task.eval.split=train"], ["task.eval.split='train': expected one of 'val' or 'test'"]),

@@ -10,7 +10,7 @@ from torch.utils.data import DataLoader
 from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
-from src.data.shards import SHARD_CHANNELS, SHARD_KEYS, preprocess_dataset, save_tensors
+from src.data.shards import SAMPLING_FIGURE, SHARD_CHANNELS, SHARD_KEYS, preprocess_dataset, save_tensors
 from src.data.splits import group_dataset, parse_exr_name, patch_quota, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
@@ -102,11 +102,11 @@ def synthetic_image(scene, spp, h=24, w=40):
     return b
 
 
-def _preprocess(raw, out, load_fn, patches_per_split=None):
+def _preprocess(raw, out, load_fn, **kw):
     return preprocess_dataset(
         raw, out, eps=0.00316, patch_size=8, patches_per_image=6, split_fractions=FRACTIONS, split_seed=0,
         sample_seed=1, candidates_factor=4, min_keep_prob=0.1, min_distance=None, whiten_eps=1e-4,
-        load_fn=load_fn, progress=False, patches_per_split=patches_per_split,
+        load_fn=load_fn, progress=False, **kw,
     )  # fmt: skip
 
 
@@ -159,6 +159,10 @@ def test_preprocess_dataset_end_to_end(tmp_path):
     assert {k: len(v) for k, v in splits.items()} == {"train": 2, "val": 1, "test": 1}
     assert summary["patches"] == {"train": 2 * 2 * 6, "val": 1 * 2 * 6}
     assert summary == json.loads((out / "summary.json").read_text())
+    assert summary["settings"]["importance"] == "thesis"
+    figure = (out / SAMPLING_FIGURE).read_bytes()  # importance map | candidates | kept, first train image
+    assert figure.startswith(b"\x89PNG") and len(figure) > 5000
+    assert not list(out.glob(".*tmp*"))
 
     train = PatchShardDataset(out, "train")
     batch = next(iter(DataLoader(train, batch_size=24)))
@@ -222,3 +226,25 @@ def test_preprocess_dataset_end_to_end(tmp_path):
     torch.testing.assert_close(  # the default is the paper's 28, in the order of Bako et al.
         paper["diffuse_in"], shards[0]["diffuse_in"][:, [stored.index(n) for n in PAPER_CHANNELS]]
     )
+
+
+def test_preprocess_importance_option_changes_the_patches_and_rejects_unknown_names(tmp_path):
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    for s in ("a", "b", "c"):
+        for spp in (4, 1024):
+            (raw / f"{s}-{spp:05d}spp.exr").touch()
+
+    def load_fn(path):
+        return synthetic_image(*parse_exr_name(path))
+
+    corners = {}
+    for kind in ("thesis", "mc_variance"):
+        summary = _preprocess(raw, tmp_path / kind, load_fn, importance=kind, importance_window=0.5)
+        assert summary["settings"]["importance"] == kind and (tmp_path / kind / SAMPLING_FIGURE).is_file()
+        entry = json.loads((tmp_path / kind / "patches/train/index.json").read_text())["shards"][0]
+        corners[kind] = torch.load(tmp_path / kind / "patches/train" / entry["file"])["corners"]
+    assert not torch.equal(corners["thesis"], corners["mc_variance"])
+    with pytest.raises(ConfigError) as excinfo:
+        _preprocess(raw, tmp_path / "bad", load_fn, importance="bako")
+    one_line_error(excinfo, "task.preprocess.importance='bako'", "'mc_variance'")

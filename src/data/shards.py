@@ -5,6 +5,7 @@ Layout under `out_dir`:
     splits.json                 {"train": [scenes], "val": [...], "test": [...]}
     whitening.json              per-channel mean/std of diffuse_in / specular_in, TRAIN patches only
     summary.json                what `preprocess_dataset` returns
+    patch_sampling.png          importance map, candidate and kept patches of the first train image
     patches/<split>/index.json  (train, val) one shard per (scene, noisy spp)
     patches/<split>/<scene>-<NNNNN>spp.pt
     full/<split>/index.json     (val, test) full images for validation / evaluation
@@ -37,9 +38,17 @@ from src.data.kpcn_preprocess import (
     make_targets,
     save_whitening_stats,
 )
-from src.data.patch_sampling import extract_patches, importance_map, sample_patches
+from src.data.patch_sampling import (
+    IMPORTANCE_MAPS,
+    extract_patches,
+    importance_map,
+    sample_patches,
+    save_sampling_figure,
+    thesis_importance_map,
+    window_pixels,
+)
 from src.data.splits import SPLITS, group_dataset, patch_quota, split_scenes
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_path, atomic_write_json
 
 _RGB = ("r", "g", "b")
@@ -57,6 +66,7 @@ SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
 }
 SHARD_KEYS = tuple(SHARD_CHANNELS)
 INDEX_NAME = "index.json"
+SAMPLING_FIGURE = "patch_sampling.png"
 
 
 def shard_name(scene: str, spp: int) -> str:
@@ -130,12 +140,21 @@ def _image_arrays(
     }
 
 
-def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any], n: int):
-    """(`n` patches of every array of `image`, their corners), sampled where the noisy image is noisiest."""
-    imp = importance_map(
+def _importance(noisy: Mapping, sampling: Mapping[str, Any]) -> np.ndarray:
+    """The importance map `sampling["importance"]` names, (H, W) in [0, 1]."""
+    if sampling["importance"] == "thesis":
+        window = window_pixels(sampling["importance_window"], sampling["patch_size"])
+        return thesis_importance_map(noisy["color"], noisy["normal"], window)
+    return importance_map(
         noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
     )
-    corners = sample_patches(
+
+
+def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any], n: int):
+    """(`n` patches of every array of `image`, their corners, the candidates, the importance map), sampled
+    where the noisy image is hardest to denoise."""
+    imp = _importance(noisy, sampling)
+    corners, candidates = sample_patches(
         imp,
         sampling["patch_size"],
         n,
@@ -143,8 +162,10 @@ def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Ma
         candidates_factor=sampling["candidates_factor"],
         min_keep_prob=sampling["min_keep_prob"],
         min_distance=sampling["min_distance"],
+        return_candidates=True,
     )
-    return {k: extract_patches(v, corners, sampling["patch_size"]) for k, v in image.items()}, corners
+    patches = {k: extract_patches(v, corners, sampling["patch_size"]) for k, v in image.items()}
+    return patches, corners, candidates, imp
 
 
 def _write_indices(out_dir: Path, indices: Mapping[tuple[str, str], list], patch_size: int) -> None:
@@ -162,6 +183,7 @@ class _ShardWriter:
 
     def __init__(self, out_dir: Path, sampling: Mapping[str, Any]) -> None:
         self.out_dir, self.sampling = out_dir, sampling
+        self.figure_written = False  # SAMPLING_FIGURE: of the first train image
         self.moments = {"diffuse_in": RunningMoments(), "specular_in": RunningMoments()}
         self.indices: dict[tuple[str, str], list[dict[str, Any]]] = {
             (kind, s): []
@@ -173,7 +195,18 @@ class _ShardWriter:
         """Store one noisy image: `n_patches` patches (train, val) and/or the whole image (val, test)."""
         if split in ("train", "val"):
             rng = _image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
-            patches, corners = _patches(image, noisy, rng, self.sampling, n_patches)
+            patches, corners, candidates, imp = _patches(image, noisy, rng, self.sampling, n_patches)
+            if split == "train" and not self.figure_written:
+                title = f"{entry['scene']} {entry['spp']} spp: importance ({self.sampling['importance']})"
+                save_sampling_figure(
+                    self.out_dir / SAMPLING_FIGURE,
+                    imp,
+                    candidates,
+                    corners,
+                    self.sampling["patch_size"],
+                    title,
+                )
+                self.figure_written = True
             if split == "train":
                 for k, m in self.moments.items():
                     m.update(patches[k])
@@ -231,6 +264,8 @@ def preprocess_dataset(
     min_distance: float | None,
     whiten_eps: float,
     load_fn: Callable[[Path], Mapping[str, np.ndarray]] | None = None,
+    importance: str = "thesis",
+    importance_window: float = 1.0,
     importance_percentile: float = 99.0,
     specular_variance: str = "delta",
     progress: bool = True,
@@ -239,12 +274,18 @@ def preprocess_dataset(
 
     Scenes are split (by scene) with `split_fractions` / `split_seed`. For every scene the highest spp is
     the reference and each lower spp a noisy input: train and val images give importance-sampled patch
-    shards (`patches_per_image` each, or `patches_per_split[split]` spread evenly over the split); val
-    and test images are also stored whole, for full-image validation and evaluation. Whitening statistics
-    come from the train patches only. `load_fn` maps a path to a buffer dict (default:
-    `load_kpcn_exr(path)[0]`, imported lazily). Deterministic given the seeds. Returns (and writes to
-    summary.json) the counts and settings.
+    shards (`patches_per_image` each, or `patches_per_split[split]` spread evenly over the split),
+    following the `importance` map: `thesis`, the local variance over `importance_window` patch sizes,
+    or `mc_variance` (see `patch_sampling.py`); val and test images are also stored whole, for
+    full-image validation and evaluation. Whitening statistics come from the train patches only.
+    `load_fn` maps a path to a buffer dict (default: `load_kpcn_exr(path)[0]`, imported lazily).
+    Deterministic given the seeds. Returns (and writes to summary.json) the counts and settings;
+    `patch_sampling.png` shows the sampling of the first train image (the thesis's Figs. 4.4-4.5).
     """
+    if importance not in IMPORTANCE_MAPS:
+        raise ConfigError(
+            f"task.preprocess.importance={importance!r}: expected one of {list(IMPORTANCE_MAPS)}"
+        )
     settings = {
         "eps": eps,
         "patch_size": patch_size,
@@ -257,6 +298,8 @@ def preprocess_dataset(
         "min_keep_prob": min_keep_prob,
         "min_distance": min_distance,
         "whiten_eps": whiten_eps,
+        "importance": importance,
+        "importance_window": importance_window,
         "importance_percentile": importance_percentile,
         "specular_variance": specular_variance,
     }

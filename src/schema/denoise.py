@@ -55,6 +55,8 @@ class Preprocess(Schema):
     candidates_factor: AtLeastOne
     min_keep_prob: Probability
     min_distance: NonNegativeFloat
+    importance: Literal["thesis", "mc_variance"]
+    importance_window: PositiveFloat
     importance_percentile: Percentile
     split: Split
     split_seed: NonNegativeInt

@@ -110,6 +110,8 @@ class DenoiseTask(Task):
                 min_keep_prob=p.min_keep_prob,
                 min_distance=p.min_distance * p.patch_size,
                 whiten_eps=p.whiten_eps,
+                importance=p.importance,
+                importance_window=p.importance_window,
                 importance_percentile=p.importance_percentile,
                 specular_variance=p.specular_variance,
                 load_fn=load,
