@@ -76,7 +76,7 @@ BAD_VALUES = [
         ["task=nerf", "dataset.scene_params.busy.shapes=[torus]"],
         ["dataset.scene_params.busy.shapes[0]='torus'"],
     ),
-    (["task=nerf", "dataset.scene_params.materials.env.res=0"], ["materials.env.res=0: expected a positive"]),
+    (["task=nerf", "dataset.scene_params.spheres.env.res=0"], ["spheres.env.res=0: expected a positive"]),
     (
         ["task.preprocess.patches_per_split={train: 0, val: 3}"],
         ["patches_per_split.train=0: expected a positive"],
@@ -160,14 +160,14 @@ def _garbage_exr(data):
 
 
 def _malformed_transforms(data):
-    scene = data / "nerf_procedural" / "scenes" / "materials"
+    scene = data / "nerf_procedural" / "scenes" / "spheres"
     scene.mkdir(parents=True)
     (scene / "transforms_train.json").write_text('{"camera_angle_x": 0.69, "frames": [')
     return ["task=nerf", "stage=train"], [str(scene / "transforms_train.json"), "JSON"]
 
 
 def _garbage_checkpoint(data):
-    scene = data / "nerf_procedural" / "scenes" / "materials"
+    scene = data / "nerf_procedural" / "scenes" / "spheres"
     scene.mkdir(parents=True)
     (scene / "transforms_test.json").write_text('{"camera_angle_x": 0.69, "frames": []}')
     (data / "final.pt").write_bytes(b"\x00garbage")

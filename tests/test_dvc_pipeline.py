@@ -53,7 +53,7 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
     _dvc(repo, "repro")
     for task, names in (
         ("denoise", ["kpcn", "dpcn", "resnet", "cross_bilateral", "oidn"]),
-        ("nerf", [f"{m}-{s}" for m in ("nerf", "mipnerf", "refnerf") for s in ("materials", "busy")]),
+        ("nerf", [f"{m}-{s}" for m in ("nerf", "mipnerf", "refnerf") for s in ("spheres", "busy")]),
     ):
         for name in names:
             metrics = json.loads((repo / "runs" / task / name / "eval" / "metrics.json").read_text())

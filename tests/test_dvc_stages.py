@@ -27,9 +27,9 @@ SAMPLE = [
     "denoise_baseline@cross_bilateral",
     "denoise_report",
     "nerf_render",
-    "nerf_config@nerf-materials",
-    "nerf_train@nerf-materials",
-    "nerf_eval@nerf-materials",
+    "nerf_config@nerf-spheres",
+    "nerf_train@nerf-spheres",
+    "nerf_eval@nerf-spheres",
     "nerf_report",
 ]
 # The MLflow store is deliberately no DVC out: the report stages read runs, which DVC cannot hash.

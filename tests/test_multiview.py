@@ -36,7 +36,7 @@ def ds():
     small = OmegaConf.to_container(cfg, resolve=True)
     small.update(width=24, height=24, spp=4, views={"train": 2, "val": 1, "test": 2})
     small["scene_params"]["busy"].update(n_objects=12, texture_res=16)
-    small["scene_params"]["materials"]["env"]["res"] = 32
+    small["scene_params"]["spheres"]["env"]["res"] = 32
     return small
 
 
@@ -86,13 +86,13 @@ def test_encode_rgba8_unpremultiplies_and_srgb_encodes():
 
 def test_render_key_tracks_pixels_only(ds):
     key = render_key(ds, "busy")
-    assert key == render_key(dict(ds), "busy") != render_key(ds, "materials")
+    assert key == render_key(dict(ds), "busy") != render_key(ds, "spheres")
     assert render_key({**ds, "near": 1.0, "far": 9.0, "background": [0, 0, 0]}, "busy") == key
     assert render_key({**ds, "spp": 8}, "busy") != key
     assert render_key({**ds, "seed": 1}, "busy") != key
     other = {**ds["scene_params"], "busy": {**ds["scene_params"]["busy"], "n_objects": 5}}
     assert render_key({**ds, "scene_params": other}, "busy") != key
-    assert render_key({**ds, "scene_params": other}, "materials") == render_key(ds, "materials")
+    assert render_key({**ds, "scene_params": other}, "spheres") == render_key(ds, "spheres")
 
 
 def test_config_errors_are_one_line(ds, tmp_path):
@@ -105,17 +105,17 @@ def test_config_errors_are_one_line(ds, tmp_path):
     with pytest.raises(ConfigError) as err:
         render_multiview_dataset({**ds, "views": {"train": 2, "val": 0, "test": 1}}, tmp_path)
     one_line_error(err, "dataset.views.val")
-    crowded = {**ds["scene_params"], "materials": {**ds["scene_params"]["materials"], "spacing": 1.0}}
+    crowded = {**ds["scene_params"], "spheres": {**ds["scene_params"]["spheres"], "spacing": 1.0}}
     with pytest.raises(ConfigError) as err:
-        render_multiview_dataset({**ds, "scenes": ["materials"], "scene_params": crowded}, tmp_path)
-    one_line_error(err, "scene_params.materials", "bound_radius=1.3")
+        render_multiview_dataset({**ds, "scenes": ["spheres"], "scene_params": crowded}, tmp_path)
+    one_line_error(err, "scene_params.spheres", "bound_radius=1.3")
 
 
 def test_renders_loadable_blender_scenes_and_caches(mitsuba_variant, ds, tmp_path):
     summary = render_multiview_dataset(ds, tmp_path)
     assert summary["scenes_rendered"] == 2 and summary["views_rendered"] == 10
     assert summary["rays"] == 10 * 24 * 24 * 4 and summary["rays_per_second"] > 0
-    for scene in ("materials", "busy"):
+    for scene in ("spheres", "busy"):
         root = tmp_path / scene
         assert sorted(p.name for p in root.iterdir()) == [
             KEY_FILE,
@@ -147,11 +147,11 @@ def test_renders_loadable_blender_scenes_and_caches(mitsuba_variant, ds, tmp_pat
     again = render_multiview_dataset(ds, tmp_path)
     assert again["scenes_rendered"] == 0 and again["scenes_cached"] == 2 and again["rays"] == 0
     assert render_multiview_dataset({**ds, "near": 2.5}, tmp_path)["scenes_rendered"] == 0
-    before = (tmp_path / "materials" / "train" / "r_0.png").read_bytes()
+    before = (tmp_path / "spheres" / "train" / "r_0.png").read_bytes()
     params = {**ds["scene_params"], "busy": {**ds["scene_params"]["busy"], "n_objects": 6}}
     changed = render_multiview_dataset({**ds, "scene_params": params}, tmp_path)
     assert changed["scenes_rendered"] == 1 and list(changed["per_scene"]) == ["busy"]
-    assert (tmp_path / "materials" / "train" / "r_0.png").read_bytes() == before
+    assert (tmp_path / "spheres" / "train" / "r_0.png").read_bytes() == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folders left
 
 

@@ -44,12 +44,12 @@ def one_thread():
 
 @pytest.fixture(scope="module")
 def trained(nerf_data, tmp_path_factory):
-    """Each model trained and evaluated on `materials`, plus NeRF on `busy`: {(model, scene): run dir}."""
+    """Each model trained and evaluated on `spheres`, plus NeRF on `busy`: {(model, scene): run dir}."""
     runs = {}
     for model, scene in (
-        ("nerf", "materials"),
-        ("mipnerf", "materials"),
-        ("refnerf", "materials"),
+        ("nerf", "spheres"),
+        ("mipnerf", "spheres"),
+        ("refnerf", "spheres"),
         ("nerf", "busy"),
     ):
         run_dir = tmp_path_factory.mktemp(f"{model}-{scene}")
@@ -63,14 +63,14 @@ def trained(nerf_data, tmp_path_factory):
 
 @pytest.mark.parametrize("model", ["nerf", "mipnerf", "refnerf"])
 def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
-    run_dir = trained[(model, "materials")]
+    run_dir = trained[(model, "spheres")]
     curves = pd.read_csv(run_dir / "curves.csv")
     assert list(curves["step"]) == [0, 10, 20, 30]  # from the initialisation
     assert curves["val_loss_fine"].iloc[-1] < curves["val_loss_fine"].iloc[0]
     metrics = json.loads((run_dir / "eval" / "metrics.json").read_text())
-    assert metrics["images"] == 2 and metrics["scene"] == "materials"
+    assert metrics["images"] == 2 and metrics["scene"] == "spheres"
     rows = pd.read_csv(run_dir / "eval" / "per_image.csv")
-    assert list(rows["view"]) == ["materials-r_0", "materials-r_1"]
+    assert list(rows["view"]) == ["spheres-r_0", "spheres-r_1"]
     for key in ("psnr", "ssim", "lpips", "mse", "ms_per_image", "rays_per_s"):
         assert np.isfinite(metrics["mean"][key]), key
         assert metrics["mean"][key] == pytest.approx(rows[key].mean(), rel=1e-12), key
@@ -79,7 +79,7 @@ def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
     # The rays/s figure is the view's pixel count over its render time.
     np.testing.assert_allclose(rows["rays_per_s"], 24 * 16 / (rows["ms_per_image"] / 1e3), rtol=1e-9)
     pngs = {p.name for p in (run_dir / "eval" / "png").iterdir()}
-    assert {"materials-r_0-rendered.png", "materials-r_0-reference.png"} <= pngs
+    assert {"spheres-r_0-rendered.png", "spheres-r_0-reference.png"} <= pngs
     # Scored on 8-bit images (task.eval.quantize_metrics, as multinerf and the thesis): exactly the PSNR
     # of the saved rendered and reference PNGs.
     for i, view in enumerate(rows["view"]):
@@ -90,8 +90,8 @@ def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
         png_psnr = -10 * np.log10(np.mean((rendered - reference) ** 2))
         assert rows["psnr"][i] == pytest.approx(png_psnr, rel=1e-6), view
     buffers = {p.name for p in (run_dir / "eval" / "buffers").iterdir()}
-    assert "materials-r_0-depth.png" in buffers
-    assert ("materials-r_0-normals.png" in buffers) == (model == "refnerf")
+    assert "spheres-r_0-depth.png" in buffers
+    assert ("spheres-r_0-normals.png" in buffers) == (model == "refnerf")
 
 
 def test_report_has_one_column_group_per_scene(trained, nerf_data, tmp_path):
@@ -99,7 +99,7 @@ def test_report_has_one_column_group_per_scene(trained, nerf_data, tmp_path):
     summary = build_report(cfg)
     assert summary["runs"] == 4 and not summary["warnings"]
     table = pd.read_csv(tmp_path / "reports" / "nerf" / "comparison.csv", comment="#", index_col=0)
-    assert {"PSNR materials", "PSNR busy", "SSIM materials"} <= set(table.columns)
+    assert {"PSNR spheres", "PSNR busy", "SSIM spheres"} <= set(table.columns)
     assert set(table.index) == {"nerf", "mipnerf", "refnerf"}
     assert np.isnan(table.loc["mipnerf", "PSNR busy"])
     # Every filled cell is that (model, scene) run's own eval mean: a swapped scene or model would differ.

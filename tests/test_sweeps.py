@@ -269,7 +269,7 @@ def test_a_users_own_radiance_field_runs_beside_nerf(smoke_data, tmp_path):
     tests/conf/model/toy_field.yaml, trained, evaluated and reported beside NeRF on one scene."""
     args = [
         "task=nerf",
-        "task.scene=materials",
+        "task.scene=spheres",
         "model=nerf,toy_field",
         "hydra.searchpath=[file://tests/conf]",
     ]

@@ -1,4 +1,4 @@
-"""The procedural multi-view scenes as Mitsuba scene dicts: ``materials`` (a grid of spheres, one material
+"""The procedural multi-view scenes as Mitsuba scene dicts: ``spheres`` (a grid of spheres, one material
 per row, graded roughness) and ``busy`` (many small textured objects), and the path integrator they use."""
 
 from __future__ import annotations
@@ -29,12 +29,12 @@ def _material(kind: str, roughness: float, p: Mapping) -> dict:
     if kind == "dielectric":
         return {"type": "roughdielectric", "alpha": roughness, "int_ior": float(p["dielectric_ior"])}
     raise ConfigError(
-        f"dataset.scene_params.materials.rows: unknown material '{kind}'; expected conductor, plastic or "
+        f"dataset.scene_params.spheres.rows: unknown material '{kind}'; expected conductor, plastic or "
         "dielectric"
     )
 
 
-def materials_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
+def spheres_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
     """A grid of spheres in the z = 0 plane: one material kind per row (``rows``), GGX roughness graded
     along the columns (``roughness``), under the structured ``env`` map. No ground plane."""
     rows, alphas = list(p["rows"]), [float(a) for a in p["roughness"]]
@@ -43,7 +43,7 @@ def materials_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
     for r, kind in enumerate(rows):
         for c, alpha in enumerate(alphas):
             centre = [(c - (len(alphas) - 1) / 2) * spacing, ((len(rows) - 1) / 2 - r) * spacing, 0.0]
-            _check_inside(ds, "materials", np.linalg.norm(centre) + radius)
+            _check_inside(ds, "spheres", np.linalg.norm(centre) + radius)
             scene[f"sphere_{r}_{c}"] = {
                 "type": "sphere",
                 "center": centre,
@@ -133,7 +133,7 @@ def busy_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
 #: Procedural multi-view scenes: builder(rng, dataset.scene_params.<name>, dataset) -> Mitsuba scene dict
 #: (no integrator, no sensor). Tests may register extra builders here.
 SCENE_BUILDERS: dict[str, Callable[[np.random.Generator, Mapping, Mapping], dict]] = {
-    "materials": materials_scene,
+    "spheres": spheres_scene,
     "busy": busy_scene,
 }
 

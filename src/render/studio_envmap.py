@@ -1,4 +1,4 @@
-"""The structured studio environment map that lights the ``materials`` multi-view scene."""
+"""The structured studio environment map that lights the ``spheres`` multi-view scene."""
 
 from __future__ import annotations
 

@@ -125,7 +125,7 @@ def per_value_table(
     metrics: Mapping[str, MetricSpec] | None = None,
 ) -> pd.DataFrame:
     """Quality metrics with one column per metric and value of config key `column_key` (e.g.
-    `task.scene`: "PSNR materials", "PSNR busy", ...), rows per distinct value of `axes`: the per-scene
+    `task.scene`: "PSNR spheres", "PSNR busy", ...), rows per distinct value of `axes`: the per-scene
     layout of the NeRF papers' tables. Values are means ± std over the runs (seeds) of a row and value."""
     axes = list(axes or DEFAULT_AXES)
     column = param_column(column_key)

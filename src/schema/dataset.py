@@ -202,7 +202,7 @@ class StudioEnv(Schema):
     sun: StudioSun
 
 
-class Materials(Schema):
+class Spheres(Schema):
     rows: list[Literal["conductor", "plastic", "dielectric"]] = Field(min_length=1)
     roughness: list[PositiveFloat] = Field(min_length=1)
     sphere_radius: PositiveFloat
@@ -237,7 +237,7 @@ class Busy(Schema):
 class SceneParams(Schema):
     """`dataset.scene_params`: each multi-view scene's materials, layout and lights."""
 
-    materials: Materials
+    spheres: Spheres
     busy: Busy
 
 
