@@ -15,7 +15,7 @@ from mlflow.tracking import MlflowClient
 from omegaconf import OmegaConf
 from PIL import Image
 
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from src.report.build import build_report
 from src.report.collect import differing_params, find_runs, keep_latest
 from src.report.figures import curve_series
@@ -353,3 +353,24 @@ def test_learning_curves_include_the_per_step_losses(store):
     assert series["train_step"][0] == list(range(1, 31)) and series["train"][0] == [10, 20, 30]
     assert series["train_step"][1][0] == pytest.approx(1.5 / 2)
     assert set(n for n, *_ in curve_series(MlflowClient(), run_id, "specular")) == {"train", "val"}
+
+
+def test_tables_by_writes_one_quality_table_per_value_with_the_chosen_columns(store, tmp_path):
+    """The NeRF thesis's layout (Tables 6.1-6.5): one table per scene, models as rows, PSNR, LPIPS, SSIM;
+    here split by the learning rate, which the fixture runs vary."""
+    cfg = _cfg(store, tmp_path, name="by_lr", tables_by="task.train.lr", metrics=["PSNR", "LPIPS", "SSIM"])
+    summary = build_report(cfg)
+    out = tmp_path / "by_lr"
+    tables = {
+        lr: pd.read_csv(out / f"comparison_{lr}.csv", comment="#", index_col=0) for lr in ("0.0001", "0.0003")
+    }
+    assert list(tables["0.0001"].index) == ["kpcn", "dpcn"] and list(tables["0.0003"].index) == ["resnet"]
+    lpips = f"LPIPS ({LPIPS_VARIANT})"
+    assert [c for c in tables["0.0001"].columns if not c.endswith(" std")] == ["PSNR", lpips, "SSIM", "runs"]
+    assert tables["0.0001"].loc["kpcn", "PSNR"] == pytest.approx(30.5)
+    assert tables["0.0003"].loc["resnet", lpips] == pytest.approx(0.18)
+    assert "Quality: 0.0003" in (out / "index.html").read_text()
+    assert not summary["warnings"]  # the split key is not a confounder of the per-value tables
+    with pytest.raises(ConfigError) as excinfo:
+        build_report(_cfg(store, tmp_path, metrics=["PSNR", "psnr"]))
+    one_line_error(excinfo, "report.metrics=['PSNR', 'psnr']", "'relMSE (Bako)'")

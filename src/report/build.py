@@ -2,6 +2,7 @@
 selects, written to `<report.out_dir>/<report.name>/`:
 
     comparison.{md,tex,csv}           quality metrics per compared row (mean ± std over seeds)
+    comparison_<value>.{md,tex,csv}   the same for one value of `report.tables_by` (e.g. one scene)
     comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
     cost.{md,tex,csv}                 parameters, training time, iterations, inference time
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
@@ -14,6 +15,7 @@ nothing and no file is written.
 from __future__ import annotations
 
 import logging
+import re
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -28,9 +30,11 @@ from src.report.html import render_html
 from src.report.tables import (
     axis_label,
     comparison_table,
+    config_values,
     cost_table,
     loss_table,
     per_value_table,
+    select_metrics,
     to_csv,
     to_latex,
     to_markdown,
@@ -45,6 +49,7 @@ TABLE_HEADINGS = {
     "cost": "Cost",
     "losses": "Final losses (validation, then training)",
 }
+_STEM_UNSAFE = re.compile(r"[^\w.-]")  # characters a per-value table's file name replaces by "_"
 GRID_HEADING = "Test images (noisy | denoised | reference)"
 
 
@@ -86,11 +91,13 @@ def build_report(cfg: Any) -> dict[str, Any]:
     runs = find_runs(rc)  # raises DataError before anything is written
 
     axes = [str(a) for a in (config_value(rc, "axes") or DEFAULT_AXES)]
-    columns_by = config_value(rc, "columns_by")
-    # What tells the runs apart besides the seed: the compared axes, and the column key (e.g. the scene).
-    row_keys = [*axes, *([str(columns_by)] if columns_by else [])]
+    columns_by, tables_by = config_value(rc, "columns_by"), config_value(rc, "tables_by")
+    # What tells the runs apart besides the seed: the compared axes, and the column or table key (the scene).
+    row_keys = [*axes, *(str(k) for k in dict.fromkeys((columns_by, tables_by)) if k)]
     warnings = _confounding_warnings(runs, axes, row_keys)
-    tables = _tables(runs, axes, row_keys, columns_by)
+    metrics = select_metrics(config_value(rc, "metrics"))
+    tables = _tables(runs, axes, row_keys, columns_by, metrics)
+    tables |= _tables_by_value(runs, axes, tables_by, metrics)
 
     name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
     out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name
@@ -123,10 +130,13 @@ def _confounding_warnings(runs, axes: list[str], row_keys: list[str]) -> list[st
     return warnings
 
 
-def _tables(runs, axes: list[str], row_keys: list[str], columns_by) -> dict[str, Any]:
+def _tables(runs, axes: list[str], row_keys: list[str], columns_by, metrics) -> dict[str, Any]:
     """{file stem: table}: quality and cost always, quality per spp and losses when the runs logged them."""
-    comparison = per_value_table(runs, str(columns_by), axes) if columns_by else comparison_table(runs, axes)
-    per_spp = comparison_table(runs, axes, group_by="spp")
+    if columns_by:
+        comparison = per_value_table(runs, str(columns_by), axes, metrics)
+    else:
+        comparison = comparison_table(runs, axes, metrics)
+    per_spp = comparison_table(runs, axes, metrics, group_by="spp")
     tables = {"comparison": comparison, "cost": cost_table(runs, axes)}
     if per_spp.attrs.get("metrics"):
         tables["comparison_per_spp"] = per_spp
@@ -134,6 +144,22 @@ def _tables(runs, axes: list[str], row_keys: list[str], columns_by) -> dict[str,
     if losses.attrs.get("metrics"):
         tables["losses"] = losses
     return tables
+
+
+def _tables_by_value(runs, axes: list[str], tables_by, metrics) -> dict[str, Any]:
+    """{`comparison_<value>`: quality table of the runs with that value of config key `tables_by`}."""
+    if not tables_by:
+        return {}
+    values = config_values(runs, str(tables_by))
+    return {
+        f"comparison_{_STEM_UNSAFE.sub('_', value)}": comparison_table(runs[values == value], axes, metrics)
+        for value in dict.fromkeys(values)
+    }
+
+
+def _heading(stem: str) -> str:
+    """The HTML heading of a table: its fixed heading, or `Quality: <value>` for a per-value table."""
+    return TABLE_HEADINGS.get(stem) or f"Quality: {stem.removeprefix('comparison_')}"
 
 
 def _write_tables(tables: dict[str, Any], out_dir: Path, warnings: list[str]) -> dict[str, Path]:
@@ -167,7 +193,7 @@ def _page(
         title=f"nrbench report: {name}",
         subtitle=f"{len(runs)} MLflow runs from {mlflow.get_tracking_uri()}, compared by {compared}; "
         f"generated {stamp}. Values: mean ± std over runs (seeds) per row; best per column in bold.",
-        tables={TABLE_HEADINGS[k]: v for k, v in tables.items()},
+        tables={_heading(k): v for k, v in tables.items()},
         figures=figures,
         runs=runs,
         labels=run_labels(runs, axes),

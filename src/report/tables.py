@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import pandas as pd
 
+from src.errors import ConfigError
 from src.report.collect import DEFAULT_AXES, param_column
 
 #: label -> (MLflow metric key, higher is better, format)
@@ -41,6 +42,24 @@ RUNS_COLUMN = "runs"
 #: The text of a value that is not there: an axis param a run did not log (its own row, not dropped), or a
 #: metric no run of a row logged (NaN mean, e.g. a model that does not log FLIP); never shown as 0.
 MISSING = "-"
+
+
+def select_metrics(labels: Sequence[str] | None) -> dict[str, MetricSpec]:
+    """The quality columns `report.metrics` names, in its order (all of COMPARISON_METRICS when None)."""
+    if labels is None:
+        return dict(COMPARISON_METRICS)
+    labels = [str(label) for label in labels]
+    if not labels or any(label not in COMPARISON_METRICS for label in labels):
+        raise ConfigError(f"report.metrics={labels}: expected labels among {list(COMPARISON_METRICS)}")
+    return {label: COMPARISON_METRICS[label] for label in labels}
+
+
+def config_values(runs: pd.DataFrame, key: str) -> pd.Series:
+    """Each run's value of config key `key` as text (MISSING where a run did not log it)."""
+    column = param_column(key)
+    return (
+        runs[column].fillna(MISSING).astype(str) if column in runs else pd.Series(MISSING, index=runs.index)
+    )
 
 
 def axis_label(axis: str) -> str:
@@ -128,10 +147,7 @@ def per_value_table(
     `task.scene`: "PSNR spheres", "PSNR busy", ...), rows per distinct value of `axes`: the per-scene
     layout of the NeRF papers' tables. Values are means ± std over the runs (seeds) of a row and value."""
     axes = list(axes or DEFAULT_AXES)
-    column = param_column(column_key)
-    values = (
-        runs[column].fillna(MISSING).astype(str) if column in runs else pd.Series(MISSING, index=runs.index)
-    )
+    values = config_values(runs, column_key)
     parts = []
     for value in dict.fromkeys(values):
         part = comparison_table(runs[values == value], axes, metrics)

@@ -63,6 +63,8 @@ class Report(Schema):
     filter: str | None
     axes: list[str] = Field(min_length=1)
     columns_by: str | None
+    tables_by: str | None
+    metrics: list[str] | None
     keep: Literal["latest", "all"]
     images: NonNegativeInt
 
