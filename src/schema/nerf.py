@@ -12,6 +12,7 @@ from src.schema.types import NonNegativeInt, PositiveFloat, PositiveInt, Schema,
 class Train(Schema):
     max_steps: PositiveInt
     batch_size: PositiveInt
+    micro_batch_rays: PositiveInt | None
     lr_init: PositiveFloat
     schedule: Target | None
     optimizer: Target

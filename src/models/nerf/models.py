@@ -28,7 +28,7 @@ from torch import Tensor, nn
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
 from src.models.nerf.fields import NerfMLP, RefNerfMLP
-from src.models.nerf.sampling import resample_tdist, stratified_samples
+from src.models.nerf.sampling import resample_draws, resample_tdist, stratified_samples
 from src.models.nerf.volume import compute_alpha_weights, volumetric_rendering
 
 RAY_KEYS = ("origins", "directions", "viewdirs", "radii", "near", "far")
@@ -104,13 +104,42 @@ class NerfModelBase(nn.Module):
         fine = self.num_fine_samples + (self.num_coarse_samples if self.resample_padding is None else 0)
         return self.num_coarse_samples, fine
 
+    def draw_noise(
+        self, n_rays: int, like: Tensor, generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        """The uniform draws one randomized `forward` of `n_rays` rays makes, per ray: {"coarse":
+        (n_rays, S_c + 1) stratified jitter, "fine": (n_rays, n) resampling quantile jitter}, drawn in
+        that order from `generator` (None: the global RNG of `like`'s device), in `like`'s dtype.
+
+        `forward` draws exactly these when it is given none, so a batch's noise drawn up front and
+        sliced per micro-batch (`noise=`) renders each ray as the whole batch would.
+        """
+        kind = {"dtype": like.dtype, "device": like.device, "generator": generator}
+        coarse = torch.rand((n_rays, self.num_coarse_samples + 1), **kind)
+        fine = torch.rand((n_rays, resample_draws(self.num_fine_samples, self.resample_padding)), **kind)
+        return {"coarse": coarse, "fine": fine}
+
     def forward(
-        self, rays: Rays, randomized: bool, generator: torch.Generator | None = None
+        self,
+        rays: Rays,
+        randomized: bool,
+        generator: torch.Generator | None = None,
+        noise: Mapping[str, Tensor] | None = None,
     ) -> list[dict[str, Tensor]]:
         """One dict per level (coarse, fine): rgb (N, 3), depth (N,), acc (N,), weights (N, S),
-        tdist (N, S+1), and the model's extras. `randomized` jitters the samples (training)."""
+        tdist (N, S+1), and the model's extras. `randomized` jitters the samples (training), with
+        `noise` (`draw_noise`) when given, else drawn here from `generator`."""
+        if randomized and noise is None:
+            noise = self.draw_noise(rays["near"].shape[0], rays["near"], generator)
+        noise = noise if randomized else {}
         tdist = stratified_samples(
-            rays["near"], rays["far"], self.num_coarse_samples, randomized, self.lindisp, generator
+            rays["near"],
+            rays["far"],
+            self.num_coarse_samples,
+            randomized,
+            self.lindisp,
+            generator,
+            jitter=noise.get("coarse"),
         )
         outputs: list[dict[str, Tensor]] = []
         for level in range(len(LEVELS)):
@@ -122,6 +151,7 @@ class NerfModelBase(nn.Module):
                     randomized,
                     self.resample_padding,
                     generator,
+                    jitter=noise.get("fine"),
                 )
             fields = self.evaluate(level, rays, tdist)
             weights, _, _ = compute_alpha_weights(fields["density"], tdist, rays["directions"])
