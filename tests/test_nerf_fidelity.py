@@ -9,9 +9,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.errors import ConfigError
 from src.models.instantiate import build_method
-from src.train.nerf_trainer import optimizer_step
-from tests.conftest import compose_config
+from src.models.nerf.summary import activation_bytes_per_ray
+from src.stages import print_model_summary
+from src.train import nerf_trainer
+from src.train.nerf_trainer import NerfTrainer, check_activation_memory, optimizer_step
+from tests.conftest import compose_config, one_line_error, smoke_config
 
 NAMES = ("nerf", "mipnerf", "refnerf")
 
@@ -78,3 +82,82 @@ def test_micro_batches_reproduce_the_unsplit_step(name):
         assert diff < 1e-9, (micro, diff)
         assert split_values == pytest.approx(whole_values, rel=1e-9)
     assert max_abs_difference(whole, model) > 1e-4  # the step did something
+
+
+# --- item 9b: activation memory --------------------------------------------------------------------------
+
+
+def saved_bytes_per_ray(model, rays: int = 4) -> float:
+    """Bytes of the tensors autograd saves for the backward of a training forward + loss, per ray (the
+    difference of two ray counts, so nothing per batch counts)."""
+
+    def measure(n):
+        storages = {}
+
+        def pack(tensor):
+            storage = tensor.untyped_storage()
+            storages[storage.data_ptr()] = storage.nbytes()
+            return tensor
+
+        batch = random_rays(n, torch.float32)
+        with torch.autograd.graph.saved_tensors_hooks(pack, lambda tensor: tensor):
+            model.loss(model(batch, randomized=True), batch["rgb"])
+        return sum(storages.values())
+
+    return (measure(2 * rays) - measure(rays)) / rays
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize(("profile", "tolerance"), [("smoke", 0.3), ("cpu", 0.1)])
+def test_activation_estimate_matches_the_saved_tensors(name, profile, tolerance):
+    model = build_method(model_cfg(name, profile))
+    estimate = activation_bytes_per_ray(model)
+    assert estimate == pytest.approx(saved_bytes_per_ray(model), rel=tolerance)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", NAMES)
+def test_activation_estimate_at_paper_size(name):
+    model = build_method(model_cfg(name, "paper"))
+    assert activation_bytes_per_ray(model) == pytest.approx(saved_bytes_per_ray(model, 2), rel=0.05)
+
+
+def test_summary_prints_the_step_activation_memory(capsys):
+    base = ["task=nerf", "model=refnerf", "profile=paper", "stage=summary"]
+    print_model_summary(compose_config(base))
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("activation memory per training step (estimate, the whole batch): 139.")
+    assert "16384 rays x 256 samples x 33.2 KB per sample" in line
+    print_model_summary(compose_config([*base, "task.train.micro_batch_rays=4096"]))
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "micro-batches of 4096 of 16384 rays): 34.77 GB" in line
+
+
+def test_a_step_that_does_not_fit_the_gpu_is_one_line_naming_micro_batch_rays():
+    model = build_method(model_cfg("refnerf", "paper"))
+    per_ray = activation_bytes_per_ray(model)
+    check_activation_memory(model, 16384, None, None)  # not CUDA: nothing to check
+    check_activation_memory(model, 16384, None, 16384 * per_ray)  # fits exactly
+    free = 80e9  # an 80 GB H100, empty
+    with pytest.raises(ConfigError) as excinfo:
+        check_activation_memory(model, 16384, None, free)
+    one_line_error(excinfo, "task.train.micro_batch_rays=None", "139.1 GB", "80.0 GB free")
+    one_line_error(excinfo, "set task.train.micro_batch_rays=4096 (or less)")
+    assert 4096 * per_ray <= 0.8 * free < 8192 * per_ray
+    check_activation_memory(model, 16384, 4096, free)  # the suggestion passes
+    with pytest.raises(ConfigError) as excinfo:  # 8192 rays need about 70 GB
+        check_activation_memory(model, 16384, 8192, 60e9)
+    one_line_error(excinfo, "task.train.micro_batch_rays=8192", "set task.train.micro_batch_rays=4096")
+    with pytest.raises(ConfigError) as excinfo:
+        check_activation_memory(model, 16384, 1, per_ray / 2)
+    one_line_error(excinfo, "not even one ray fits")
+
+
+def test_the_trainer_checks_before_training(tmp_path, monkeypatch):
+    """The trainer asks the device for its free memory (here injected: 1 MB, as if CUDA were full) and
+    stops before loading any data; the CLI turns the ConfigError into exit status 2."""
+    monkeypatch.setattr(nerf_trainer, "device_free_bytes", lambda device: 1_000_000)
+    cfg = smoke_config(tmp_path, tmp_path / "run", ["task=nerf", "model=mipnerf"])
+    with pytest.raises(ConfigError) as excinfo:
+        NerfTrainer(cfg, tracker=None)
+    one_line_error(excinfo, "task.train.micro_batch_rays=None", "set task.train.micro_batch_rays=")

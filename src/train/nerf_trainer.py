@@ -28,6 +28,8 @@ from tqdm import tqdm
 from src.data.blender import load_blender_split
 from src.data.ray_batches import RayBatcher
 from src.data.rays import rays_for_pixels
+from src.errors import ConfigError
+from src.models.nerf.summary import activation_bytes, activation_bytes_per_ray, fitting_micro_batch
 from src.train.curves import write_curves
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 
@@ -60,6 +62,38 @@ def split_metrics(split: str, values: dict[str, float]) -> dict[str, float]:
     """`{split}_psnr` and `{split}_loss_<component>` metric names for a step's or validation's values."""
     metrics = {f"{split}_psnr": values["psnr"]}
     return metrics | {f"{split}_loss_{k}": v for k, v in values.items() if k != "psnr"}
+
+
+def device_free_bytes(device: torch.device) -> int | None:
+    """Free memory of a CUDA training device (`torch.cuda.mem_get_info`); None elsewhere (no check)."""
+    if device.type != "cuda":
+        return None
+    return int(torch.cuda.mem_get_info(device)[0])
+
+
+def check_activation_memory(
+    model, batch_size: int, micro_batch_rays: int | None, free_bytes: int | None
+) -> None:
+    """Stop before training, with one line naming `task.train.micro_batch_rays` and a value that fits,
+    when the step's estimated activations (`summary.activation_bytes`) exceed the device's `free_bytes`
+    (None: not a CUDA device, nothing to check)."""
+    if free_bytes is None:
+        return
+    rays = batch_size if micro_batch_rays is None else min(int(micro_batch_rays), batch_size)
+    need = activation_bytes(model, rays)
+    if need <= free_bytes:
+        return
+    fit = fitting_micro_batch(model, free_bytes)
+    advice = (
+        f"set task.train.micro_batch_rays={fit} (or less)"
+        if fit
+        else "not even one ray fits; free GPU memory or use fewer samples"
+    )
+    raise ConfigError(
+        f"task.train.micro_batch_rays={micro_batch_rays}: a training step of {rays} rays needs about "
+        f"{need / 1e9:.1f} GB of activations ({activation_bytes_per_ray(model) / 1e3:.0f} KB per ray) "
+        f"but the GPU has {free_bytes / 1e9:.1f} GB free; {advice}"
+    )
 
 
 def accumulate_gradients(
@@ -120,6 +154,9 @@ class NerfTrainer(TrainingLoop):
     def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
         super().__init__(cfg, tracker, on_step)
         t = self.t
+        check_activation_memory(
+            self.model, int(t.batch_size), t.get("micro_batch_rays"), device_free_bytes(self.device)
+        )
         near, far = float(cfg.dataset.near), float(cfg.dataset.far)
         train = load_split(cfg, "train", t.max_train_images)
         self.batcher = RayBatcher.from_split(
