@@ -4,14 +4,17 @@ activation-memory estimate and its CUDA check, the thesis schedules, single-imag
 opaque last interval."""
 
 import copy
+import math
 
 import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.data.ray_batches import RayBatcher
 from src.errors import ConfigError
 from src.models.instantiate import build_method
 from src.models.nerf.summary import activation_bytes_per_ray
+from src.models.nerf.volume import compute_alpha_weights
 from src.stages import print_model_summary
 from src.train import nerf_trainer
 from src.train.nerf_trainer import NerfTrainer, check_activation_memory, optimizer_step
@@ -161,3 +164,75 @@ def test_the_trainer_checks_before_training(tmp_path, monkeypatch):
     with pytest.raises(ConfigError) as excinfo:
         NerfTrainer(cfg, tracker=None)
     one_line_error(excinfo, "task.train.micro_batch_rays=None", "set task.train.micro_batch_rays=")
+
+
+# --- item 10a: single-image batching ---------------------------------------------------------------------
+
+
+def batcher(batching: str, seed: int = 0, **kwargs) -> RayBatcher:
+    images = torch.rand(6, 8, 10, 3, generator=torch.Generator().manual_seed(0))
+    c2w = torch.eye(4)[:3].expand(6, 3, 4).clone()
+    common = {"near": 2.0, "far": 6.0, "batch_size": 64, "seed": seed, "batching": batching}
+    return RayBatcher(images, c2w, 10.0, **common, **kwargs)
+
+
+def test_single_image_batches_draw_every_ray_from_one_image():
+    single = batcher("single_image", precrop_iters=3)
+    visited = set()
+    for step in range(20):
+        batch = single.batch(step)
+        cams = batch["cam"].unique()
+        assert len(cams) == 1, step
+        visited.add(int(cams))
+        assert torch.equal(batch["rgb"], single.images[batch["cam"], batch["row"], batch["col"]])
+        again = batcher("single_image", precrop_iters=3).batch(step)  # the same (seed, step): the same
+        assert all(torch.equal(again[k], batch[k]) for k in batch)
+    assert len(visited) >= 4  # steps visit different images (6 images, 20 steps)
+    assert len(batcher("all_images").batch(0)["cam"].unique()) > 1
+    other_seed = [int(batcher("single_image", seed=1).batch(s)["cam"][0]) for s in range(20)]
+    assert other_seed != [int(single.batch(s)["cam"][0]) for s in range(20)]
+    with pytest.raises(ConfigError, match="batching='one_image'"):
+        batcher("one_image")
+
+
+# --- item 10b: NeRF's opaque last interval ---------------------------------------------------------------
+
+
+def test_opaque_last_interval_closed_form():
+    """Constant density sigma on [2, 6] cut into 4 intervals: with the real last interval the weights sum
+    to 1 - exp(-4 sigma) (the background shows through); with NeRF's 1e10 one they sum to 1 and only the
+    last weight changes, to exp(-3 sigma) (what passed the first three intervals)."""
+    sigma = 0.3
+    tdist = torch.linspace(2.0, 6.0, 5, dtype=torch.float64)[None]
+    density = torch.full((1, 4), sigma, dtype=torch.float64)
+    dirs = torch.tensor([[0.0, 0.0, -1.0]], dtype=torch.float64)
+    real, _, _ = compute_alpha_weights(density, tdist, dirs)
+    opaque, _, _ = compute_alpha_weights(density, tdist, dirs, opaque_last=True)
+    assert float(real.sum()) == pytest.approx(1 - math.exp(-4 * sigma), rel=1e-12)
+    assert float(opaque.sum()) == pytest.approx(1.0, rel=1e-12)
+    assert torch.equal(opaque[:, :3], real[:, :3])
+    assert float(opaque[0, 3]) == pytest.approx(math.exp(-3 * sigma), rel=1e-12)
+    # No density at all: nothing to make opaque, the background shows either way.
+    empty, _, _ = compute_alpha_weights(torch.zeros_like(density), tdist, dirs, opaque_last=True)
+    assert float(empty.sum()) == 0.0
+
+
+def test_opaque_background_is_nerfs_default_only():
+    """The model option reaches the renderer: NeRF's acc is 1 on every ray of constant positive density
+    (softplus), mip-NeRF's (real intervals) is not."""
+    rays = random_rays(8, torch.float32)
+    for name, opaque in (("nerf", True), ("mipnerf", False), ("refnerf", False)):
+        cfg = model_cfg(name)
+        assert cfg["opaque_background"] is opaque
+        model = build_method({**cfg, "density_activation": "softplus", "density_bias": 1.0})
+        with torch.no_grad():
+            for mlp in model.mlps:  # a constant field: density softplus(1) everywhere
+                for p in mlp.parameters():
+                    p.zero_()
+        acc = model(rays, randomized=False)[-1]["acc"]
+        if opaque:
+            assert torch.allclose(acc, torch.ones_like(acc))
+        else:
+            assert bool((acc < 1 - 1e-3).all())
+    with pytest.raises(ConfigError, match="model.opaque_background: expected bool, got 'yes'"):
+        build_method({**model_cfg("nerf"), "opaque_background": "yes"})

@@ -167,6 +167,7 @@ class NerfTrainer(TrainingLoop):
             seed=int(cfg.seed),
             precrop_iters=int(t.precrop_iters),
             precrop_frac=float(t.precrop_frac),
+            batching=str(t.get("batching", "all_images")),
             device=self.device,
         )
         self.val_rays = self._validation_rays(near, far)

@@ -53,6 +53,9 @@ class NerfModelBase(nn.Module):
         lindisp: coarse intervals uniform in 1/t instead of t.
         background: RGB composited behind each ray with weight 1 - acc.
         coarse_loss_mult: weight of the coarse level in the loss (NeRF 1, mip-NeRF 0.1).
+        opaque_background: the last interval is 1e10 long (NeRF's released code, Mildenhall et al. 2020:
+            any density there makes the ray opaque at the far bound) instead of its real length
+            (mip-NeRF, multinerf). See `volume.compute_alpha_weights`.
     """
 
     name = "base"
@@ -70,8 +73,10 @@ class NerfModelBase(nn.Module):
         lindisp: bool = False,
         background: Sequence[float] = (1.0, 1.0, 1.0),
         coarse_loss_mult: float = 1.0,
+        opaque_background: bool = False,
     ) -> None:
         super().__init__()
+        self.opaque_background = opaque_background
         self.mlps = nn.ModuleList([coarse_mlp] if fine_mlp is None else [coarse_mlp, fine_mlp])
         self.num_coarse_samples, self.num_fine_samples = num_coarse_samples, num_fine_samples
         self.resample_padding, self.lindisp = resample_padding, lindisp
@@ -154,7 +159,9 @@ class NerfModelBase(nn.Module):
                     jitter=noise.get("fine"),
                 )
             fields = self.evaluate(level, rays, tdist)
-            weights, _, _ = compute_alpha_weights(fields["density"], tdist, rays["directions"])
+            weights, _, _ = compute_alpha_weights(
+                fields["density"], tdist, rays["directions"], opaque_last=self.opaque_background
+            )
             out = volumetric_rendering(fields["rgb"], weights, tdist, self.background.to(weights.dtype))
             out.update(weights=weights, tdist=tdist)
             out.update(self.level_extras(fields, weights, rays))
