@@ -236,3 +236,35 @@ def test_opaque_background_is_nerfs_default_only():
             assert bool((acc < 1 - 1e-3).all())
     with pytest.raises(ConfigError, match="model.opaque_background: expected bool, got 'yes'"):
         build_method({**model_cfg("nerf"), "opaque_background": "yes"})
+
+
+# --- item 9c / 10c: the thesis schedules and NeRF's decay -----------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("model", "paper_steps", "lr", "lr_final", "clip"),
+    [
+        ("nerf", 500_000, 5e-4, 5e-6, None),
+        ("mipnerf", 1_000_000, 5e-4, 5e-6, None),
+        ("refnerf", 250_000, 2e-3, 2e-5, 1e-3),
+    ],
+)
+def test_the_thesis_profile_trains_each_paper_schedule_for_1m_steps(model, paper_steps, lr, lr_final, clip):
+    """Grujčić 2023, table 6.6: 1,000,000 iterations for every model, otherwise the papers' settings."""
+    paper = compose_config(["task=nerf", f"model={model}", "profile=paper"])
+    thesis = compose_config(["task=nerf", f"model={model}", "profile=thesis"])
+    assert paper.task.train.max_steps == paper_steps
+    t = thesis.task.train
+    assert (t.max_steps, t.lr_init, t.schedule.lr_final, t.grad_max_norm) == (1_000_000, lr, lr_final, clip)
+    assert t.batch_size == paper.task.train.batch_size and t.optimizer == paper.task.train.optimizer
+    assert (thesis.dataset.width, thesis.dataset.height) == (800, 800)
+    assert thesis.profile_name == "thesis"
+
+
+def test_nerf_schedules_decay_by_a_tenth_per_500k_steps():
+    """NeRF's code: lr = lr_init 0.1^(step / 500k) (lrate_decay = 500); both profiles end on that curve."""
+    for profile in ("paper", "thesis"):
+        t = compose_config(["task=nerf", "model=nerf", f"profile={profile}"]).task.train
+        assert t.schedule.delay_steps == 0
+        expected = t.lr_init * 0.1 ** (t.max_steps / 500_000)
+        assert t.schedule.lr_final == pytest.approx(expected, rel=1e-12), profile
