@@ -104,7 +104,11 @@ def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     from src.models.instantiate import build_method
 
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    print(task_of(cfg).model_summary(build_method(model_cfg), model_cfg))
+    task, model = task_of(cfg), build_method(model_cfg)
+    print(task.model_summary(model, model_cfg))
+    extra = task.training_summary(model, cfg)
+    if extra:
+        print(extra)
     return {}
 
 

@@ -149,6 +149,23 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_p
     _resume_and_compare(nerf_data, tmp_path, common, reference)
 
 
+def test_resume_with_single_image_batches_and_micro_batches_matches(nerf_data, tmp_path):
+    """Issue 15 items 9a and 10a: one training view per step and gradient accumulation over micro-batches
+    (the last one shorter) keep a resumed run identical to an uninterrupted one."""
+    common = [
+        "model=refnerf",
+        "task.train.max_steps=6",
+        "task.train.batching=single_image",
+        "task.train.micro_batch_rays=24",
+        "tracking.enabled=false",
+    ]
+    reference = _uninterrupted(nerf_data, tmp_path / "a", common)
+    interrupted = _cfg(nerf_data, tmp_path / "b", *common)
+    with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
+        train_nerf(interrupted, tracker, on_step=stop_at(4))
+    _resume_and_compare(nerf_data, tmp_path, common, reference)
+
+
 def test_resume_after_a_crash_continues_from_the_periodic_checkpoint(nerf_data, tmp_path):
     """A crash no handler sees (SIGKILL, OOM; here an exception the loop does not catch) after step 13
     leaves the periodic checkpoint of step 10; resuming from it replays steps 11-14 exactly."""

@@ -15,6 +15,10 @@ def step_seed(seed: int, step: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(step)]).generate_state(1, np.uint64)[0] >> 1)
 
 
+#: How a batch's pixels are spread over the training images (`task.train.batching`).
+BATCHING = ("all_images", "single_image")
+
+
 class RayBatcher:
     """Random training rays with their target colours, reproducible per step.
 
@@ -23,6 +27,11 @@ class RayBatcher:
     so a run resumed at step k sees exactly the batches it would have seen. Rays are made per batch from
     the drawn (cam, row, col) indices (``rays_for_pixels``), so memory is the images plus one batch,
     never all N x H x W rays.
+
+    ``batching``: ``all_images`` (the default, NeRF's and multinerf's) draws each pixel's image
+    independently; ``single_image`` (mip-NeRF's Blender config, ``batching = 'single_image'``; NeRF's
+    released code's ``no_batching``) first draws one image for the step, then all the batch's pixels from
+    it. Either way the batch depends only on (seed, step).
 
     Centre-crop warm-up (NeRF's ``precrop_iters`` / ``precrop_frac``): for steps < ``precrop_iters``
     only the central rows [H/2 - dH, H/2 + dH) and columns [W/2 - dW, W/2 + dW) are drawn, with
@@ -42,6 +51,7 @@ class RayBatcher:
         seed: int,
         precrop_iters: int = 0,
         precrop_frac: float = 0.5,
+        batching: str = "all_images",
         device: str | torch.device | None = None,
     ):
         images = torch.as_tensor(images)  # shares memory with a float32 numpy array
@@ -49,6 +59,8 @@ class RayBatcher:
             raise ValueError(f"images: expected (N, H, W, 3), got shape {tuple(images.shape)}")
         if batch_size < 1:
             raise ConfigError(f"batch_size: expected >= 1, got {batch_size}")
+        if batching not in BATCHING:
+            raise ConfigError(f"batching={batching!r}: expected one of {list(BATCHING)}")
         if not 0.0 < precrop_frac <= 1.0:
             raise ConfigError(f"precrop_frac: expected a fraction in (0, 1], got {precrop_frac}")
         self.device = torch.device(device) if device is not None else images.device
@@ -60,6 +72,7 @@ class RayBatcher:
         self.focal, self.near, self.far = float(focal), float(near), float(far)
         self.batch_size, self.seed = int(batch_size), int(seed)
         self.precrop_iters, self.precrop_frac = int(precrop_iters), float(precrop_frac)
+        self.batching = batching
 
     @classmethod
     def from_split(cls, split: BlenderSplit, **kwargs) -> RayBatcher:
@@ -82,7 +95,10 @@ class RayBatcher:
         gen = torch.Generator(device="cpu").manual_seed(step_seed(self.seed, step))
         (r0, r1), (c0, c1) = self.pixel_ranges(step)
         n = self.batch_size
-        cam = torch.randint(0, self.n_images, (n,), generator=gen)
+        if self.batching == "single_image":
+            cam = torch.randint(0, self.n_images, (1,), generator=gen).expand(n).clone()
+        else:
+            cam = torch.randint(0, self.n_images, (n,), generator=gen)
         row = torch.randint(r0, r1, (n,), generator=gen)
         col = torch.randint(c0, c1, (n,), generator=gen)
         return cam, row, col

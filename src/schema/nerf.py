@@ -12,6 +12,8 @@ from src.schema.types import NonNegativeInt, PositiveFloat, PositiveInt, Schema,
 class Train(Schema):
     max_steps: PositiveInt
     batch_size: PositiveInt
+    micro_batch_rays: PositiveInt | None
+    batching: Literal["all_images", "single_image"]
     lr_init: PositiveFloat
     schedule: Target | None
     optimizer: Target

@@ -47,3 +47,7 @@ class Task:
     def model_summary(self, model, model_cfg: dict) -> str:
         """The text of `stage=summary`: architecture, parameters, cost."""
         raise NotImplementedError
+
+    def training_summary(self, model, cfg: DictConfig) -> str:
+        """Lines `stage=summary` adds after `model_summary` about training with `cfg` (default: none)."""
+        return ""

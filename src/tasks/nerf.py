@@ -72,3 +72,10 @@ class NerfTask(Task):
         from src.models.nerf.summary import nerf_model_summary
 
         return nerf_model_summary(model, model_cfg)
+
+    def training_summary(self, model, cfg: DictConfig) -> str:
+        """The training step's estimated activation memory (`task.train.micro_batch_rays` sizes it)."""
+        from src.models.nerf.summary import activation_line
+
+        train = cfg.task.train
+        return activation_line(model, int(train.batch_size), train.get("micro_batch_rays"))

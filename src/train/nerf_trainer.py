@@ -28,6 +28,8 @@ from tqdm import tqdm
 from src.data.blender import load_blender_split
 from src.data.ray_batches import RayBatcher
 from src.data.rays import rays_for_pixels
+from src.errors import ConfigError
+from src.models.nerf.summary import activation_bytes, activation_bytes_per_ray, fitting_micro_batch
 from src.train.curves import write_curves
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 
@@ -62,6 +64,88 @@ def split_metrics(split: str, values: dict[str, float]) -> dict[str, float]:
     return metrics | {f"{split}_loss_{k}": v for k, v in values.items() if k != "psnr"}
 
 
+def device_free_bytes(device: torch.device) -> int | None:
+    """Free memory of a CUDA training device (`torch.cuda.mem_get_info`); None elsewhere (no check)."""
+    if device.type != "cuda":
+        return None
+    return int(torch.cuda.mem_get_info(device)[0])
+
+
+def check_activation_memory(
+    model, batch_size: int, micro_batch_rays: int | None, free_bytes: int | None
+) -> None:
+    """Stop before training, with one line naming `task.train.micro_batch_rays` and a value that fits,
+    when the step's estimated activations (`summary.activation_bytes`) exceed the device's `free_bytes`
+    (None: not a CUDA device, nothing to check)."""
+    if free_bytes is None:
+        return
+    rays = batch_size if micro_batch_rays is None else min(int(micro_batch_rays), batch_size)
+    need = activation_bytes(model, rays)
+    if need <= free_bytes:
+        return
+    fit = fitting_micro_batch(model, free_bytes)
+    advice = (
+        f"set task.train.micro_batch_rays={fit} (or less)"
+        if fit
+        else "not even one ray fits; free GPU memory or use fewer samples"
+    )
+    raise ConfigError(
+        f"task.train.micro_batch_rays={micro_batch_rays}: a training step of {rays} rays needs about "
+        f"{need / 1e9:.1f} GB of activations ({activation_bytes_per_ray(model) / 1e3:.0f} KB per ray) "
+        f"but the GPU has {free_bytes / 1e9:.1f} GB free; {advice}"
+    )
+
+
+def accumulate_gradients(
+    model, batch: dict[str, torch.Tensor], micro_batch_rays: int | None, noise: dict[str, torch.Tensor]
+) -> dict[str, float]:
+    """Backpropagate the loss of `batch` in micro-batches of `micro_batch_rays` rays (None: one pass),
+    adding to the parameters' `.grad`; returns the logged values of the whole batch (loss, components,
+    fine-level PSNR).
+
+    Every loss term is a mean over rays (the per-level MSEs, and Ref-NeRF's regularisers, each a per-ray
+    sum over samples averaged over rays; `coarse_loss_mult` and the regularisers' multipliers are
+    constant weights of such means), so the loss of the batch is sum_k (n_k / N) loss_k over micro-batches
+    of n_k rays: backpropagating each micro-batch's loss times its share of the rays accumulates exactly
+    the gradient of the unsplit batch (up to float summation order). The stratified and resampling jitter
+    is drawn for the whole batch up front (`noise`, `draw_noise`) and sliced, so every ray is sampled as
+    in the unsplit step. Activation memory then scales with `micro_batch_rays` instead of the batch size.
+    """
+    n = len(batch["rgb"])
+    size = n if micro_batch_rays is None else max(1, min(int(micro_batch_rays), n))
+    totals: dict[str, float] = {}
+    squared = 0.0
+    for start in range(0, n, size):
+        part = {k: v[start : start + size] for k, v in batch.items()}
+        part_noise = {k: v[start : start + size] for k, v in noise.items()}
+        share = len(part["rgb"]) / n
+        outputs = model(part, randomized=True, noise=part_noise)
+        loss, components = model.loss(outputs, part["rgb"])
+        (loss * share).backward()
+        for key, value in {"loss": float(loss.detach()), **components}.items():
+            totals[key] = totals.get(key, 0.0) + share * float(value)
+        squared += float(torch.sum((outputs[-1]["rgb"].detach() - part["rgb"]) ** 2))
+        del outputs, loss  # free this micro-batch's graph before the next one's forward
+    return {**totals, "psnr": mse_to_psnr(squared / (3 * n))}
+
+
+def optimizer_step(
+    model, optimizer, batch: dict[str, torch.Tensor], micro_batch_rays: int | None, grad_max_norm
+) -> dict[str, float]:
+    """One optimiser step on `batch`: the whole batch's stratified jitter drawn up front (from the global
+    RNG of the training device, as an unsplit forward draws it), gradients accumulated over micro-batches
+    (`accumulate_gradients`), then gradient clipping at `grad_max_norm` (None/0: off) and the optimiser
+    step, once. The same step whatever `micro_batch_rays` is."""
+    model.train()
+    noise = model.draw_noise(len(batch["rgb"]), batch["near"])
+    optimizer.zero_grad(set_to_none=True)
+    values = accumulate_gradients(model, batch, micro_batch_rays, noise)
+    if grad_max_norm:
+        torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_max_norm))
+    optimizer.step()
+    return values
+
+
 class NerfTrainer(TrainingLoop):
     """Random ray batches of one scene, validation every `val_every` steps."""
 
@@ -70,6 +154,9 @@ class NerfTrainer(TrainingLoop):
     def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
         super().__init__(cfg, tracker, on_step)
         t = self.t
+        check_activation_memory(
+            self.model, int(t.batch_size), t.get("micro_batch_rays"), device_free_bytes(self.device)
+        )
         near, far = float(cfg.dataset.near), float(cfg.dataset.far)
         train = load_split(cfg, "train", t.max_train_images)
         self.batcher = RayBatcher.from_split(
@@ -80,6 +167,7 @@ class NerfTrainer(TrainingLoop):
             seed=int(cfg.seed),
             precrop_iters=int(t.precrop_iters),
             precrop_frac=float(t.precrop_frac),
+            batching=str(t.get("batching", "all_images")),
             device=self.device,
         )
         self.val_rays = self._validation_rays(near, far)
@@ -110,16 +198,8 @@ class NerfTrainer(TrainingLoop):
         return self.pos.step >= int(self.t.max_steps)
 
     def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
-        self.model.train()
-        outputs = self.model(batch, randomized=True)
-        loss, components = self.model.loss(outputs, batch["rgb"])
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        if self.t.grad_max_norm:
-            torch.nn.utils.clip_grad_norm_(self.model.parameters(), float(self.t.grad_max_norm))
-        self.optimizer.step()
-        fine_mse = float(torch.mean((outputs[-1]["rgb"].detach() - batch["rgb"]) ** 2))
-        values = {"loss": float(loss.detach()), "psnr": mse_to_psnr(fine_mse), **components}
+        micro = self.t.get("micro_batch_rays")
+        values = optimizer_step(self.model, self.optimizer, batch, micro and int(micro), self.t.grad_max_norm)
         return values, len(batch["rgb"])
 
     @torch.no_grad()

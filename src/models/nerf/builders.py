@@ -9,7 +9,7 @@ against the signature); the options all three share are one `TypedDict`, `FieldA
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Literal, TypedDict, Unpack
+from typing import Literal, NotRequired, TypedDict, Unpack
 
 from torch import nn
 
@@ -44,6 +44,9 @@ class FieldArgs(TypedDict):
     lindisp: bool  # coarse samples uniform in 1/t
     coarse_loss_mult: float
     background: Sequence[float]  # RGB behind each ray
+    # NeRF's released code: the last interval is 1e10 long, so a ray is opaque at the far bound
+    # (absent in configs from before the option: False, the real interval of mip-NeRF / multinerf)
+    opaque_background: NotRequired[bool]
 
 
 def _degrees(prefix: str, lo: int, hi: int) -> tuple[int, int]:
@@ -89,7 +92,12 @@ def _rendering(common: FieldArgs) -> dict:
     ):
         raise ConfigError(f"model.background: expected 3 numbers (RGB), got {background!r}")
     keys = ("num_coarse_samples", "num_fine_samples", "resample_padding", "lindisp", "coarse_loss_mult")
-    return {**{k: common[k] for k in keys}, "background": tuple(float(c) for c in background)}
+    opaque = common.get("opaque_background", False)  # typed (bool) by build_method
+    return {
+        **{k: common[k] for k in keys},
+        "background": tuple(float(c) for c in background),
+        "opaque_background": opaque,
+    }
 
 
 def _levels(single_mlp: bool, make: Callable[[], nn.Module]) -> tuple[nn.Module, nn.Module | None]:

@@ -28,7 +28,7 @@ from torch import Tensor, nn
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
 from src.models.nerf.fields import NerfMLP, RefNerfMLP
-from src.models.nerf.sampling import resample_tdist, stratified_samples
+from src.models.nerf.sampling import resample_draws, resample_tdist, stratified_samples
 from src.models.nerf.volume import compute_alpha_weights, volumetric_rendering
 
 RAY_KEYS = ("origins", "directions", "viewdirs", "radii", "near", "far")
@@ -53,6 +53,9 @@ class NerfModelBase(nn.Module):
         lindisp: coarse intervals uniform in 1/t instead of t.
         background: RGB composited behind each ray with weight 1 - acc.
         coarse_loss_mult: weight of the coarse level in the loss (NeRF 1, mip-NeRF 0.1).
+        opaque_background: the last interval is 1e10 long (NeRF's released code, Mildenhall et al. 2020:
+            any density there makes the ray opaque at the far bound) instead of its real length
+            (mip-NeRF, multinerf). See `volume.compute_alpha_weights`.
     """
 
     name = "base"
@@ -70,8 +73,10 @@ class NerfModelBase(nn.Module):
         lindisp: bool = False,
         background: Sequence[float] = (1.0, 1.0, 1.0),
         coarse_loss_mult: float = 1.0,
+        opaque_background: bool = False,
     ) -> None:
         super().__init__()
+        self.opaque_background = opaque_background
         self.mlps = nn.ModuleList([coarse_mlp] if fine_mlp is None else [coarse_mlp, fine_mlp])
         self.num_coarse_samples, self.num_fine_samples = num_coarse_samples, num_fine_samples
         self.resample_padding, self.lindisp = resample_padding, lindisp
@@ -104,13 +109,42 @@ class NerfModelBase(nn.Module):
         fine = self.num_fine_samples + (self.num_coarse_samples if self.resample_padding is None else 0)
         return self.num_coarse_samples, fine
 
+    def draw_noise(
+        self, n_rays: int, like: Tensor, generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        """The uniform draws one randomized `forward` of `n_rays` rays makes, per ray: {"coarse":
+        (n_rays, S_c + 1) stratified jitter, "fine": (n_rays, n) resampling quantile jitter}, drawn in
+        that order from `generator` (None: the global RNG of `like`'s device), in `like`'s dtype.
+
+        `forward` draws exactly these when it is given none, so a batch's noise drawn up front and
+        sliced per micro-batch (`noise=`) renders each ray as the whole batch would.
+        """
+        kind = {"dtype": like.dtype, "device": like.device, "generator": generator}
+        coarse = torch.rand((n_rays, self.num_coarse_samples + 1), **kind)
+        fine = torch.rand((n_rays, resample_draws(self.num_fine_samples, self.resample_padding)), **kind)
+        return {"coarse": coarse, "fine": fine}
+
     def forward(
-        self, rays: Rays, randomized: bool, generator: torch.Generator | None = None
+        self,
+        rays: Rays,
+        randomized: bool,
+        generator: torch.Generator | None = None,
+        noise: Mapping[str, Tensor] | None = None,
     ) -> list[dict[str, Tensor]]:
         """One dict per level (coarse, fine): rgb (N, 3), depth (N,), acc (N,), weights (N, S),
-        tdist (N, S+1), and the model's extras. `randomized` jitters the samples (training)."""
+        tdist (N, S+1), and the model's extras. `randomized` jitters the samples (training), with
+        `noise` (`draw_noise`) when given, else drawn here from `generator`."""
+        if randomized and noise is None:
+            noise = self.draw_noise(rays["near"].shape[0], rays["near"], generator)
+        noise = noise if randomized else {}
         tdist = stratified_samples(
-            rays["near"], rays["far"], self.num_coarse_samples, randomized, self.lindisp, generator
+            rays["near"],
+            rays["far"],
+            self.num_coarse_samples,
+            randomized,
+            self.lindisp,
+            generator,
+            jitter=noise.get("coarse"),
         )
         outputs: list[dict[str, Tensor]] = []
         for level in range(len(LEVELS)):
@@ -122,9 +156,12 @@ class NerfModelBase(nn.Module):
                     randomized,
                     self.resample_padding,
                     generator,
+                    jitter=noise.get("fine"),
                 )
             fields = self.evaluate(level, rays, tdist)
-            weights, _, _ = compute_alpha_weights(fields["density"], tdist, rays["directions"])
+            weights, _, _ = compute_alpha_weights(
+                fields["density"], tdist, rays["directions"], opaque_last=self.opaque_background
+            )
             out = volumetric_rendering(fields["rgb"], weights, tdist, self.background.to(weights.dtype))
             out.update(weights=weights, tdist=tdist)
             out.update(self.level_extras(fields, weights, rays))

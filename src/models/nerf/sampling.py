@@ -19,6 +19,7 @@ def stratified_samples(
     randomized: bool,
     lindisp: bool = False,
     generator: torch.Generator | None = None,
+    jitter: Tensor | None = None,
 ) -> Tensor:
     """S = n_samples intervals between near and far, jittered when `randomized` (NeRF Eq. 2).
 
@@ -30,6 +31,8 @@ def stratified_samples(
     Args:
         near, far: (N, 1) ray bounds.
         generator: RNG for the jitter (on the tensors' device); None uses the global one.
+        jitter: (N, n_samples + 1) uniform draws to use instead of drawing them (drawn for a whole batch
+            up front, so that splitting the batch into micro-batches samples the same intervals).
 
     Returns:
         tdist (N, n_samples + 1), sorted along the last axis.
@@ -40,8 +43,10 @@ def stratified_samples(
         mids = 0.5 * (tdist[..., 1:] + tdist[..., :-1])
         upper = torch.cat([mids, tdist[..., -1:]], dim=-1)
         lower = torch.cat([tdist[..., :1], mids], dim=-1)
-        u = torch.rand(tdist.shape, generator=generator, dtype=tdist.dtype, device=tdist.device)
-        tdist = lower + (upper - lower) * u
+        u = jitter
+        if u is None:
+            u = torch.rand(tdist.shape, generator=generator, dtype=tdist.dtype, device=tdist.device)
+        tdist = lower + (upper - lower) * u.to(tdist.dtype)
     return tdist
 
 
@@ -52,6 +57,7 @@ def sample_pdf(
     randomized: bool,
     generator: torch.Generator | None = None,
     eps: float = 1e-5,
+    jitter: Tensor | None = None,
 ) -> Tensor:
     """Inverse-transform samples of the piecewise-constant pdf `weights` on `bins` (NeRF Sec. 5.2).
 
@@ -62,6 +68,7 @@ def sample_pdf(
 
     Args:
         bins: (N, B+1) sorted bin edges; weights: (N, B) non-negative.
+        jitter: (N, n_samples) uniform draws to use instead of drawing them (`randomized` only).
 
     Returns:
         (N, n_samples) samples.
@@ -77,7 +84,9 @@ def sample_pdf(
 
     shape = (*cdf.shape[:-1], n_samples)
     if randomized:
-        jitter = torch.rand(shape, generator=generator, dtype=cdf.dtype, device=cdf.device)
+        if jitter is None:
+            jitter = torch.rand(shape, generator=generator, dtype=cdf.dtype, device=cdf.device)
+        jitter = jitter.to(cdf.dtype)
         strata = torch.arange(n_samples, dtype=cdf.dtype, device=cdf.device)
         u = torch.clamp((strata + jitter) / n_samples, max=1.0 - eps)
     else:
@@ -103,6 +112,12 @@ def blur_weights(weights: Tensor, padding: float) -> Tensor:
     return 0.5 * (w_max[..., :-1] + w_max[..., 1:]) + padding
 
 
+def resample_draws(n_samples: int, blur_padding: float | None) -> int:
+    """Uniform draws per ray `resample_tdist` makes: n_samples + 1 new endpoints (mip-NeRF) or n_samples
+    importance samples (NeRF)."""
+    return n_samples + 1 if blur_padding is not None else n_samples
+
+
 def resample_tdist(
     tdist: Tensor,
     weights: Tensor,
@@ -110,8 +125,10 @@ def resample_tdist(
     randomized: bool,
     blur_padding: float | None = None,
     generator: torch.Generator | None = None,
+    jitter: Tensor | None = None,
 ) -> Tensor:
-    """The fine level's intervals from the coarse level's weights (gradients stopped).
+    """The fine level's intervals from the coarse level's weights (gradients stopped); `jitter`: the
+    (N, `resample_draws(n_samples, blur_padding)`) uniform draws to use instead of drawing them.
 
     - mip-NeRF (`blur_padding` a float, 0.01 in the paper): n_samples + 1 new endpoints drawn from the
       blurred, padded weights (`blur_weights`), replacing the coarse ones: (N, n_samples + 1).
@@ -120,6 +137,7 @@ def resample_tdist(
     """
     tdist, weights = tdist.detach(), weights.detach()
     if blur_padding is not None:
-        return sample_pdf(tdist, blur_weights(weights, blur_padding), n_samples + 1, randomized, generator)
-    fine = sample_pdf(tdist, weights, n_samples, randomized, generator)
+        blurred = blur_weights(weights, blur_padding)
+        return sample_pdf(tdist, blurred, n_samples + 1, randomized, generator, jitter=jitter)
+    fine = sample_pdf(tdist, weights, n_samples, randomized, generator, jitter=jitter)
     return torch.sort(torch.cat([tdist, fine], dim=-1), dim=-1).values
