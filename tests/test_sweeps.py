@@ -3,6 +3,7 @@ search space and objective, and real smoke sweeps that end in a report with one 
 
 import csv
 import os
+import shutil
 import subprocess
 import sys
 
@@ -22,9 +23,9 @@ from hydra_plugins.nrbench_optuna_sweeper.optuna_sweeper import (
 )
 from src.errors import ConfigError
 from src.train.checkpoint import load_checkpoint
-from tests.conftest import CONF_DIR, ROOT, one_line_error
+from tests.conftest import CONF_DIR, ROOT, one_line_error, smoke_config
 
-STUDIES = {"denoisers", "shared_vs_separate", "whitening", "nerf_variants", "lr_search"}
+STUDIES = {"denoisers", "shared_vs_separate", "whitening", "nerf_variants", "nerf_thesis", "lr_search"}
 GROUPS = {"model", "task", "dataset"}
 
 
@@ -62,12 +63,32 @@ def test_sweep_composes_with_its_report_and_every_swept_value(name, profile):
             assert OmegaConf.select(cfg, key) is not None, key
 
 
-@pytest.mark.parametrize("name", sorted(STUDIES - {"lr_search"}))
+@pytest.mark.parametrize("name", sorted(STUDIES - {"lr_search", "nerf_thesis"}))
 def test_grid_studies_run_several_training_seeds_on_fixed_data(name):
     cfg = compose_sweep(name)
     seeds = list(swept(cfg)["seed"].sweep_string_iterator())
     assert len(seeds) >= 3
     assert cfg.data_seed == 0 and "data_seed" not in swept(cfg)  # the data stay; only training varies
+
+
+def test_the_nerf_thesis_sweep_is_the_thesis_s_experiment():
+    """Grujčić 2023, Sec. 6: three models x its five nerf_synthetic scenes, one run each, trained as
+    `profile=thesis`; per-scene tables of PSNR, LPIPS, SSIM (Tables 6.1-6.5)."""
+    cfg = compose_sweep("nerf_thesis", ["dataset.root=/data/nerf_synthetic"])
+    params = swept(cfg)
+    assert list(params["model"].sweep_string_iterator()) == ["nerf", "mipnerf", "refnerf"]
+    scenes = list(params["task.scene"].sweep_string_iterator())
+    assert scenes == ["lego", "materials", "drums", "chair", "ship"] and set(scenes) <= set(
+        cfg.dataset.scenes
+    )
+    assert params["seed"].value() == 0  # the thesis reports one run per cell
+    assert (cfg.profile_name, cfg.task.name, cfg.dataset.name, cfg.task.train.max_steps) == (
+        "thesis",
+        "nerf",
+        "blender",
+        1_000_000,
+    )
+    assert cfg.report.tables_by == "task.scene" and list(cfg.report.metrics) == ["PSNR", "LPIPS", "SSIM"]
 
 
 def test_ablations_fix_what_the_seed_thesis_fixed():
@@ -305,3 +326,30 @@ def test_the_compared_models_live_in_one_place():
     assert items("denoise_train") == items("denoise_eval") == set(learned)
     assert items("denoise_baseline") == set(baselines)
     assert items("nerf_train") == {f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes}
+
+
+@pytest.mark.slow
+def test_the_nerf_thesis_sweep_writes_the_thesis_tables(tmp_path, mitsuba_variant):
+    """`+sweep=nerf_thesis` on Blender-format scenes named as nerf_synthetic's: one quality table per scene
+    (PSNR, LPIPS, SSIM: the thesis's Tables 6.1-6.5) and the cost table (its Table 6.6). Smoke-sized:
+    two procedural scenes stand in for lego and materials, two models."""
+    from src.stages import render
+
+    rendered = tmp_path / "rendered"
+    render(smoke_config(rendered, rendered / "run", ["task=nerf"]))
+    root = tmp_path / "nerf_synthetic"
+    for ours, theirs in (("spheres", "lego"), ("busy", "materials")):
+        shutil.copytree(rendered / "nerf_procedural" / "scenes" / ours, root / theirs)
+    sweep(["+sweep=nerf_thesis", f"dataset.root={root}", "task.scene=lego,materials", "model=nerf,mipnerf"],
+          tmp_path / "data", tmp_path)  # fmt: skip
+    out = tmp_path / "reports" / "sweeps" / "nerf_thesis"
+    for scene in ("lego", "materials"):
+        table = pd.read_csv(out / f"comparison_{scene}.csv", comment="#", index_col=0)
+        assert list(table.index) == ["nerf", "mipnerf"]
+        columns = [c for c in table.columns if not c.endswith(" std") and c != "runs"]
+        assert columns[0] == "PSNR" and columns[1].startswith("LPIPS") and columns[2] == "SSIM"
+        assert len(columns) == 3 and (table["PSNR"] > 0).all()
+    cost = pd.read_csv(out / "cost.csv", comment="#", index_col=0)
+    assert (
+        (cost["iterations"] == 30).all() and (cost["params"] > 0).all() and (cost["train time (s)"] > 0).all()
+    )
