@@ -1,10 +1,11 @@
 """Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
 --models dpcn,kpcn,resnet --profile paper]`` and ``python -m src.bench nerf [--models nerf,mipnerf,refnerf
---profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]``.
+--profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]`` and
+``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``.
 
-The command line: the two subcommands' arguments and their checks; a bad argument, config value or model
+The command line: the subcommands' arguments and their checks; a bad argument, config value or model
 name is one line on stderr and exit status 2. What each subcommand measures: `src.bench.denoise`,
-`src.bench.nerf`.
+`src.bench.nerf`, `src.bench.volpath`.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from hydra.errors import HydraException
 
 from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
 from src.bench.nerf import run_nerf
+from src.bench.volpath import run_volpath
 from src.errors import NrbenchError, one_line
 
 
@@ -29,6 +31,12 @@ def _check_denoise(args: argparse.Namespace) -> str | None:
 def _check_nerf(args: argparse.Namespace) -> str | None:
     if min(args.batch, args.steps, args.render_rays, args.chunk) < 1:
         return "--batch, --steps, --render-rays and --chunk must be >= 1"
+    return None
+
+
+def _check_volpath(args: argparse.Namespace) -> str | None:
+    if min(args.width, args.height, args.spp, args.repeats) < 1 or args.max_depth < -1 or args.max_depth == 0:
+        return "--width, --height, --spp and --repeats must be >= 1, --max-depth -1 or >= 1"
     return None
 
 
@@ -67,6 +75,16 @@ def _parser() -> argparse.ArgumentParser:
     n.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
     n.add_argument("--seed", type=int, default=0, help="seed of the random weights, rays and samples")
     n.set_defaults(run=run_nerf, check=_check_nerf)
+
+    v = commands.add_parser("volpath", help="samples/s of the volumetric AOV integrator vs Mitsuba's volpath")
+    v.add_argument("--width", type=int, default=128, help="image width (default 128)")
+    v.add_argument("--height", type=int, default=128, help="image height (default 128)")
+    v.add_argument("--spp", type=int, default=16, help="samples per pixel per render (default 16)")
+    v.add_argument("--repeats", type=int, default=3, help="timed renders per integrator (median reported)")
+    v.add_argument("--max-depth", type=int, default=8, help="max_depth of every integrator (-1: unbounded)")
+    v.add_argument("--variant", default="auto", help="auto | llvm_ad_rgb | cuda_ad_rgb")
+    v.add_argument("--seed", type=int, default=0, help="seed of the first render")
+    v.set_defaults(run=run_volpath, check=_check_volpath)
     return parser
 
 
