@@ -73,7 +73,7 @@ an AOV with its square; we do not claim each equals a feature of their pool:
   not depend on the majorant, unlike the ratio- or track-length estimators, whose tau estimate is a
   Poisson collision count, noisy in dense media; the cost is a fixed ``volume_steps`` density lookups
   per crossed medium. We use exp(-tau_hat) as the transmittance: low-noise and consistent, but biased
-  up by about T * Var(tau_hat) / 2 in heterogeneous media (Jensen; ~0.3 % at 8 steps for a density
+  up by about T * Var(tau_hat) / 2 in heterogeneous media (Jensen; estimated ~0.3 % at 8 steps for a density
   ramp of optical thickness 2.4 in tests/test_volpath.py); ratio tracking would be unbiased but noisy.
 * ``scatter_depth`` (1): distance from the camera to the path's first real scattering vertex when that
   vertex is a medium collision (a ``volume`` path), else 0. Since it lies on the camera ray, it is the
