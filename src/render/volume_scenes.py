@@ -30,6 +30,7 @@ frame (``camera_at``) is known without building the grids, and no frame index ch
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -42,12 +43,14 @@ from src.render.scenes import WORLD_UP, _color, _ground, _objects, _uniform, sky
 
 #: Id of the scene-wide medium that the sensor and the surfaces of fog, smoke and haze scenes refer to.
 ATMOSPHERE = "atmosphere"
-#: Random streams of a seed: ``np.random.default_rng([seed, stream])``.
+#: Random streams of a seed: ``np.random.default_rng([seed, stream, crc32(base)])``.
 LAYOUT, CAMERA, MEDIA = 0, 1, 2
 
 
-def _rng(seed: int, stream: int) -> np.random.Generator:
-    return np.random.default_rng([int(seed), stream])
+def _rng(base: str, seed: int, stream: int) -> np.random.Generator:
+    """Stream ``stream`` of ``seed`` for base ``base``: bases of one seed draw different textures and
+    layouts, and a frame's camera never depends on how many draws its grids took."""
+    return np.random.default_rng([int(seed), stream, zlib.crc32(base.encode())])
 
 
 def _ref(name: str) -> dict:
@@ -456,7 +459,7 @@ def camera_at(base: str, seed: int, frame: float, ds: Mapping) -> Camera:
     smooth path) of base ``base`` permuted by ``seed``: the sensor of ``build_volumetric_frame``."""
     constants = _constants(base, ds)
     _check_frame(frame, ds)
-    return _camera_path(_rng(seed, CAMERA), ds["randomize"], constants["camera"], frame)
+    return _camera_path(_rng(base, seed, CAMERA), ds["randomize"], constants["camera"], frame)
 
 
 def build_volumetric_frame(base: str, seed: int, frame: float, ds: Mapping) -> dict:
@@ -467,9 +470,9 @@ def build_volumetric_frame(base: str, seed: int, frame: float, ds: Mapping) -> d
     _check_frame(frame, ds)
     rnd, grid_res = ds["randomize"], int(ds["grid_res"])
     builder, medium = BASE_SCENES[base]
-    media_rng = _rng(seed, MEDIA)
+    media_rng = _rng(base, seed, MEDIA)
     scene = builder(
-        _rng(seed, LAYOUT), rnd, constants, lambda med: medium(media_rng, rnd, med, grid_res, frame)
+        _rng(base, seed, LAYOUT), rnd, constants, lambda med: medium(media_rng, rnd, med, grid_res, frame)
     )
     sensor = camera_at(base, seed, frame, ds).sensor()
     if ATMOSPHERE in scene:
