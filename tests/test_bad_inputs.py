@@ -80,6 +80,12 @@ BAD_VALUES = [
         ["dataset.scene_params.busy.shapes[0]='torus'"],
     ),
     (["task=nerf", "dataset.scene_params.spheres.env.res=0"], ["spheres.env.res=0: expected a positive"]),
+    (["dataset=volumetric", "dataset.frames=0"], ["dataset.frames=0: expected a positive integer"]),
+    (
+        ["dataset=volumetric", "dataset.base_scenes.cloud.medium.g=[0.5,1.5]"],
+        ["dataset.base_scenes.cloud.medium.g=[0.5, 1.5]: expected Henyey-Greenstein g in [-0.99, 0.99]"],
+    ),
+    (["dataset=volumetric", "dataset.bases=[volcano]"], ["dataset.bases[0]='volcano'", "'godrays'"]),
     (
         ["task.preprocess.patches_per_split={train: 0, val: 3}"],
         ["patches_per_split.train=0: expected a positive"],
@@ -108,6 +114,7 @@ def test_the_shipped_configs_pass_the_schema(tmp_path):
         ["profile=bako"],
         ["task=nerf"],
         ["task=nerf", "profile=paper", "model=refnerf"],
+        ["dataset=volumetric"],
     )
     for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
         validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))

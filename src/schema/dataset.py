@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from src.schema.types import (
     Colour,
@@ -155,6 +155,157 @@ class ProceduralDataset(Schema):
         return self
 
 
+def _within(lo: float, hi: float, what: str):
+    """An AfterValidator: every value of a list lies in [lo, hi]."""
+
+    def check(values: list[float]) -> list[float]:
+        if any(not lo <= v <= hi for v in values):
+            raise expected(f"expected {what} in [{lo:g}, {hi:g}]")
+        return values
+
+    return AfterValidator(check)
+
+
+UnitRange = Annotated[Range, _within(0.0, 1.0, "values")]
+NonNegativeRange = Annotated[Range, _within(0.0, float("inf"), "values")]
+PositiveRange = Annotated[Range, _within(1e-9, float("inf"), "positive values")]
+Size3 = Annotated[list[PositiveFloat], Field(min_length=3, max_length=3)]
+
+
+class VolumeIntegrator(Schema):
+    max_depth: Depth
+    rr_depth: NonNegativeInt
+
+
+class VolumetricRandomize(Randomize):
+    """The surface family's ranges (the table-top bases reuse its builders) plus the media and animation."""
+
+    isotropic_probability: Probability
+    albedo_tint: UnitRange
+    wind_speed: NonNegativeRange
+    wind_azimuth: Range
+    evolve_speed: NonNegativeRange
+    orbit_speed: Range
+    dolly_speed: Range
+
+
+class VolumeCamera(OrbitCamera):
+    elevation: Annotated[Range, _within(-89.0, 89.0, "degrees")]
+
+
+class Sun(Schema):
+    zenith_angle: Annotated[Range, _within(0.0, 90.0, "degrees")]
+    irradiance: NonNegativeRange
+
+
+class MediumBox(Schema):
+    centre: Vector3
+    size: Size3
+
+
+class Medium(Schema):
+    box: MediumBox
+    density_scale: NonNegativeRange
+    albedo: UnitRange
+    g: Annotated[Range, _within(-0.99, 0.99, "Henyey-Greenstein g")]
+    feature_size: PositiveFloat
+    octaves: PositiveInt
+    persistence: PositiveFloat
+
+
+class CloudMedium(Medium):
+    coverage: Range
+    softness: PositiveFloat
+    worley_cells: PositiveFloat
+
+
+class PlumeMedium(Medium):
+    source_jitter: NonNegativeFloat
+    radius: PositiveFloat
+    spread: NonNegativeFloat
+    sway: NonNegativeFloat
+    detail: Probability
+    rise_speed: float
+
+
+class FogMedium(Medium):
+    scale_height: PositiveRange
+    modulation: UnitRange
+
+
+class HazeMedium(Medium):
+    modulation: UnitRange
+
+
+class Canopy(Schema):
+    height: float
+    size: PositiveFloat
+    slats: Annotated[Range, _within(1.0, float("inf"), "slat counts")]
+    slat_width: PositiveRange
+    thickness: PositiveFloat
+
+
+class Cloud(Schema):
+    ground: Plane
+    sky_scale: NonNegativeFloat
+    sun: Sun
+    camera: VolumeCamera
+    medium: CloudMedium
+
+
+class SmokeTabletop(Tabletop):
+    camera: VolumeCamera
+    medium: PlumeMedium
+
+
+class FogObjects(Tabletop):
+    camera: VolumeCamera
+    medium: FogMedium
+
+
+class Godrays(Schema):
+    ground: Plane
+    objects: Objects
+    sky_scale: NonNegativeFloat
+    sun: Sun
+    canopy: Canopy
+    camera: VolumeCamera
+    medium: HazeMedium
+
+
+class VolumetricBaseScenes(Schema):
+    """`dataset.base_scenes` of the volumetric family: each base's layout, lights, camera and medium."""
+
+    cloud: Cloud
+    smoke_tabletop: SmokeTabletop
+    fog_objects: FogObjects
+    godrays: Godrays
+
+
+class VolumetricDataset(Schema):
+    name: Literal["volumetric"]
+    bases: list[Literal["cloud", "smoke_tabletop", "fog_objects", "godrays"]] = Field(min_length=1)
+    scenes_per_base: PositiveInt
+    frames: PositiveInt
+    width: PositiveInt
+    height: PositiveInt
+    noisy_spp: SppList
+    reference_spp: PositiveInt
+    seed: NonNegativeInt
+    integrator: VolumeIntegrator
+    max_pass_samples: PositiveInt
+    grid_res: Annotated[int, Field(ge=4)]
+    randomize: VolumetricRandomize
+    base_scenes: VolumetricBaseScenes
+
+    @model_validator(mode="after")
+    def _reference_above_noisy(self) -> VolumetricDataset:
+        from src.render.render_dataset import spp_counts
+
+        passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
+        return self
+
+
 class Views(Schema):
     train: PositiveInt
     val: PositiveInt
@@ -289,4 +440,5 @@ DATASET_SCHEMAS = {
     "procedural": ProceduralDataset,
     "nerf_procedural": NerfProceduralDataset,
     "blender": BlenderDataset,
+    "volumetric": VolumetricDataset,
 }
