@@ -260,19 +260,25 @@ def _candidates_and_kept(
         n_rows, n_cols, n_cand, distance, rng, max_attempts=50 * n_cand + 1000, shrink=SHRINK_RATE
     )
     means = patch_means(imp, p)[cand[:, 0], cand[:, 1]]
+    corners = cand[prune_candidates(means, n_patches, min_keep_prob, rng)]
+    return cand, corners[np.lexsort((corners[:, 1], corners[:, 0]))]
+
+
+def prune_candidates(means: np.ndarray, n: int, min_keep_prob: float, rng: np.random.Generator) -> np.ndarray:
+    """Indices of the (at most) `n` candidates kept, given their mean importances `means` (steps 2-3 of
+    `sample_patches`): candidate i is kept with probability max(m_i / max_j m_j, min_keep_prob) (all 1
+    when every mean is 0); if more than `n` survive, a uniform subset of them; if fewer, the rest drawn
+    from the pruned ones with probability proportional to their keep probability."""
     top = means.max()
     keep_prob = np.maximum(means / top if top > 0 else np.ones_like(means), min_keep_prob)
-    keep = rng.random(len(cand)) < keep_prob
+    keep = rng.random(len(means)) < keep_prob
     kept, rest = np.flatnonzero(keep), np.flatnonzero(~keep)
-    if len(kept) >= n_patches:
-        chosen = rng.choice(kept, n_patches, replace=False)
-    else:
-        n_fill = min(n_patches - len(kept), len(rest))
-        w_rest = keep_prob[rest]
-        w_rest = w_rest / w_rest.sum() if w_rest.sum() > 0 else None
-        chosen = np.concatenate([kept, rng.choice(rest, n_fill, replace=False, p=w_rest)])
-    corners = cand[chosen]
-    return cand, corners[np.lexsort((corners[:, 1], corners[:, 0]))]
+    if len(kept) >= n:
+        return rng.choice(kept, n, replace=False)
+    n_fill = min(n - len(kept), len(rest))
+    w_rest = keep_prob[rest]
+    w_rest = w_rest / w_rest.sum() if w_rest.sum() > 0 else None
+    return np.concatenate([kept, rng.choice(rest, n_fill, replace=False, p=w_rest)])
 
 
 def sample_patches(
