@@ -9,7 +9,10 @@ from src.data.features import CANDIDATE_CHANNELS
 from src.data.kpcn_preprocess import (
     compute_whitening_stats,
     image_gradients,
+    inverse_log_modulus,
     load_whitening_stats,
+    log_modulus,
+    log_modulus_variance,
     make_network_inputs,
     make_targets,
     normalize_depth,
@@ -299,3 +302,44 @@ def test_the_thesis_specular_variance_is_an_option_for_replication():
     with pytest.raises(ConfigError) as excinfo:
         make_network_inputs(b, EPS, specular_variance="exact")
     one_line_error(excinfo, "task.preprocess.specular_variance='exact'", "'thesis'")
+
+
+def test_log_modulus_is_odd_inverts_and_is_log1p_for_non_negative_values():
+    x = np.concatenate([-np.logspace(-8, 6, 50), [0.0], np.logspace(-8, 6, 50)])
+    y = log_modulus(x)
+    np.testing.assert_allclose(y, np.sign(x) * np.log1p(np.abs(x)), rtol=1e-15)
+    np.testing.assert_array_equal(log_modulus(-x), -y)  # odd
+    np.testing.assert_array_equal(y[x >= 0], np.log1p(x[x >= 0]))
+    np.testing.assert_allclose(inverse_log_modulus(y), x, rtol=1e-12)
+    x32 = x.astype(np.float32)
+    assert log_modulus(x32).dtype == inverse_log_modulus(log_modulus(x32)).dtype == np.float32
+    t = torch.from_numpy(x)
+    np.testing.assert_allclose(log_modulus(t).numpy(), y, rtol=1e-15)  # torch's log1p: 1 ulp
+    np.testing.assert_allclose(inverse_log_modulus(log_modulus(t)).numpy(), x, rtol=1e-12)
+
+
+def test_log_modulus_has_slope_one_at_zero_also_under_autograd():
+    h = 1e-7
+    assert (log_modulus(h) - log_modulus(-h)) / (2 * h) == pytest.approx(1.0, rel=1e-6)
+    # sign(x) * log1p(|x|) would give autograd slope 0 at 0; large |x| of the other sign: no NaN
+    x = torch.tensor([0.0, -3.0, 5.0, 1e30, -1e30], dtype=torch.float64, requires_grad=True)
+    log_modulus(x).sum().backward()
+    np.testing.assert_allclose(x.grad.numpy(), 1 / (1 + np.abs(x.detach().numpy())), rtol=1e-12)
+    y = torch.tensor([0.0, -2.0, 700.0, -700.0], dtype=torch.float64, requires_grad=True)
+    inverse_log_modulus(y).sum().backward()
+    np.testing.assert_allclose(y.grad.numpy(), np.exp(np.abs(y.detach().numpy())), rtol=1e-12)
+
+
+def test_log_modulus_variance_matches_monte_carlo():
+    """First-order Var[log_modulus(mean)] = Var / (1 + |x|)^2, also for negative values and at 0."""
+    mu, sigma = np.array([-10.0, -0.5, 0.0, 0.05, 2.0, 10.0]), 0.01
+    var = np.full((6, 1, 1), sigma**2)
+    x = np.repeat(mu[:, None, None], 3, axis=2)  # grey: channel mean of |x| = |mu|
+    mc = _mc_var(log_modulus, mu, sigma)
+    ours = log_modulus_variance(var, x)[:, 0, 0]
+    np.testing.assert_allclose(ours, mc, rtol=0.02)
+    wrong_log = (var / (1 + np.abs(log_modulus(x)).mean(-1, keepdims=True)) ** 2)[:, 0, 0]
+    assert not np.allclose(wrong_log, mc, rtol=0.02)  # the derivative at the transformed value
+    spec = 5 * np.random.default_rng(0).random((4, 5, 3))  # non-negative: the specular delta transform
+    v = np.random.default_rng(1).random((4, 5, 1))
+    np.testing.assert_allclose(log_modulus_variance(v, spec), transform_specular_variance(v, spec))

@@ -100,6 +100,54 @@ def transform_specular_variance_thesis(var: np.ndarray, specular: np.ndarray) ->
 SPECULAR_VARIANCES = {"delta": transform_specular_variance, "thesis": transform_specular_variance_thesis}
 
 
+def _is_numpy(x) -> bool:
+    return isinstance(x, np.ndarray | np.generic | float | int)
+
+
+def _split_signs(x):
+    """(x where x >= 0 else 0, -x where x < 0 else 0, x >= 0) of a torch tensor, by `where`, whose
+    gradient reaches the selected value also at x = 0 (torch's clamp and relu give 0 there)."""
+    nonneg = x >= 0
+    zero = x.new_zeros(())
+    return x.where(nonneg, zero), (-x).where(~nonneg, zero), nonneg
+
+
+def log_modulus(x):
+    """The log-modulus transform sign(x) log(1 + |x|), for numpy arrays and torch tensors.
+
+    The input transform of the volumetric U-Net KPCN in Zhu, Zhang, Röthlin, Papas and Meyer, "Denoising
+    Production Volumetric Rendering" (SIGGRAPH 2023 Talks): like log(1 + s) it compresses the dynamic
+    range, and it also takes signed values (gradients, motion, centred features). Equal to log1p(x) for
+    x >= 0, odd, slope 1 at 0. Each branch only sees its own sign's values (numpy: no overflow warning
+    from the branch not taken); for torch via `_split_signs` rather than sign(x) * log1p(|x|): the same
+    values, but autograd gives the true slope 1 at x = 0 (through sign and abs, or clamp, it gives 0).
+    """
+    if _is_numpy(x):
+        x = np.asarray(x)
+        return np.where(x >= 0, np.log1p(np.maximum(x, 0)), -np.log1p(np.maximum(-x, 0)))
+    pos, neg, nonneg = _split_signs(x)
+    return pos.log1p().where(nonneg, -neg.log1p())
+
+
+def inverse_log_modulus(y):
+    """Inverse of `log_modulus`: sign(y) (exp(|y|) - 1) (expm1, exact inverse of log1p); numpy or torch."""
+    if _is_numpy(y):
+        y = np.asarray(y)
+        return np.where(y >= 0, np.expm1(np.maximum(y, 0)), -np.expm1(np.maximum(-y, 0)))
+    pos, neg, nonneg = _split_signs(y)
+    return pos.expm1().where(nonneg, -neg.expm1())
+
+
+def log_modulus_variance(var: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Variance of log_modulus(x) to first order (delta method): var / (1 + mean_c(|x|))^2.
+
+    d/dx log_modulus(x) = 1 / (1 + |x|), at the RAW (untransformed) value, as `transform_specular_variance`
+    for log(1 + s), which this equals for x >= 0 (Zhu et al. 2023's log-modulus input transform, see
+    `log_modulus`). `var` is one channel, so |x| is replaced by its channel mean (exact for grey x).
+    """
+    return var / (1.0 + np.abs(x).mean(axis=-1, keepdims=True)) ** 2
+
+
 def normalize_depth(depth: np.ndarray, var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Scale depth into [0, 1] by its per-image maximum (Bako et al. 2017 Sec. 4.1); variance / max^2.
 
