@@ -83,7 +83,10 @@ def test_grouping_into_sequences(tmp_path):
             ["a-f0000-00004spp.exr", "a-f0000-00064spp.exr", "a-f0002-00004spp.exr", "a-f0002-00064spp.exr"],
             ["'a'", "frame(s) [1]"],
         ),
-        (["a-f0000-00004spp.exr", "a-f0000-00064spp.exr", "a-f0001-00004spp.exr"], ["'a' frame 1", "[64]"]),
+        (
+            ["a-f0000-00004spp.exr", "a-f0000-00064spp.exr", "a-f0001-00004spp.exr"],
+            ["'a' frame 1", "[64]", "(the reference)"],
+        ),
         (["a-f0000-00004spp.exr", "a-f0001-00004spp.exr"], ["'a'", "single sample count", "reference"]),
         (["a-0000-00004spp.exr"], ["a-0000-00004spp.exr"]),
         ([], ["no '<scene>-f<FFFF>-<NNNNN>spp.exr' files"]),

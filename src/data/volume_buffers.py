@@ -130,9 +130,10 @@ def group_volume_dataset(raw_dir: str | os.PathLike[str]) -> dict[str, dict[int,
         for frame in sorted(frames):
             lacking = sorted(set(counts) - set(frames[frame]))
             if lacking:
+                what = " (the reference)" if counts[-1] in lacking else ""
                 raise DataError(
-                    f"{raw_dir}: scene {scene!r} frame {frame} lacks the {lacking} spp render(s) that other "
-                    f"frames have"
+                    f"{raw_dir}: scene {scene!r} frame {frame} lacks the {lacking} spp render(s){what} that "
+                    "other frames have"
                 )
         if len(counts) < 2:
             raise DataError(
