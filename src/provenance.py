@@ -31,17 +31,29 @@ def git_commit(repo: Path | None = None) -> str:
 
 
 def data_fingerprint(directory: Path) -> str:
-    """Hash of every file's relative path and size, plus the render manifest's content if present.
+    """Hash of every file's relative path and size, plus the render manifest's content if present
+    (``manifest.json``, or the per-file entries under ``manifest/`` of the volumetric data).
 
     Cheap on paper-scale data (hundreds of GB): contents are not read, except the manifest, whose
-    render keys already hash what produced each file.
+    render keys already hash what produced each file. Files being written by another job (the hidden
+    temporaries of ``src.io.atomic``, or one renamed away meanwhile) are left out.
     """
     h = hashlib.sha256()
     for path in sorted(p for p in directory.rglob("*") if p.is_file()):
-        h.update(f"{path.relative_to(directory)}:{path.stat().st_size}\n".encode())
-        if path.name == "manifest.json":
-            h.update(path.read_bytes())
+        if path.name.startswith(".") and ".tmp-" in path.name:
+            continue
+        try:
+            size = path.stat().st_size
+            content = path.read_bytes() if _is_manifest(path, directory) else b""
+        except FileNotFoundError:
+            continue
+        h.update(f"{path.relative_to(directory)}:{size}\n".encode())
+        h.update(content)
     return h.hexdigest()[:16]
+
+
+def _is_manifest(path: Path, directory: Path) -> bool:
+    return path.name == "manifest.json" or path.parent == directory / "manifest"
 
 
 #: Config keys that say where things go, not what is computed: they never make two runs incomparable.

@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 
 from src.errors import NrbenchError
 from src.schema.run import validate_run
-from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run
+from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run, task_of
 
 log = logging.getLogger("nrbench")
 
@@ -65,6 +65,7 @@ def main(cfg: DictConfig) -> dict[str, dict]:
     try:
         validate_run(cfg)  # every value checked before any data is read or any file written
         stages = stages_to_run(cfg)
+        task_of(cfg).check_stages(stages, cfg)
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
         in_run = [s for s in stages if s not in AFTER_RUN]
         with _tracked_run(cfg, in_run) as tracker:

@@ -115,6 +115,13 @@ def test_the_shipped_configs_pass_the_schema(tmp_path):
         ["task=nerf"],
         ["task=nerf", "profile=paper", "model=refnerf"],
         ["dataset=volumetric"],
+        [
+            "dataset=volumetric",
+            "profile=cpu",
+            "dataset.render_scenes=[cloud-0000]",
+            "dataset.render_frames=[0,1]",
+        ],
+        ["dataset=volumetric", "profile=paper"],
     )
     for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
         validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))

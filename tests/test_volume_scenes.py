@@ -113,7 +113,7 @@ def test_cloud_plume_haze_and_albedo_stay_in_unit_range():
 def ds():
     from omegaconf import OmegaConf
 
-    cfg = compose_config(["profile=smoke", "dataset=volumetric", "dataset.grid_res=16"])
+    cfg = compose_config(["profile=smoke", "dataset=volumetric", "dataset.grid_res=16", "dataset.frames=8"])
     return OmegaConf.to_container(cfg.dataset, resolve=True)
 
 

@@ -64,9 +64,14 @@ def scene_sources(ds: Mapping) -> list[SceneSource]:
     return sources
 
 
-def pass_seed(dataset_seed: int, scene: str, spp: int, role: str, pass_index: int) -> int:
-    """A 32-bit sampler seed unique to (dataset seed, scene, spp, role, pass)."""
+def pass_seed(
+    dataset_seed: int, scene: str, spp: int, role: str, pass_index: int, frame: int | None = None
+) -> int:
+    """A 32-bit sampler seed unique to (dataset seed, scene, spp, role, pass[, frame of a sequence]).
+    Without a frame the key is that of the still-image datasets (their seeds do not change)."""
     key = [dataset_seed, zlib.crc32(scene.encode()), spp, ROLE_IDS[role], pass_index]
+    if frame is not None:
+        key.append(int(frame))
     return int(np.random.SeedSequence(key).generate_state(1)[0])
 
 
@@ -107,18 +112,23 @@ def load_scene(source: SceneSource, ds: Mapping):
             "fov_axis": "x",
             "fov": float(np.array(params["x_fov"]).ravel()[0]),
             "to_world": mi.ScalarTransform4f(matrix),
-            "film": {
-                "type": "hdrfilm",
-                "width": int(ds["width"]),
-                "height": int(ds["height"]),
-                "rfilter": {"type": "box"},  # one sample -> one pixel, so film means are exact sample means
-                "pixel_format": "rgb",
-                "component_format": "float32",
-            },
+            "film": box_film(ds),
             "sampler": {"type": "independent"},
         }
     )
     return scene, sensor
+
+
+def box_film(ds: Mapping) -> dict:
+    """The dataset's film: ``width`` x ``height``, float32 RGB (plus the integrator's AOVs), box filter."""
+    return {
+        "type": "hdrfilm",
+        "width": int(ds["width"]),
+        "height": int(ds["height"]),
+        "rfilter": {"type": "box"},  # one sample -> one pixel, so film means are exact sample means
+        "pixel_format": "rgb",
+        "component_format": "float32",
+    }
 
 
 def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes: list[int]) -> dict:
@@ -144,14 +154,17 @@ def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes
     return buffers
 
 
-def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str) -> str:
+def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str, extra: Mapping | None = None) -> str:
     """Hash of everything that determines one output file, to skip renders whose output is current.
 
     ``scene_identity`` is ``SceneSource.identity()``; procedural scenes also depend on ``randomize`` and
-    on their base scene's ``base_scenes.<base>`` constants.
+    on their base scene's ``base_scenes.<base>`` constants. ``extra``: what else a kind of data depends
+    on (a sequence's frame, its integrator and layout), hashed with the rest.
     """
     keyed = {k: ds[k] for k in ("width", "height", "seed", "integrator", "max_pass_samples")}
     payload = {"scene": scene_identity, "spp": spp, "role": role, **keyed}
+    if extra:
+        payload["extra"] = dict(extra)
     if "base" in scene_identity:
         payload["randomize"] = ds["randomize"]
         payload["base_scene"] = (ds.get("base_scenes") or {}).get(scene_identity["base"])

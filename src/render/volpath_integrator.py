@@ -108,35 +108,10 @@ import numpy as np
 
 from src.render.aov_integrator import DEFAULT_ALBEDO_SAMPLES, KPCNAovIntegrator, hammersley_3d
 from src.render.moments import MomentAccumulator, variance_of_mean
+from src.render.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS, VOLUME_BUFFERS
 
 #: Registered plugin name.
 PLUGIN_NAME = "nrbench_volpath"
-#: AOV buffers after the film's RGB ``color``, in output order, with their channel counts.
-VOLUME_BUFFERS: dict[str, int] = {
-    "surface": 3,
-    "volume": 3,
-    "volume_single": 3,
-    "volume_multi": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "visibility": 1,
-    "position": 3,
-    "transmittance": 3,
-    "optical_thickness": 3,
-    "scatter_depth": 1,
-    "scatter_position": 3,
-    "scatter_media_distance": 1,
-    "sigma_t": 3,
-    "sigma_s": 3,
-    "scatter_albedo": 3,
-    "scattered": 1,
-    "volume_events": 1,
-}
-#: Every buffer with its channel count, ``color`` first (the film's RGB).
-CHANNEL_COUNT: dict[str, int] = {"color": 3, **VOLUME_BUFFERS}
-#: Buffers whose per-sample square is written too, in output order after the AOVs.
-MOMENT_BUFFERS: tuple[str, ...] = tuple(CHANNEL_COUNT)
 #: Default quadrature steps per heterogeneous medium on the camera segment.
 DEFAULT_VOLUME_STEPS = 16
 #: Cap of the optical-thickness feature (an unbounded medium gives inf; exp(-1000) is 0 in float32

@@ -297,6 +297,9 @@ class VolumetricDataset(Schema):
     grid_res: Annotated[int, Field(ge=4)]
     randomize: VolumetricRandomize
     base_scenes: VolumetricBaseScenes
+    # Subsets the render stage renders (null: all), to fan it out over jobs; not part of any file's key.
+    render_scenes: Annotated[list[Annotated[str, Field(min_length=1)]], Field(min_length=1)] | None = None
+    render_frames: Annotated[list[NonNegativeInt], Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _reference_above_noisy(self) -> VolumetricDataset:

@@ -24,6 +24,10 @@ class Task:
         method's checkpoint, which every task's evaluation needs, is added by `stages.require_inputs`.)"""
         return {}
 
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
+        before any stage runs). Default: every stage can run."""
+
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""
         raise NotImplementedError

@@ -10,6 +10,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.features import CANDIDATE_CHANNELS
+from src.errors import ConfigError
 from src.io.atomic import atomic_directory
 from src.provenance import data_fingerprint, write_summary
 from src.schema.denoise import DenoiseTaskSchema
@@ -34,10 +35,20 @@ def _cached_preprocess(out: Path, key: str) -> dict | None:
     return record["summary"] if record.get("cache_key") == key else None
 
 
+def _check_dataset_stage(stage: str, cfg: DictConfig) -> None:
+    """A one-line ConfigError for a stage reading the volumetric dataset, which has no preprocessing yet."""
+    if cfg.dataset.name == "volumetric" and stage in ("preprocess", "train", "eval"):
+        raise ConfigError(
+            f"dataset=volumetric: stage={stage} is not supported yet (the volumetric sequences have no "
+            "preprocessing into training data yet); run stage=render to render them"
+        )
+
+
 class DenoiseTask(Task):
     schema = DenoiseTaskSchema
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        _check_dataset_stage(stage, cfg)
         prepared, preprocessed = Path(cfg.paths.prepared), "stage=preprocess (or dvc repro)"
         if stage == "preprocess":
             return {Path(cfg.paths.raw): "stage=render (or dvc repro)"}
@@ -51,14 +62,31 @@ class DenoiseTask(Task):
         """The data the runs' `nrbench.data_fingerprint` tag identifies: the raw EXRs."""
         return Path(cfg.paths.raw)
 
-    def render(self, cfg: DictConfig) -> dict:
-        """The denoising EXRs into `paths.raw` (files whose render key is unchanged are kept)."""
-        from src.render.render_dataset import render_denoise_dataset
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        """The volumetric dataset is rendered only so far: a stage that reads it fails at job start."""
+        for stage in stages:
+            _check_dataset_stage(stage, cfg)
 
+    def render(self, cfg: DictConfig) -> dict:
+        """The denoising EXRs into `paths.raw` (files whose render key is unchanged are kept): the
+        still-image datasets one EXR per (scene, spp), `dataset=volumetric` one per (scene, frame, spp)."""
         raw = Path(cfg.paths.raw)
-        summary = render_denoise_dataset(
-            OmegaConf.to_container(cfg.dataset, resolve=True), raw, cfg.render.variant
-        )
+        ds = OmegaConf.to_container(cfg.dataset, resolve=True)
+        summary_path = Path(cfg.paths.dataset) / "render_summary.json"
+        if ds["name"] == "volumetric":
+            from src.render.volume_dataset import render_volumetric_dataset
+
+            scenes, frames = ds.get("render_scenes"), ds.get("render_frames")
+            summary = render_volumetric_dataset(ds, raw, cfg.render.variant, scenes=scenes, frames=frames)
+            if (
+                scenes is not None or frames is not None
+            ):  # one summary per subset: fanned-out jobs keep theirs
+                tag = hashlib.sha256(json.dumps([scenes, frames]).encode()).hexdigest()[:8]
+                summary_path = summary_path.with_name(f"render_summary-{tag}.json")
+        else:
+            from src.render.render_dataset import render_denoise_dataset
+
+            summary = render_denoise_dataset(ds, raw, cfg.render.variant)
         if summary["samples_per_second"]:
             print(
                 f"render: {summary['files_rendered']} files ({summary['files_cached']} cached) in "
@@ -67,7 +95,7 @@ class DenoiseTask(Task):
             )
         else:
             print(f"render: all {summary['files_cached']} files up to date in {raw}")
-        write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, raw)
+        write_summary(summary_path, summary, cfg, raw)
         return summary
 
     def preprocess(self, cfg: DictConfig) -> dict:

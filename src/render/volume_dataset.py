@@ -1,0 +1,230 @@
+"""Render the volumetric dataset (``dataset=volumetric``) as animated sequences.
+
+Every scene of ``src.render.volume_scenes`` (``scenes_per_base`` seeds of each base) is an animation of
+``dataset.frames`` frames; each frame is rendered by the volumetric path tracer (``nrbench_volpath``) at
+every noisy sample count and at the reference count, one EXR per (scene, frame, spp) in
+``src.data.volume_buffers.VOLUME_LAYOUT``: ``<raw_dir>/<scene>-f<FFFF>-<NNNNN>spp.exr``.
+
+Seeds: each pass has its own seed from (dataset seed, scene, spp, role, pass, frame) (``pass_seed``), so
+the reference is independent of the noisy renders and no two frames share random numbers.
+
+Motion: ``motion`` (``frame_motion``) is the flow in pixels from this frame to the next, computed from the
+file's own mean ``position`` buffer with the cameras of frames t and t+1.
+
+Caching and fan-out: each EXR has a manifest entry of its own, ``<raw_dir>/manifest/<file>.json`` holding
+its render key (scene, size, spp, role, frame, seeds, integrator, layout), written atomically after the
+EXR. A file whose entry holds the current key is kept. Since no two files share an entry, jobs rendering
+different subsets (``scenes``, ``frames``) into one folder at once never overwrite each other's records,
+and the subsets together give the same files as one run.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from src.data.volume_buffers import VOLUME_EXR_BUFFERS, volume_exr_name, write_volume_exr
+from src.errors import ConfigError, DataError
+from src.io.atomic import atomic_write_json
+from src.render.render_dataset import (
+    RenderTotals,
+    SceneSource,
+    box_film,
+    pass_seed,
+    render_key,
+    scene_sources,
+    split_passes,
+    spp_counts,
+)
+from src.render.volume_scenes import Camera, camera_at, motion_vectors
+
+#: The integrator plugin every volumetric file is rendered with (``src.render.volpath_integrator``).
+INTEGRATOR = "nrbench_volpath"
+#: Folder of ``raw_dir`` holding one manifest entry per EXR.
+MANIFEST_DIR = "manifest"
+
+
+def frame_motion(position: np.ndarray, camera_t: Camera, camera_t1: Camera | None) -> np.ndarray:
+    """(H, W, 2) float32 flow in pixels from frame t to t+1 (+x right, +y down) of the points in
+    ``position`` (H, W, 3), the mean world position of a pixel's first scattering surface or first medium
+    collision (``volpath_integrator``): the pixel at p in frame t shows its point at p + flow in t+1.
+
+    Conventions: 0 where the flow is undefined, i.e. where ``motion_vectors`` gives NaN (the point is
+    behind either camera or not finite) or where no sample found a point (``position`` is exactly 0, sky
+    seen through empty space); and 0 everywhere on the last frame (``camera_t1`` None: no next frame).
+    Only the camera's motion is included, not the media's drift. Where only some samples found a point
+    (silhouettes, thin media) the mean position is pulled towards the origin, so the flow there is
+    approximate."""
+    position = np.asarray(position, np.float64)
+    height, width = position.shape[:2]
+    if camera_t1 is None:
+        return np.zeros((height, width, 2), np.float32)
+    flow = motion_vectors(position, camera_t, camera_t1, width, height)
+    undefined = ~np.isfinite(flow).all(-1) | ~np.any(position != 0.0, axis=-1)
+    flow[undefined] = 0.0
+    return flow.astype(np.float32)
+
+
+def select_scenes(sources: list[SceneSource], names: Sequence[str] | None) -> list[SceneSource]:
+    """The sources named in ``names`` (None: all), in dataset order; a ConfigError for an unknown name."""
+    if names is None:
+        return sources
+    known = {s.name for s in sources}
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(
+            f"dataset.render_scenes: unknown scene(s) {unknown}; the dataset has {sorted(known)}"
+        )
+    wanted = set(names)
+    return [s for s in sources if s.name in wanted]
+
+
+def select_frames(ds: Mapping, frames: Sequence[int] | None) -> list[int]:
+    """The frames in ``frames`` (None: all of ``dataset.frames``), sorted; a ConfigError outside them."""
+    n = int(ds["frames"])
+    if frames is None:
+        return list(range(n))
+    bad = [f for f in frames if not 0 <= int(f) < n]
+    if bad:
+        raise ConfigError(f"dataset.render_frames: frame(s) {bad} outside the animation's frames 0-{n - 1}")
+    return sorted({int(f) for f in frames})
+
+
+def volume_render_key(source: SceneSource, ds: Mapping, frame: int, spp: int, role: str) -> str:
+    """`render_key` of one volumetric file: also its frame, whether it is the last (its motion is 0), the
+    grid resolution, the integrator plugin and the EXR layout (a new buffer renders everything again)."""
+    extra = {
+        "frame": frame,
+        "last_frame": frame == int(ds["frames"]) - 1,
+        "grid_res": ds["grid_res"],
+        "integrator_type": INTEGRATOR,
+        "layout": {b: list(c) for b, c in VOLUME_EXR_BUFFERS.items()},
+    }
+    return render_key(source.identity(), ds, spp, role, extra)
+
+
+def _entry_path(raw_dir: Path, name: str) -> Path:
+    return raw_dir / MANIFEST_DIR / f"{name}.json"
+
+
+def _is_current(raw_dir: Path, name: str, key: str) -> bool:
+    try:
+        entry = json.loads(_entry_path(raw_dir, name).read_text())
+    except (OSError, ValueError):
+        return False
+    return entry.get("key") == key and (raw_dir / name).exists()
+
+
+def load_volume_frame(source: SceneSource, frame: int, ds: Mapping):
+    """The Mitsuba scene of one frame, with the dataset's box-filtered film and an independent sampler."""
+    import mitsuba as mi
+
+    from src.render.volume_scenes import build_volumetric_frame
+
+    scene = build_volumetric_frame(source.base, source.seed, frame, ds)
+    scene["sensor"] = {**scene["sensor"], "film": box_film(ds), "sampler": {"type": "independent"}}
+    try:
+        return mi.load_dict(scene)
+    except RuntimeError as err:
+        first_line = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise DataError(
+            f"{source.name} frame {frame}: Mitsuba could not load the scene: {first_line}"
+        ) from err
+
+
+def render_frame_files(
+    source: SceneSource,
+    frame: int,
+    ds: Mapping,
+    jobs: list[tuple[int, str]],
+    integrator,
+    raw_dir: Path,
+    totals: RenderTotals,
+) -> float:
+    """Render the (spp, role) ``jobs`` of one frame whose file is not current, each written as its EXR with
+    its manifest entry after it; the frame's scene is built only if something renders. Returns the
+    seconds spent building the scene (grids, Mitsuba load)."""
+    from src.render.volpath_integrator import render_volume_buffers
+
+    pixels = int(ds["width"]) * int(ds["height"])
+    build_seconds, scene = 0.0, None
+    last = frame == int(ds["frames"]) - 1
+    for spp, role in jobs:
+        name = volume_exr_name(source.name, frame, spp)
+        key = volume_render_key(source, ds, frame, spp, role)
+        if _is_current(raw_dir, name, key):
+            totals.skipped += 1
+            continue
+        if scene is None:
+            start = time.perf_counter()
+            scene = load_volume_frame(source, frame, ds)
+            build_seconds += time.perf_counter() - start
+            cameras = (
+                camera_at(source.base, source.seed, frame, ds),
+                None if last else camera_at(source.base, source.seed, frame + 1, ds),
+            )
+        passes = split_passes(spp, pixels, int(ds["max_pass_samples"]))
+        seeds = [pass_seed(int(ds["seed"]), source.name, spp, role, i, frame) for i in range(len(passes))]
+        start = time.perf_counter()
+        buffers = render_volume_buffers(scene, integrator, spp, seeds, passes)
+        seconds = time.perf_counter() - start
+        totals.seconds += seconds
+        totals.samples += pixels * spp
+        buffers["motion"] = frame_motion(buffers["position"], *cameras)
+        write_volume_exr(raw_dir / name, buffers)
+        entry = {"key": key, "scene": source.name, "frame": frame, "spp": spp, "role": role, "seeds": seeds}
+        atomic_write_json(
+            _entry_path(raw_dir, name), {**entry, "passes": passes, "seconds": round(seconds, 3)}
+        )
+        totals.rendered += 1
+    return build_seconds
+
+
+def render_volumetric_dataset(
+    ds: Mapping,
+    raw_dir: Path,
+    variant: str = "auto",
+    scenes: Sequence[str] | None = None,
+    frames: Sequence[int] | None = None,
+) -> dict:
+    """Render every (scene, frame) at every noisy spp and the reference into ``raw_dir``; returns a summary.
+
+    ``scenes`` (scene names, e.g. ``cloud-0000``) and ``frames`` (frame indices) select a subset, None: all
+    of them; subsets rendered by separate (even concurrent) jobs compose to the files of one full run.
+    Files whose manifest entry holds the current render key are kept.
+    """
+    import mitsuba as mi
+
+    from src.render.backend import set_mitsuba_variant
+
+    noisy, reference = spp_counts(ds)
+    sources = select_scenes(scene_sources(ds), scenes)
+    frame_list = select_frames(ds, frames)
+    variant = set_mitsuba_variant(variant)
+    from src.render.volpath_integrator import register  # defines Mitsuba classes: needs the variant set
+
+    register()
+    integrator = mi.load_dict({"type": INTEGRATOR, **dict(ds["integrator"])})
+    raw_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
+
+    totals, build_seconds = RenderTotals(), 0.0
+    units = [(source, frame) for source in sources for frame in frame_list]
+    for source, frame in tqdm(units, desc=f"render volumetric [{variant}]", unit="frame"):
+        build_seconds += render_frame_files(source, frame, ds, jobs, integrator, raw_dir, totals)
+    return {
+        "variant": variant,
+        "scenes": [s.name for s in sources],
+        "frames": frame_list,
+        "files_rendered": totals.rendered,
+        "files_cached": totals.skipped,
+        "samples": totals.samples,
+        "render_seconds": round(totals.seconds, 3),
+        "scene_build_seconds": round(build_seconds, 3),
+        "samples_per_second": totals.samples / totals.seconds if totals.seconds > 0 else None,
+    }
