@@ -44,6 +44,19 @@ def _check_dataset_stage(stage: str, cfg: DictConfig) -> None:
         )
 
 
+def _render_volumetric(ds: dict, raw: Path, variant: str, summary_path: Path) -> tuple[dict, Path]:
+    """Render the volumetric sequences (or the `render_scenes` / `render_frames` subset a fanned-out job
+    was given); returns the summary and where to write it: one file per subset, so jobs keep theirs."""
+    from src.render.volume_dataset import render_volumetric_dataset
+
+    scenes, frames = ds.get("render_scenes"), ds.get("render_frames")
+    summary = render_volumetric_dataset(ds, raw, variant, scenes=scenes, frames=frames)
+    if scenes is not None or frames is not None:
+        tag = hashlib.sha256(json.dumps([scenes, frames]).encode()).hexdigest()[:8]
+        summary_path = summary_path.with_name(f"render_summary-{tag}.json")
+    return summary, summary_path
+
+
 class DenoiseTask(Task):
     schema = DenoiseTaskSchema
 
@@ -74,15 +87,7 @@ class DenoiseTask(Task):
         ds = OmegaConf.to_container(cfg.dataset, resolve=True)
         summary_path = Path(cfg.paths.dataset) / "render_summary.json"
         if ds["name"] == "volumetric":
-            from src.render.volume_dataset import render_volumetric_dataset
-
-            scenes, frames = ds.get("render_scenes"), ds.get("render_frames")
-            summary = render_volumetric_dataset(ds, raw, cfg.render.variant, scenes=scenes, frames=frames)
-            if (
-                scenes is not None or frames is not None
-            ):  # one summary per subset: fanned-out jobs keep theirs
-                tag = hashlib.sha256(json.dumps([scenes, frames]).encode()).hexdigest()[:8]
-                summary_path = summary_path.with_name(f"render_summary-{tag}.json")
+            summary, summary_path = _render_volumetric(ds, raw, cfg.render.variant, summary_path)
         else:
             from src.render.render_dataset import render_denoise_dataset
 
