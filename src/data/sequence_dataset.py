@@ -1,0 +1,138 @@
+"""Torch datasets over what `src.data.volume_shards.preprocess_volume_dataset` wrote (issue 16).
+
+- `SequencePatchDataset`: training/validation samples, each the same crop over k consecutive frames,
+  streamed one shard at a time and shuffled per epoch as `PatchShardDataset` (every sample once per
+  epoch, shards divided among DataLoader workers).
+- `SequenceDataset`: whole val/test sequences, one per (scene, noisy spp), map-style.
+
+Items are dicts of float32 tensors, frames first then channels: (k, C, P, P) for samples, (F, C, H, W)
+for sequences, under `SEQUENCE_KEYS`, where `inputs` holds only the channels of `features`
+(`task.volume_features`; None: all 62 candidates), selected by name; plus `color_t` (the transformed
+noisy colour, what a KPCN's kernels filter) and `motion` (flow in pixels to the next frame), taken from
+the stored candidates whatever the selection. `inverse_volume_transform(x, dataset.volume_transform)`
+maps `target` / `color_t` / a network's output back to linear radiance.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset, IterableDataset, get_worker_info
+
+from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
+from src.data.shards import INDEX_NAME, load_tensors, read_index
+from src.data.volume_features import Features, volume_channel_indices, volume_feature_channels
+from src.data.volume_shards import SEQUENCE_KEYS
+
+Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
+_ALWAYS = {"color_t": ("color_r", "color_g", "color_b"), "motion": ("motion_x", "motion_y")}
+
+
+class _Selection:
+    """The stored `inputs` channels a run reads (`features`) and the always-present extras, as index
+    tensors into the stored channels; the whitening statistics of the selected ones."""
+
+    def __init__(self, index: Mapping[str, Any], features: Features | None, whitening: Whitening, root: Path):
+        stored = index["channels"]["inputs"]
+        where = str(root / INDEX_NAME)
+        self.inputs = torch.tensor(volume_channel_indices(volume_feature_channels(features), stored, where))
+        self.extra = {k: torch.tensor(volume_channel_indices(v, stored, where)) for k, v in _ALWAYS.items()}
+        if isinstance(whitening, str | os.PathLike):
+            whitening = load_whitening_stats(whitening)
+        self.whitening = None if whitening is None else whitening["inputs"].select(self.inputs.tolist())
+
+    def apply(self, data: Mapping[str, torch.Tensor], channel_axis: int) -> dict[str, torch.Tensor]:
+        out = {k: data[k] for k in SEQUENCE_KEYS}
+        for key, idx in self.extra.items():
+            out[key] = data["inputs"].index_select(channel_axis, idx)
+        out["inputs"] = data["inputs"].index_select(channel_axis, self.inputs)
+        if self.whitening is not None:
+            out["inputs"] = whiten(out["inputs"], self.whitening, channel_axis=channel_axis)
+        return out
+
+
+class SequencePatchDataset(IterableDataset):
+    """Samples of one split from `<prepared>/patches/<split>/` (train, val): dicts of (k, C, P, P)
+    tensors plus `start` (the first frame) and `corner` (row, col), int64.
+
+    Each epoch the shard order is permuted with (seed, epoch), worker w of n takes shards w, w + n, ...,
+    and the samples of each shard are permuted with (seed, epoch, shard): every sample exactly once per
+    epoch, whatever the number of workers. Call `set_epoch` before each epoch. `whitening`: the stats
+    dict or the path of whitening.json (of all stored channels), applied to the selected `inputs`.
+    """
+
+    def __init__(
+        self,
+        prepared: str | os.PathLike[str],
+        split: str,
+        *,
+        features: Features | None = None,
+        seed: int = 0,
+        shuffle: bool = True,
+        whitening: Whitening = None,
+    ) -> None:
+        super().__init__()
+        self.root = Path(prepared) / "patches" / split
+        self.index = read_index(self.root)
+        self.shards = self.index["shards"]
+        self.patch_size, self.frames = self.index["patch_size"], self.index["sequence_frames"]
+        self.volume_transform = self.index["volume_transform"]
+        self.selection = _Selection(self.index, features, whitening, self.root)
+        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return sum(s["n_samples"] for s in self.shards)
+
+    def _my_shards(self) -> np.ndarray:
+        n = len(self.shards)
+        order = (
+            np.random.default_rng([self.seed, self.epoch]).permutation(n) if self.shuffle else np.arange(n)
+        )
+        info = get_worker_info()
+        return order if info is None else order[info.id :: info.num_workers]
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        for i in self._my_shards():
+            raw = load_tensors(self.root / self.shards[i]["file"])
+            data = self.selection.apply(raw, channel_axis=2)
+            data |= {"start": raw["starts"], "corner": raw["corners"]}
+            n = data["inputs"].shape[0]
+            rng = np.random.default_rng([self.seed, self.epoch, int(i)])
+            for j in rng.permutation(n) if self.shuffle else range(n):
+                yield {k: v[j] for k, v in data.items()}
+            del data, raw
+
+
+class SequenceDataset(Dataset):
+    """Whole sequences of one split from `<prepared>/full/<split>/` (val, test), one file per item:
+    dicts of (F, C, H, W) tensors plus `scene` (str), `spp` and `reference_spp` (int)."""
+
+    def __init__(
+        self,
+        prepared: str | os.PathLike[str],
+        split: str,
+        *,
+        features: Features | None = None,
+        whitening: Whitening = None,
+    ) -> None:
+        self.root = Path(prepared) / "full" / split
+        self.index = read_index(self.root)
+        self.sequences = self.index["shards"]
+        self.volume_transform = self.index["volume_transform"]
+        self.selection = _Selection(self.index, features, whitening, self.root)
+
+    def __len__(self) -> int:
+        return len(self.sequences)
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        meta = self.sequences[i]
+        data = self.selection.apply(load_tensors(self.root / meta["file"]), channel_axis=1)
+        return {**data, "scene": meta["scene"], "spp": meta["spp"], "reference_spp": meta["reference_spp"]}
