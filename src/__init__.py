@@ -3,6 +3,7 @@
 from omegaconf import OmegaConf
 
 from src.data.features import feature_count as _feature_count
+from src.data.volume_features import volume_feature_count as _volume_feature_count
 
 # `${nrbench.join:${compare.denoise.learned},...}`: config lists joined into a Hydra sweep value
 # ("kpcn,dpcn,resnet"), so that a sweep reads the compared models from conf/compare.yaml. Registered on
@@ -14,3 +15,5 @@ OmegaConf.register_new_resolver(
 # `in_channels: ${nrbench.channels:${task.features}}`: a denoiser's input channel count, derived from the
 # configured feature list (src/data/features.py) instead of typed by hand.
 OmegaConf.register_new_resolver("nrbench.channels", _feature_count, replace=True)
+# `${nrbench.volume_channels:${task.volume_features}}`: the same for the volumetric denoiser's inputs.
+OmegaConf.register_new_resolver("nrbench.volume_channels", _volume_feature_count, replace=True)

@@ -94,6 +94,19 @@ BAD_VALUES = [
         ["task=nerf", "profile_tasks=[denoise]"],
         ["profile=smoke: has sizes for task ['denoise'], not task=nerf"],
     ),
+    (["task.preprocess.volume_transform=log"], ["task.preprocess.volume_transform='log'", "'log_modulus'"]),
+    (
+        ["task.preprocess.sequence_frames=0"],
+        ["task.preprocess.sequence_frames=0: expected a positive integer"],
+    ),
+    (
+        ["task.preprocess.patches_per_sequence=-1"],
+        ["task.preprocess.patches_per_sequence=-1: expected a positive integer"],
+    ),
+    (
+        ["task.volume_features=[color,position]"],
+        ["task.volume_features[1]='position'", "optionally with .var"],
+    ),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}

@@ -308,20 +308,9 @@ def test_volumetric_sizes_per_profile(profile, size, frames, noisy, reference):
     assert compose_config([f"profile={profile}"]).dataset.name == "procedural"  # still-image sizes untouched
 
 
-@pytest.mark.parametrize("stage", ["preprocess", "train", "all"])
-def test_stages_after_render_are_refused_at_job_start(stage):
-    from src.stages import stages_to_run, task_of
-
-    cfg = compose_config(["dataset=volumetric", "profile=smoke", f"stage={stage}"])
-    with pytest.raises(ConfigError) as err:
-        task_of(cfg).check_stages(stages_to_run(cfg), cfg)
-    one_line_error(err, "dataset=volumetric", "not supported yet", "stage=render")
-    task_of(cfg).check_stages(["render"], cfg)
-
-
 @pytest.mark.slow
 def test_render_stage_from_the_command_line(tmp_path):
-    """~11 s: the smoke profile's 4 scenes x 2 frames, then a cached rerun's one line."""
+    """~11 s: the smoke profile's 4 scenes x 2 frames (their preprocessing: tests/test_volume_shards.py)."""
     cmd, env = cli_job(
         ["stage=render", "dataset=volumetric", "profile=smoke", f"hydra.run.dir={tmp_path}/h"], tmp_path
     )
@@ -331,8 +320,3 @@ def test_render_stage_from_the_command_line(tmp_path):
     raw = tmp_path / "volumetric" / "raw"
     assert len(list(raw.glob("*-f000[01]-*spp.exr"))) == 24
     assert (tmp_path / "volumetric" / "render_summary.json").is_file()
-    cmd, env = cli_job(
-        ["stage=preprocess", "dataset=volumetric", "profile=smoke", f"hydra.run.dir={tmp_path}/h"], tmp_path
-    )
-    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    assert result.returncode == 2 and "stage=preprocess is not supported yet" in result.stdout + result.stderr

@@ -26,7 +26,7 @@ from src.data.volume_shards import (
     sequence_arrays,
 )
 from src.errors import ConfigError, DataError
-from tests.conftest import ROOT, cli_job, one_line_error
+from tests.conftest import ROOT, cli_job, one_line_error, smoke_config
 
 SCENES = ("a-0000", "b-0000", "c-0000", "d-0000")
 FRAMES, SPPS, H, W = 4, (2, 8, 64), 12, 16
@@ -267,3 +267,73 @@ def test_render_and_preprocess_from_the_command_line(tmp_path):
     item = next(iter(SequencePatchDataset(prepared, "train")))
     assert item["inputs"].shape == (2, 62, 8, 8)
     assert len(SequenceDataset(prepared, "test")) == 2
+
+
+# --- the stage: wiring, cache, job-start checks ---------------------------------------------------------
+
+
+def _stage_config(tmp_path, *overrides, dataset="volumetric"):
+    return smoke_config(tmp_path / "data", tmp_path / "run", [f"dataset={dataset}", *overrides])
+
+
+def _write_raw(cfg):
+    from pathlib import Path
+
+    from src.data.volume_buffers import write_volume_exr
+
+    raw = Path(cfg.paths.raw)
+    for s in ("a-0000", "b-0000", "c-0000"):
+        for f in range(cfg.dataset.frames):
+            for spp in (2, 16):
+                write_volume_exr(raw / volume_exr_name(s, f, spp), synthetic_frame(s, f, spp))
+
+
+def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes(tmp_path, capsys):
+    from src.stages import preprocess
+    from src.tasks.denoise import _preprocess_key
+
+    cfg = _stage_config(tmp_path)
+    _write_raw(cfg)
+    summary = preprocess(cfg)
+    assert summary["samples"] == {"train": 6, "val": 6} and summary["settings"]["sequence_frames"] == 2
+    assert "preprocess: 3 noisy sequences: 6 train / 6 val samples of 2 frames" in capsys.readouterr().out
+    prepared = tmp_path / "data" / "volumetric" / "prepared"
+    assert (prepared / "preprocess_provenance.json").is_file()
+    assert next(iter(SequencePatchDataset(prepared, "train")))["inputs"].shape == (2, 62, 8, 8)
+    preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
+    assert "up to date" in capsys.readouterr().out
+    summary = preprocess(_stage_config(tmp_path, "task.preprocess.sequence_frames=1"))
+    assert "up to date" not in capsys.readouterr().out and summary["settings"]["sequence_frames"] == 1
+    # the still images' cache key ignores the volumetric-only settings (their prepared folders stay valid)
+    still = [
+        _stage_config(tmp_path, *o, dataset="procedural") for o in ([], ["task.preprocess.sequence_frames=5"])
+    ]
+    assert _preprocess_key(still[0], prepared) == _preprocess_key(still[1], prepared)
+
+
+@pytest.mark.parametrize("stage", ["train", "eval", "all"])
+def test_train_and_eval_are_still_refused_at_job_start(stage, tmp_path):
+    from src.stages import stages_to_run, task_of
+
+    cfg = _stage_config(tmp_path, f"stage={stage}")
+    with pytest.raises(ConfigError) as err:
+        task_of(cfg).check_stages(stages_to_run(cfg), cfg)
+    one_line_error(err, "dataset=volumetric", "not supported yet", "stage=preprocess")
+    task_of(cfg).check_stages(["render", "preprocess"], cfg)
+
+
+def test_a_window_longer_than_the_sequences_is_refused_at_job_start(tmp_path):
+    from src.stages import task_of
+
+    cfg = _stage_config(tmp_path, "task.preprocess.sequence_frames=3")
+    with pytest.raises(ConfigError) as err:
+        task_of(cfg).check_stages(["preprocess"], cfg)
+    one_line_error(err, "task.preprocess.sequence_frames=3", "dataset.frames=2")
+
+
+def test_the_volume_channel_resolver_counts_the_selected_channels():
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create({"f": ["color", "depth.var", "motion"], "n": "${nrbench.volume_channels:${f}}"})
+    assert cfg.n == 6
+    assert OmegaConf.create({"f": None, "n": "${nrbench.volume_channels:${f}}"}).n == 62

@@ -7,6 +7,7 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from src.data.features import feature_channels
+from src.data.volume_features import volume_feature_channels
 from src.schema.types import (
     AtLeastOne,
     NonNegativeFloat,
@@ -63,6 +64,10 @@ class Preprocess(Schema):
     sample_seed: NonNegativeInt
     whiten_eps: PositiveFloat
     repair: Repair
+    # dataset=volumetric only (src/data/volume_shards.py)
+    volume_transform: Literal["log_modulus", "none"]
+    sequence_frames: PositiveInt
+    patches_per_sequence: PositiveInt
 
 
 class Train(Schema):
@@ -108,6 +113,7 @@ class DenoiseTaskSchema(Schema):
     target: str = Field(alias="_target_")
     stages: list[Literal["render", "preprocess", "train", "eval", "report"]]
     features: list[str]
+    volume_features: list[str] | None
     preprocess: Preprocess
     train: Train
     eval: Eval
@@ -116,3 +122,8 @@ class DenoiseTaskSchema(Schema):
     @classmethod
     def _known_features(cls, value: list[str]) -> list[str]:
         return passes(feature_channels, value)
+
+    @field_validator("volume_features")
+    @classmethod
+    def _known_volume_features(cls, value: list[str] | None) -> list[str] | None:
+        return passes(volume_feature_channels, value)

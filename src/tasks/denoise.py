@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.features import CANDIDATE_CHANNELS
+from src.data.sequence_patches import FRAMES_KEY
 from src.errors import ConfigError
 from src.io.atomic import atomic_directory
 from src.provenance import data_fingerprint, write_summary
@@ -17,14 +19,23 @@ from src.schema.denoise import DenoiseTaskSchema
 from src.tasks.base import Task
 
 PREPROCESS_PROVENANCE = "preprocess_provenance.json"
+#: `task.preprocess` keys only `dataset=volumetric` reads (`src.data.volume_shards`).
+VOLUME_ONLY_KEYS = ("volume_transform", "sequence_frames", "patches_per_sequence")
+
+
+def _cache_key(settings: dict, raw: Path, stored: Sequence[str]) -> str:
+    """What prepared data depend on: the preprocessing settings, the raw data's fingerprint and the
+    stored channels (prepared folders of an older channel set are made again)."""
+    text = json.dumps(settings, sort_keys=True)
+    return hashlib.sha256(f"{text}|{data_fingerprint(raw)}|{','.join(stored)}".encode()).hexdigest()[:16]
 
 
 def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
-    """What the prepared data depends on: the preprocessing settings, the raw data's fingerprint and the
-    stored input channels (prepared folders of an older channel set are made again)."""
-    settings = json.dumps(OmegaConf.to_container(cfg.task.preprocess, resolve=True), sort_keys=True)
-    stored = ",".join(CANDIDATE_CHANNELS)
-    return hashlib.sha256(f"{settings}|{data_fingerprint(raw)}|{stored}".encode()).hexdigest()[:16]
+    """The still images' cache key: every `task.preprocess` setting but the volumetric-only ones (so
+    adding or changing those leaves prepared still-image folders valid), and the stored KPCN inputs."""
+    settings = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+    settings = {k: v for k, v in settings.items() if k not in VOLUME_ONLY_KEYS}
+    return _cache_key(settings, raw, CANDIDATE_CHANNELS)
 
 
 def _cached_preprocess(out: Path, key: str) -> dict | None:
@@ -36,11 +47,19 @@ def _cached_preprocess(out: Path, key: str) -> dict | None:
 
 
 def _check_dataset_stage(stage: str, cfg: DictConfig) -> None:
-    """A one-line ConfigError for a stage reading the volumetric dataset, which has no preprocessing yet."""
-    if cfg.dataset.name == "volumetric" and stage in ("preprocess", "train", "eval"):
+    """A one-line ConfigError for a stage the volumetric dataset cannot run yet (train, eval: there is no
+    volumetric denoiser yet), or a preprocessing window longer than its sequences."""
+    if cfg.dataset.name != "volumetric":
+        return
+    if stage in ("train", "eval"):
         raise ConfigError(
-            f"dataset=volumetric: stage={stage} is not supported yet (the volumetric sequences have no "
-            "preprocessing into training data yet); run stage=render to render them"
+            f"dataset=volumetric: stage={stage} is not supported yet (there is no denoiser of the "
+            "volumetric sequences yet); run stage=render, then stage=preprocess, to make its training data"
+        )
+    k, frames = cfg.task.preprocess.sequence_frames, cfg.dataset.frames
+    if stage == "preprocess" and k > frames:
+        raise ConfigError(
+            f"{FRAMES_KEY}={k} is more than the dataset.frames={frames} frames of each volumetric sequence"
         )
 
 
@@ -55,6 +74,51 @@ def _render_volumetric(ds: dict, raw: Path, variant: str, summary_path: Path) ->
         tag = hashlib.sha256(json.dumps([scenes, frames]).encode()).hexdigest()[:8]
         summary_path = summary_path.with_name(f"render_summary-{tag}.json")
     return summary, summary_path
+
+
+def _preprocess_volumetric(cfg: DictConfig) -> dict:
+    """The volumetric sequences into k-frame samples (train/val) and whole sequences (val/test)
+    (`src.data.volume_shards`); skipped when made from the same settings, repair policy and raw data."""
+    from src.data.exr_buffers import RepairPolicy
+    from src.data.volume_buffers import load_volume_exr
+    from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
+    from src.data.volume_shards import SEQUENCE_KEYS, preprocess_volume_dataset
+
+    p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+    raw, out = Path(cfg.paths.raw), Path(cfg.paths.prepared)
+    settings = {
+        **{k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")},
+        "split_fractions": p["split"],
+        **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
+        "min_distance": p["min_distance"] * p["patch_size"],
+        **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
+    }
+    key = _cache_key({**settings, "repair": p["repair"]}, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
+    cached = _cached_preprocess(out, key)
+    if cached is not None:
+        print(f"preprocess: up to date in {out}")
+        return cached
+    policy = RepairPolicy(**p["repair"])
+    repairs: dict[str, str] = {}
+
+    def load(path: Path, buffers):
+        loaded, report = load_volume_exr(path, repair=policy, buffers=buffers)
+        if report.total:
+            repairs[path.name] = report.summary()
+        return loaded
+
+    with atomic_directory(out) as tmp:
+        summary = preprocess_volume_dataset(raw, tmp, **settings, load_fn=load)
+        summary["repairs"] = repairs
+        write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
+    repaired = f", repaired {len(repairs)} files" if repairs else ""
+    samples, full = summary["samples"], summary["full_sequences"]
+    print(
+        f"preprocess: {summary['noisy_sequences']} noisy sequences: {samples['train']} train / "
+        f"{samples['val']} val samples of {settings['sequence_frames']} frames, {full['val']} val / "
+        f"{full['test']} test whole sequences{repaired} -> {out}"
+    )
+    return summary
 
 
 class DenoiseTask(Task):
@@ -76,7 +140,7 @@ class DenoiseTask(Task):
         return Path(cfg.paths.raw)
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
-        """The volumetric dataset is rendered only so far: a stage that reads it fails at job start."""
+        """The volumetric dataset has no denoiser yet: train and eval fail at job start."""
         for stage in stages:
             _check_dataset_stage(stage, cfg)
 
@@ -104,7 +168,8 @@ class DenoiseTask(Task):
         return summary
 
     def preprocess(self, cfg: DictConfig) -> dict:
-        """The raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test).
+        """The raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test); for
+        `dataset=volumetric`, sequence samples and whole sequences (`_preprocess_volumetric`).
 
         Skipped when the prepared directory was made from the same settings and raw data (each job of a
         multirun would otherwise redo it)."""
@@ -112,6 +177,8 @@ class DenoiseTask(Task):
         from src.data.kpcn_buffers import load_kpcn_exr
         from src.data.shards import preprocess_dataset
 
+        if cfg.dataset.name == "volumetric":
+            return _preprocess_volumetric(cfg)
         p = cfg.task.preprocess
         raw, out = Path(cfg.paths.raw), Path(cfg.paths.prepared)
         key = _preprocess_key(cfg, raw)
