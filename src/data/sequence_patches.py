@@ -20,7 +20,8 @@ Sampling follows `patch_sampling.sample_patches`, with the window as a third coo
 * pruning: `prune_candidates`, as for images: keep probability max(m / max m, min_keep_prob), so hard
   (window, crop) pairs are favoured and easy ones still appear.
 
-All functions are pure and vectorised; the stage wiring comes later.
+All functions are pure and vectorised; `src.data.volume_shards` uses them for `stage=preprocess
+dataset=volumetric`.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from src.errors import ConfigError, DataError
 #: Config keys the arguments come from (named in errors).
 FRAMES_KEY = "task.preprocess.sequence_frames"
 PATCH_KEY = "task.preprocess.patch_size"
-COUNT_KEY = "task.preprocess.patches_per_image"
+COUNT_KEY = "task.preprocess.patches_per_sequence"
 
 
 def _check_window(n_frames: int, k: int) -> None:
