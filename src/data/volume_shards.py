@@ -33,6 +33,7 @@ memory at once (at the paper profile's 16 frames of 1280x720, about 6 GB).
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -232,7 +233,9 @@ class _SequenceWriter:
             h, w = arrays["color"].shape[1:3]
             self.indices["full", split].append({**entry, "height": h, "width": w})
 
-    def finish(self, raw_dir, splits: Mapping[str, list[str]], n_sequences: int) -> dict[str, Any]:
+    def finish(
+        self, raw_dir, splits: Mapping[str, list[str]], n_sequences: int, seconds: float
+    ) -> dict[str, Any]:
         channels = {k: list(v) for k, v in SEQUENCE_CHANNELS.items()}
         s = self.settings
         for (kind, split), entries in self.indices.items():
@@ -262,6 +265,7 @@ class _SequenceWriter:
             },
             "full_sequences": {sp: len(self.indices["full", sp]) for sp in ("val", "test")},
             "input_channels": len(VOLUME_CANDIDATE_CHANNELS),
+            "seconds": round(seconds, 3),
             "settings": dict(s),
         }
         atomic_write_json(self.out_dir / "summary.json", summary)
@@ -319,6 +323,7 @@ def preprocess_volume_dataset(
     }
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
+    start = time.perf_counter()
     groups = group_volume_dataset(raw_dir)
     short = {sc: len(fr) for sc, fr in groups.items() if len(fr) < sequence_frames}
     if short:
@@ -351,4 +356,4 @@ def preprocess_volume_dataset(
                 writer.add(split, entry, arrays, imp)
                 bar.update(1)
     bar.close()
-    return writer.finish(raw_dir, splits, n_sequences)
+    return writer.finish(raw_dir, splits, n_sequences, time.perf_counter() - start)

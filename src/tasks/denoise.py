@@ -116,7 +116,7 @@ def _preprocess_volumetric(cfg: DictConfig) -> dict:
     print(
         f"preprocess: {summary['noisy_sequences']} noisy sequences: {samples['train']} train / "
         f"{samples['val']} val samples of {settings['sequence_frames']} frames, {full['val']} val / "
-        f"{full['test']} test whole sequences{repaired} -> {out}"
+        f"{full['test']} test whole sequences{repaired} in {summary['seconds']:.1f} s -> {out}"
     )
     return summary
 
