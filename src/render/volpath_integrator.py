@@ -477,7 +477,9 @@ class VolumetricAovIntegrator(mi.SamplingIntegrator):
             emitter_pdf = scene.pdf_emitter_direction(last_scatter_event, ds, active_e & ~count_direct)
             emitted = emitter.eval(si, active_e)
             mis = dr.select(count_direct, 1.0, _mis_weight(last_scatter_direction_pdf, emitter_pdf))
-            contrib = dr.select(active_e, throughput * mis * emitted, 0.0)
+            # Radiance is non-negative; round-off in the spectral delta-tracking weights leaves ~-1e-19
+            # here and there, which the dataset loader would reject as negative radiance.
+            contrib = dr.maximum(dr.select(active_e, throughput * mis * emitted, 0.0), 0.0)
             if dr.hint(features, mode="scalar"):
                 single = first_is_volume & (depth == 1)
                 L_surface += dr.select(first_is_volume, 0.0, contrib)
@@ -510,6 +512,7 @@ class VolumetricAovIntegrator(mi.SamplingIntegrator):
             contrib = dr.select(
                 active_nee, throughput * nee_val * _mis_weight(ds.pdf, nee_pdf) * emitted, 0.0
             )
+            contrib = dr.maximum(contrib, 0.0)  # round-off negatives, as above
             if dr.hint(features, mode="scalar"):
                 # Vertices of this path: the collision is counted in depth, the surface not yet.
                 vertices = dr.select(active_e_medium, depth, depth + 1)
