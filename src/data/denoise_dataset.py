@@ -61,6 +61,14 @@ def selected_whitening(whitening: Whitening, select: torch.Tensor) -> Mapping[st
     return {key: stats.select(select.tolist()) for key, stats in whitening.items()}
 
 
+def worker_shard_order(n_shards: int, seed: int, epoch: int, shuffle: bool) -> np.ndarray:
+    """The shards this DataLoader worker streams, in order: all shards, shuffled per (seed, epoch) when
+    `shuffle`, then dealt round-robin to the workers (each shard read by exactly one worker)."""
+    order = np.random.default_rng([seed, epoch]).permutation(n_shards) if shuffle else np.arange(n_shards)
+    info = get_worker_info()
+    return order if info is None else order[info.id :: info.num_workers]
+
+
 class PatchShardDataset(IterableDataset):
     """Patches of one split from `<shard_dir>/patches/<split>/` (`shard_dir` = preprocess output dir).
 
@@ -99,12 +107,7 @@ class PatchShardDataset(IterableDataset):
         return sum(s["n_patches"] for s in self.shards)
 
     def _my_shards(self) -> np.ndarray:
-        n = len(self.shards)
-        order = (
-            np.random.default_rng([self.seed, self.epoch]).permutation(n) if self.shuffle else np.arange(n)
-        )
-        info = get_worker_info()
-        return order if info is None else order[info.id :: info.num_workers]
+        return worker_shard_order(len(self.shards), self.seed, self.epoch, self.shuffle)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         for i in self._my_shards():

@@ -22,8 +22,9 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import Dataset, IterableDataset, get_worker_info
+from torch.utils.data import Dataset, IterableDataset
 
+from src.data.denoise_dataset import worker_shard_order
 from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
 from src.data.shards import INDEX_NAME, load_tensors, read_index
 from src.data.volume_features import Features, volume_channel_indices, volume_feature_channels
@@ -92,12 +93,7 @@ class SequencePatchDataset(IterableDataset):
         return sum(s["n_samples"] for s in self.shards)
 
     def _my_shards(self) -> np.ndarray:
-        n = len(self.shards)
-        order = (
-            np.random.default_rng([self.seed, self.epoch]).permutation(n) if self.shuffle else np.arange(n)
-        )
-        info = get_worker_info()
-        return order if info is None else order[info.id :: info.num_workers]
+        return worker_shard_order(len(self.shards), self.seed, self.epoch, self.shuffle)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         for i in self._my_shards():
