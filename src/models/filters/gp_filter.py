@@ -1,0 +1,146 @@
+"""A filter whose weights come from a genetic-programming expression (Davletaliyev 2016; `conf/model/
+gp_filter.yaml`, the three published expressions in `conf/model/gp_expr{1,2,3}.yaml`).
+
+    out_p = sum_q w(p, q) c_q / sum_q w(p, q) over the (2r+1)^2 window,  w = the expression (`src.gp`)
+
+The expression's terminals are read from the batch (`FEATURE_KEYS`): a vector feature from its batch key, or
+else (for the visibility) from the `diffuse_in` channel of that name when `model.input_features` lists the
+run's `task.features`; a variance from the batch key `<buffer>_var` or that `diffuse_in` channel; a gradient
+is computed here (Sobel, `src.gp.features`) from its feature. With `normalize` (the thesis, Sec. 3.3.2)
+every vector feature but the colour and the pixel coordinates is normalised per image (1-D by its maximum,
+3-D by its longest vector) and each variance is scaled with its feature (divided by the square of the same
+factor). A feature the data lack is a one-line ConfigError naming it, its batch key and `model.expression`,
+raised at the first call. World position and secondary texture (and their gradients and variances) are not
+rendered by this version of the integrator, so expressions 2 and 3 cannot run on its data yet.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from src.data.features import feature_channels
+from src.errors import ConfigError, DataError
+from src.gp.evaluate import filter_images, required_terminals
+from src.gp.features import normalization_scale, sobel_gradient
+from src.gp.grammar import GRADIENT_OF, PSET
+from src.gp.text import ExpressionError, parse, to_infix
+from src.models.denoise.base import Batch, Denoiser
+
+#: Vector terminal -> batch key of its buffer (`directIllumination` may also come from `diffuse_in`).
+FEATURE_KEYS = {
+    "color": "color",
+    "normal": "normal",
+    "texture": "albedo",
+    "depth": "depth",
+    "directIllumination": "visibility",
+    "worldPosition": "position",
+    "secondaryTexture": "secondary_albedo",
+}
+#: Variance terminal -> the vector terminal it is the per-pixel variance of (batch key `<buffer>_var`).
+VARIANCE_OF = {
+    "wpVariance": "worldPosition",
+    "nVariance": "normal",
+    "texVariance": "texture",
+    "secTexVariance": "secondaryTexture",
+    "dovVariance": "depth",
+    "diVariance": "directIllumination",
+}
+#: Features that are not normalised: the filtered colour itself and the pixel coordinates.
+UNNORMALIZED = ("color", "pixel")
+
+
+class GPFilter(Denoiser):
+    """Filter with an expression's weights (module docstring). Reads `batch["color"]` and what the
+    expression needs; returns {"color": filtered linear HDR colour}. Nothing is trained."""
+
+    learned = False
+
+    def __init__(
+        self,
+        expression: str,
+        radius: int,
+        input_features: list[str] | None = None,
+        normalize: bool = True,
+    ) -> None:
+        super().__init__()
+        if int(radius) != radius or radius < 0:
+            raise ConfigError(f"model.radius must be an integer >= 0, got {radius!r}")
+        try:
+            self.tree = parse(str(expression), PSET)
+        except ExpressionError as err:
+            raise ConfigError(f"model.expression: {err}") from None
+        self.expression = to_infix(self.tree)
+        self.radius = int(radius)
+        self.normalize = bool(normalize)
+        self.needed = required_terminals([self.tree])
+        self.input_channels: tuple[str, ...] | None = None
+        if input_features is not None:
+            self.input_channels = feature_channels([str(f) for f in input_features])
+
+    @property
+    def halo(self) -> int | None:
+        """The window radius (+1 for a Sobel gradient); None (whole frame) when features are normalised,
+        since the normalisation divides by a maximum over the whole image."""
+        if self.normalize:
+            return None
+        return self.radius + (1 if self.needed & set(GRADIENT_OF) else 0)
+
+    def _missing(self, terminal: str, key: str) -> ConfigError:
+        if key in _INPUT_CHANNELS:
+            feature = key.replace("_var", ".var")
+            where = (
+                f"no batch key {key!r} and no {key!r} channel in the network inputs that "
+                f"model.input_features lists (add {feature} to task.features)"
+            )
+        else:
+            where = f"no batch key {key!r} (not rendered by this dataset)"
+        return ConfigError(f"model.expression needs feature {terminal!r}: {where}")
+
+    def _read(self, batch: Batch, terminal: str, key: str) -> torch.Tensor:
+        if key in batch:
+            return batch[key].float()
+        channels = self.input_channels or ()
+        if key in _INPUT_CHANNELS and key in channels and "diffuse_in" in batch:
+            i = channels.index(key)
+            return batch["diffuse_in"][:, i : i + 1].float()
+        raise self._missing(terminal, key)
+
+    def features(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """The terminals the expression reads, from `batch` (module docstring)."""
+        # Gradients need their feature; a variance needs it only for the normalisation factor.
+        base_needed = {GRADIENT_OF.get(t, t) for t in self.needed}
+        if self.normalize:
+            base_needed |= {VARIANCE_OF[t] for t in self.needed if t in VARIANCE_OF}
+        raw = {t: self._read(batch, t, FEATURE_KEYS[t]) for t in sorted(base_needed) if t in FEATURE_KEYS}
+        scale = {
+            t: normalization_scale(x) for t, x in raw.items() if self.normalize and t not in UNNORMALIZED
+        }
+        out: dict[str, torch.Tensor] = {}
+        for t in self.needed:
+            if t in FEATURE_KEYS:
+                out[t] = raw[t] / scale[t] if t in scale else raw[t]
+            elif t in GRADIENT_OF:
+                grad = sobel_gradient(raw[GRADIENT_OF[t]])
+                out[t] = grad / normalization_scale(grad) if self.normalize else grad
+            else:
+                base = VARIANCE_OF[t]
+                var = self._read(batch, t, f"{FEATURE_KEYS[base]}_var")
+                out[t] = var / scale[base].square() if base in scale else var
+        return out
+
+    @torch.no_grad()
+    def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
+        color = batch["color"].float()
+        result = filter_images([self.tree], self.features(batch), color, self.radius)
+        valid = result.valid[0]
+        if not bool(valid.all()):
+            bad = [int(i) for i in torch.nonzero(~valid).flatten()]
+            raise DataError(
+                f"model.expression {self.expression!r}: undefined weights (NaN/Inf or a zero weight sum) "
+                f"on batch image(s) {bad}"
+            )
+        return {"color": result.color[0]}
+
+
+#: Batch keys that may instead be a channel of `diffuse_in` (named as in `src.data.features`).
+_INPUT_CHANNELS = ("visibility", "normal_var", "albedo_var", "depth_var", "visibility_var")
