@@ -272,6 +272,26 @@ class _SequenceWriter:
         return summary
 
 
+def _scene_sequences(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn, settings: Mapping[str, Any]):
+    """(index entry, stored arrays, per-frame importance maps) of each noisy sequence of one scene; the
+    reference is the scene's highest sample count."""
+    counts = sorted(frames[0])
+    ref_spp = counts[-1]
+    ref = [load_fn(frames[f][ref_spp], REFERENCE_BUFFERS) for f in frames]
+    for spp in counts[:-1]:
+        noisy = [load_fn(frames[f][spp], NOISY_BUFFERS) for f in frames]
+        arrays = sequence_arrays(noisy, ref, settings["volume_transform"], f"{raw_dir}: {scene} {spp} spp")
+        imp = np.stack([frame_importance(n, settings) for n in noisy])
+        entry = {
+            "file": shard_name(scene, spp),
+            "scene": scene,
+            "spp": spp,
+            "reference_spp": ref_spp,
+            "frames": len(frames),
+        }
+        yield entry, arrays, imp
+
+
 def preprocess_volume_dataset(
     raw_dir: str | os.PathLike[str],
     out_dir: str | os.PathLike[str],
@@ -337,22 +357,7 @@ def preprocess_volume_dataset(
     bar = tqdm(total=n_sequences, desc="preprocess volumetric", unit="seq", disable=not progress)
     for split in SPLITS:
         for scene in splits[split]:
-            frames = groups[scene]
-            counts = sorted(frames[0])
-            ref_spp = counts[-1]
-            ref = [load_fn(frames[f][ref_spp], REFERENCE_BUFFERS) for f in frames]
-            for spp in counts[:-1]:
-                noisy = [load_fn(frames[f][spp], NOISY_BUFFERS) for f in frames]
-                what = f"{raw_dir}: {scene} {spp} spp"
-                arrays = sequence_arrays(noisy, ref, volume_transform, what)
-                imp = np.stack([frame_importance(n, settings) for n in noisy])
-                entry = {
-                    "file": shard_name(scene, spp),
-                    "scene": scene,
-                    "spp": spp,
-                    "reference_spp": ref_spp,
-                    "frames": len(frames),
-                }
+            for entry, arrays, imp in _scene_sequences(raw_dir, scene, groups[scene], load_fn, settings):
                 writer.add(split, entry, arrays, imp)
                 bar.update(1)
     bar.close()
