@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from src.data.exr_buffers import BufferLayout, RepairPolicy, buffers_to_channels, load_buffers, write_buffers
-from src.data.kpcn_buffers import KPCN_BUFFERS, KPCN_LAYOUT, load_kpcn_exr, write_kpcn_exr
+from src.data.kpcn_buffers import (
+    KPCN_BUFFERS,
+    KPCN_LAYOUT,
+    OPTIONAL_BUFFERS,
+    load_kpcn_exr,
+    write_kpcn_exr,
+)
 from src.errors import ConfigError, DataError
 from src.io.exr import read_exr, write_exr
 from tests.conftest import one_line_error
@@ -41,7 +47,36 @@ def test_spec_names_exactly_the_tungsten_convention():
     assert KPCN_BUFFERS["depth"] == ("depth.Z",) and KPCN_BUFFERS["visibility"] == ("visibility.Z",)
     for b in ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility"):
         assert KPCN_BUFFERS[f"{b}Variance"] == (f"{b}Variance.Z",)
-    assert len(KPCN_BUFFERS) == 14 and sum(map(len, KPCN_BUFFERS.values())) == 24
+    # The GP filters' features (Davletaliyev 2016), optional: older files lack them.
+    assert KPCN_BUFFERS["position"] == ("position.R", "position.G", "position.B")
+    assert KPCN_BUFFERS["secondary_albedo"] == tuple(f"secondary_albedo.{c}" for c in "RGB")
+    assert KPCN_BUFFERS["positionVariance"] == ("positionVariance.Z",)
+    assert KPCN_BUFFERS["secondary_albedoVariance"] == ("secondary_albedoVariance.Z",)
+    assert len(KPCN_BUFFERS) == 18 and sum(map(len, KPCN_BUFFERS.values())) == 32
+    assert set(OPTIONAL_BUFFERS) == {
+        "position",
+        "secondary_albedo",
+        "positionVariance",
+        "secondary_albedoVariance",
+    }
+
+
+def test_files_without_the_optional_buffers_still_load(tmp_path):
+    """Real KPCN data and older renders have no position / secondary albedo: they load without those keys;
+    asking for one by name, or a file with only part of one, is the missing-channel error."""
+    old = {k: v for k, v in make_buffers().items() if k not in OPTIONAL_BUFFERS}
+    path = write_kpcn_exr(tmp_path / "old-00004spp.exr", old)
+    loaded, _ = load_kpcn_exr(path, expected_size=(H, W))
+    assert list(loaded) == [b for b in KPCN_BUFFERS if b not in OPTIONAL_BUFFERS]
+    for name, arr in old.items():
+        np.testing.assert_array_equal(loaded[name], arr)
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(path, buffers=["color", "position"])
+    one_line_error(excinfo, "missing EXR channels", "position.R")
+    partial = write_channels(tmp_path / "partial.exr", position__G=None)
+    with pytest.raises(DataError) as excinfo:
+        load_kpcn_exr(partial)
+    one_line_error(excinfo, "missing EXR channel", "position.G")
 
 
 def test_round_trip(tmp_path):

@@ -1,6 +1,7 @@
 """Scene splits, file naming, shard streaming across workers and the preprocess stage end to end."""
 
 import json
+import zlib
 
 import numpy as np
 import pytest
@@ -10,7 +11,16 @@ from torch.utils.data import DataLoader
 from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
-from src.data.shards import SAMPLING_FIGURE, SHARD_CHANNELS, SHARD_KEYS, preprocess_dataset, save_tensors
+from src.data.shards import (
+    GP_SHARD_KEYS,
+    SAMPLING_FIGURE,
+    SHARD_CHANNELS,
+    SHARD_KEYS,
+    load_tensors,
+    preprocess_dataset,
+    read_index,
+    save_tensors,
+)
 from src.data.splits import group_dataset, parse_exr_name, patch_quota, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
@@ -248,3 +258,63 @@ def test_preprocess_importance_option_changes_the_patches_and_rejects_unknown_na
     with pytest.raises(ConfigError) as excinfo:
         _preprocess(raw, tmp_path / "bad", load_fn, importance="bako")
     one_line_error(excinfo, "task.preprocess.importance='bako'", "'mc_variance'")
+
+
+def _with_gp_features(buffers, scene, spp):
+    """`synthetic_image` plus the GP filters' buffers (world position, secondary albedo, their variances)."""
+    rng = np.random.default_rng([zlib.crc32(scene.encode()), spp, 7])
+    h, w = buffers["color"].shape[:2]
+    return {
+        **buffers,
+        "position": rng.normal(size=(h, w, 3)).astype(np.float32) * 5,
+        "positionVariance": rng.uniform(0, 0.1, (h, w, 1)).astype(np.float32),
+        "secondary_albedo": rng.uniform(0, 1, (h, w, 3)).astype(np.float32),
+        "secondary_albedoVariance": rng.uniform(0, 0.01, (h, w, 1)).astype(np.float32),
+    }
+
+
+def test_preprocess_stores_the_gp_features_when_the_raw_files_have_them(tmp_path):
+    """Position, secondary albedo and their variances go into patches and full images unchanged (the GP
+    filter normalises them); files without them (real KPCN data) give shards without those keys; a mix is
+    a one-line error. The datasets also expose the one-channel guides the GP filter reads by name."""
+    raw = _synthetic_raw(tmp_path, ["a", "b", "c", "d"])
+
+    def load_fn(path):
+        scene, spp = parse_exr_name(path)
+        return _with_gp_features(synthetic_image(scene, spp), scene, spp)
+
+    summary = _preprocess(raw, tmp_path / "gp", load_fn)
+    assert summary["gp_features"] == list(GP_SHARD_KEYS)
+    full = FullImageDataset(tmp_path / "gp", "test")
+    item = full[0]
+    expected = load_fn(raw / f"{item['scene']}-{item['spp']:05d}spp.exr")
+    np.testing.assert_array_equal(item["position"].numpy(), np.moveaxis(expected["position"], -1, 0))
+    np.testing.assert_array_equal(
+        item["secondary_albedo_var"].numpy(), np.moveaxis(expected["secondary_albedoVariance"], -1, 0)
+    )
+    assert item["position_var"].shape == (1, *item["color"].shape[1:])
+    stored = full.index["channels"]["diffuse_in"]
+    for key in ("visibility", "normal_var", "albedo_var", "depth_var", "visibility_var"):
+        torch.testing.assert_close(
+            item[key],
+            load_tensors(full.root / full.images[0]["file"])["diffuse_in"][
+                stored.index(key) : stored.index(key) + 1
+            ],
+        )
+    assert full.index["channels"]["position"] == ["x", "y", "z"]
+    patch = next(iter(PatchShardDataset(tmp_path / "gp", "train")))
+    assert patch["position"].shape == (3, 8, 8) and patch["secondary_albedo"].shape == (3, 8, 8)
+
+    plain = _preprocess(raw, tmp_path / "plain", _load_synthetic)
+    assert plain["gp_features"] == []
+    item = FullImageDataset(tmp_path / "plain", "test")[0]
+    assert not set(GP_SHARD_KEYS) & set(item) and "visibility" in item
+    assert "position" not in read_index(tmp_path / "plain" / "full" / "test")["channels"]
+
+    def mixed(path):
+        scene, spp = parse_exr_name(path)
+        return load_fn(path) if scene == "a" else synthetic_image(scene, spp)
+
+    with pytest.raises(DataError) as excinfo:
+        _preprocess(raw, tmp_path / "mixed", mixed)
+    one_line_error(excinfo, "GP features", "in all its noisy files or in none")

@@ -8,6 +8,12 @@ Both yield dicts of float32 tensors, channel first, under `SHARD_KEYS`, plus `di
 (the transformed noisy colours, channels 0:3 of the stored inputs: what a KPCN filters and what
 `rebuild_color` needs alongside `albedo`). `diffuse_in` / `specular_in` hold only the channels of
 `features` (`task.features`, default the paper's 28), selected by name from the stored candidates.
+
+For the filters that read guide features by name (`src.models.filters.gp_filter`), the items also hold
+`GUIDE_KEYS` (`visibility`, `normal_var`, `albedo_var`, `depth_var`, `visibility_var`: one channel each,
+unwhitened, taken from the stored candidates whatever `features` selects) and, when the prepared data have
+them, the GP features `position`, `position_var`, `secondary_albedo`, `secondary_albedo_var`
+(`src.data.shards.GP_SHARD_KEYS`); data without them have no such keys.
 """
 
 from __future__ import annotations
@@ -26,6 +32,14 @@ from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, white
 from src.data.shards import INDEX_NAME, SHARD_KEYS, load_tensors, read_index
 
 Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
+#: One-channel guide features exposed under their channel name (module docstring).
+GUIDE_KEYS = ("visibility", "normal_var", "albedo_var", "depth_var", "visibility_var")
+
+
+def guide_selection(index: Mapping[str, Any]) -> dict[str, int]:
+    """Positions of `GUIDE_KEYS` among the stored input channels (those the data have)."""
+    stored = list(index["channels"]["diffuse_in"])
+    return {k: stored.index(k) for k in GUIDE_KEYS if k in stored}
 
 
 def _prepare(
@@ -33,10 +47,14 @@ def _prepare(
     select: torch.Tensor,
     whitening: Mapping[str, WhiteningStats] | None,
     channel_axis: int,
+    guides: Mapping[str, int] | None = None,
 ):
-    """Select SHARD_KEYS, add the raw transformed colours, keep the `select`ed input channels, whiten
-    them if asked (`whitening` already selected alike)."""
-    out = {k: data[k] for k in SHARD_KEYS}
+    """Select SHARD_KEYS (those stored), add the raw transformed colours and the `guides` (key -> stored
+    input channel), keep the `select`ed input channels, whiten them if asked (`whitening` already selected
+    alike)."""
+    out = {k: data[k] for k in SHARD_KEYS if k in data}
+    for key, i in (guides or {}).items():
+        out[key] = data["diffuse_in"].narrow(channel_axis, i, 1)
     for branch in ("diffuse", "specular"):
         key = f"{branch}_in"
         out[f"{branch}_t"] = out[key].narrow(channel_axis, 0, 3)
@@ -99,6 +117,7 @@ class PatchShardDataset(IterableDataset):
         self.seed, self.shuffle, self.epoch = seed, shuffle, 0
         self.select = input_selection(self.index, features, self.root)
         self.whitening = selected_whitening(whitening, self.select)
+        self.guides = guide_selection(self.index)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -112,7 +131,11 @@ class PatchShardDataset(IterableDataset):
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         for i in self._my_shards():
             data = _prepare(
-                load_tensors(self.root / self.shards[i]["file"]), self.select, self.whitening, channel_axis=1
+                load_tensors(self.root / self.shards[i]["file"]),
+                self.select,
+                self.whitening,
+                channel_axis=1,
+                guides=self.guides,
             )
             n = data["color"].shape[0]
             rng = np.random.default_rng([self.seed, self.epoch, int(i)])
@@ -140,11 +163,18 @@ class FullImageDataset(Dataset):
         self.images = self.index["shards"]
         self.select = input_selection(self.index, features, self.root)
         self.whitening = selected_whitening(whitening, self.select)
+        self.guides = guide_selection(self.index)
 
     def __len__(self) -> int:
         return len(self.images)
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         meta = self.images[i]
-        data = _prepare(load_tensors(self.root / meta["file"]), self.select, self.whitening, channel_axis=0)
+        data = _prepare(
+            load_tensors(self.root / meta["file"]),
+            self.select,
+            self.whitening,
+            channel_axis=0,
+            guides=self.guides,
+        )
         return {**data, "scene": meta["scene"], "spp": meta["spp"], "reference_spp": meta["reference_spp"]}

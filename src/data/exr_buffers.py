@@ -32,7 +32,11 @@ class BufferLayout:
 
     buffers: buffer name -> its EXR channel names, in the order of the (H, W, C) array's last axis;
     radiance: buffers holding radiance (never negative; `RepairPolicy.firefly_clamp` applies);
-    variance: buffers holding variances (never negative).
+    variance: buffers holding variances (never negative);
+    optional: buffers a file may lack (features added to the layout after data in it already existed, e.g.
+        KPCN's `position` and `secondary_albedo`): loading all buffers skips an optional one whose channels
+        are all absent (one channel of it present but another missing is still an error), and asking for
+        it by name (`buffers=`) in a file without it is the usual missing-channel error.
     A new kind of data (e.g. volumetric sequences) declares its own layout and gets every check.
     """
 
@@ -40,6 +44,7 @@ class BufferLayout:
     buffers: Mapping[str, tuple[str, ...]]
     radiance: tuple[str, ...] = ()
     variance: tuple[str, ...] = ()
+    optional: tuple[str, ...] = ()
 
     @cached_property  # read once per channel of every file loaded: built once per layout
     def channel_buffer(self) -> dict[str, str]:
@@ -191,7 +196,8 @@ def load_buffers(
 ) -> tuple[dict[str, np.ndarray], RepairReport]:
     """Load and validate an EXR of `layout` -> ({buffer: float32 (H, W, C)}, repairs applied).
 
-    buffers: which buffers to load (default: all of the layout's, in that order).
+    buffers: which buffers to load (default: all of the layout's, in that order, but the layout's
+        `optional` buffers only when the file has any of their channels).
     aliases: our channel name -> the name in this file, for data named differently, e.g.
         `{"normal.R": "normal.X", "normal.G": "normal.Y", "normal.B": "normal.Z"}`. Only exactly the
         listed names are accepted; no alternative spellings are guessed.
@@ -204,6 +210,12 @@ def load_buffers(
     aliases = dict(aliases or {})
     names = _buffer_names(layout, aliases, buffers)
     data = read_exr(path)
+    if buffers is None:  # all buffers: the optional ones only where the file has them
+        names = [
+            b
+            for b in names
+            if b not in layout.optional or any(aliases.get(ch, ch) in data for ch in layout.buffers[b])
+        ]
     wanted = [(ch, aliases.get(ch, ch)) for b in names for ch in layout.buffers[b]]
     _check_channels(layout, path, data, wanted, expected_size)
 

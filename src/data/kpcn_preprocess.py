@@ -40,6 +40,31 @@ REQUIRED_BUFFERS = {
     + ("visibilityVariance",)
 }
 
+#: The GP filters' buffers (Davletaliyev 2016, Sec. 3.2.1.2), optional in a KPCN file (real KPCN data lack
+#: them), with their channel counts, and the key each is stored under (`src.data.shards`).
+GP_FEATURE_BUFFERS = {
+    b: len(KPCN_BUFFERS[b])
+    for b in ("position", "positionVariance", "secondary_albedo", "secondary_albedoVariance")
+}
+GP_FEATURE_KEYS = {
+    "position": "position",
+    "positionVariance": "position_var",
+    "secondary_albedo": "secondary_albedo",
+    "secondary_albedoVariance": "secondary_albedo_var",
+}
+
+
+def gp_feature_arrays(buffers: Mapping[str, np.ndarray], what: str = "noisy image") -> dict[str, np.ndarray]:
+    """The GP filters' features of one image, float32 (H, W, C), unnormalised (the filter normalises per
+    image): {"position", "position_var", "secondary_albedo", "secondary_albedo_var"} when the buffers have
+    all of `GP_FEATURE_BUFFERS`, {} when they have none (real KPCN data, older renders); a one-line
+    DataError for only some of them."""
+    present = [b for b in GP_FEATURE_BUFFERS if b in buffers]
+    if not present:
+        return {}
+    _check_buffers(buffers, GP_FEATURE_BUFFERS, what)
+    return {GP_FEATURE_KEYS[b]: np.asarray(buffers[b], dtype=np.float32) for b in GP_FEATURE_BUFFERS}
+
 
 def _exp_minus_one(x):
     """exp(x) - 1 for numpy arrays and torch tensors alike (expm1: exact inverse of log1p)."""
@@ -179,10 +204,9 @@ def _check_buffers(buffers: Mapping[str, np.ndarray], names: Iterable[str], what
         if name not in buffers:
             raise DataError(f"{what}: buffer '{name}' is missing (have {sorted(buffers)})")
         b = buffers[name]
-        if b.ndim != 3 or b.shape[2] != REQUIRED_BUFFERS[name]:
-            raise DataError(
-                f"{what}: buffer '{name}' has shape {b.shape}, expected (H, W, {REQUIRED_BUFFERS[name]})"
-            )
+        channels = REQUIRED_BUFFERS.get(name) or GP_FEATURE_BUFFERS[name]
+        if b.ndim != 3 or b.shape[2] != channels:
+            raise DataError(f"{what}: buffer '{name}' has shape {b.shape}, expected (H, W, {channels})")
         if shape is None:
             shape = b.shape[:2]
         elif b.shape[:2] != shape:

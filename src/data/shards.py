@@ -12,7 +12,12 @@ Layout under `out_dir`:
     full/<split>/<scene>-<NNNNN>spp.pt
 
 A shard is a `torch.save`d dict of float32 tensors, channel first: (N, C, P, P) for patches, (C, H, W) for
-full images, under `SHARD_KEYS` (plus int64 `corners` (N, 2) for patches). float32 rather than float16:
+full images, under `SHARD_KEYS` (plus int64 `corners` (N, 2) for patches). The GP filters' features
+(`GP_SHARD_KEYS`: world position, secondary albedo and their variances, unnormalised) are stored only when
+the raw files have them (our renders; not real KPCN data nor renders older than these buffers): a dataset
+whose files lack them has no such keys in its shards, and its index's `channels` does not list them, so a
+filter that needs one reports it missing instead of filtering with zeros. A dataset has them in all its
+noisy files or in none (a mix is a one-line error: render again). float32 rather than float16:
 the inputs hold HDR radiance and variances spanning many decades, which float16 (max 65504, smallest
 normal 6e-5) would clip or flush to zero; shards are small at KPCN patch sizes anyway. Every file is
 written atomically; an index is written after all its shards, so an index only lists complete files.
@@ -33,7 +38,9 @@ from tqdm import tqdm
 
 from src.data.features import CANDIDATE_CHANNELS
 from src.data.kpcn_preprocess import (
+    GP_FEATURE_KEYS,
     RunningMoments,
+    gp_feature_arrays,
     make_network_inputs,
     make_targets,
     save_whitening_stats,
@@ -63,8 +70,17 @@ SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
     "depth": ("z",),  # depth normalised to [0, 1] per image (same as the input channel)
     "color": _RGB,  # noisy colour (baselines, metrics)
     "reference": _RGB,  # reference colour
+    # Optional (`GP_SHARD_KEYS`): the GP filters' features, when the raw files have them.
+    "position": ("x", "y", "z"),  # world position of the first hit (0 on escape)
+    "position_var": ("var",),  # its variance of the pixel mean (mean over x, y, z)
+    "secondary_albedo": _RGB,  # albedo where the mirror-reflected camera ray hits (0 on escape)
+    "secondary_albedo_var": ("var",),
 }
 SHARD_KEYS = tuple(SHARD_CHANNELS)
+#: Keys stored only when the raw data have them.
+GP_SHARD_KEYS = tuple(GP_FEATURE_KEYS.values())
+#: Every stored channel as `<key>.<channel>` (part of the preprocess cache key: a new channel set rebuilds).
+SHARD_CHANNEL_NAMES = tuple(f"{k}.{c}" for k, chans in SHARD_CHANNELS.items() for c in chans)
 INDEX_NAME = "index.json"
 SAMPLING_FIGURE = "patch_sampling.png"
 
@@ -137,6 +153,7 @@ def _image_arrays(
         "depth": inputs["depth"],
         "color": color,
         "reference": ref_color,
+        **gp_feature_arrays(noisy, str(noisy_path)),
     }
 
 
@@ -168,8 +185,10 @@ def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Ma
     return patches, corners, candidates, imp
 
 
-def _write_indices(out_dir: Path, indices: Mapping[tuple[str, str], list], patch_size: int) -> None:
-    channels = {k: list(v) for k, v in SHARD_CHANNELS.items()}
+def _write_indices(
+    out_dir: Path, indices: Mapping[tuple[str, str], list], patch_size: int, keys: tuple[str, ...]
+) -> None:
+    channels = {k: list(v) for k, v in SHARD_CHANNELS.items() if k in keys}
     for (kind, split), entries in indices.items():
         index = {"kind": kind, "split": split, "dtype": "float32", "channels": channels, "shards": entries}
         if kind == "patches":
@@ -184,6 +203,8 @@ class _ShardWriter:
     def __init__(self, out_dir: Path, sampling: Mapping[str, Any]) -> None:
         self.out_dir, self.sampling = out_dir, sampling
         self.figure_written = False  # SAMPLING_FIGURE: of the first train image
+        self.keys: tuple[str, ...] | None = None  # what every image stores: set by the first one
+        self.first_file = ""
         self.moments = {"diffuse_in": RunningMoments(), "specular_in": RunningMoments()}
         self.indices: dict[tuple[str, str], list[dict[str, Any]]] = {
             (kind, s): []
@@ -193,6 +214,16 @@ class _ShardWriter:
 
     def add(self, split: str, entry: dict[str, Any], image: dict, noisy: Mapping, n_patches: int) -> None:
         """Store one noisy image: `n_patches` patches (train, val) and/or the whole image (val, test)."""
+        keys = tuple(k for k in SHARD_KEYS if k in image)
+        if self.keys is None:
+            self.keys, self.first_file = keys, entry["file"]
+        elif keys != self.keys:
+            has = [k for k in GP_SHARD_KEYS if k in image]
+            raise DataError(
+                f"{entry['file']}: has the GP features {has or 'none'}, but {self.first_file} has "
+                f"{[k for k in GP_SHARD_KEYS if k in self.keys] or 'none'}; a dataset needs them in all its "
+                "noisy files or in none (render them again with stage=render)"
+            )
         if split in ("train", "val"):
             rng = _image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
             patches, corners, candidates, imp = _patches(image, noisy, rng, self.sampling, n_patches)
@@ -223,7 +254,7 @@ class _ShardWriter:
     def finish(self, raw_dir, splits: Mapping[str, list[str]], n_images: int) -> dict[str, Any]:
         """Indices (after all their shards), whitening statistics, splits and the summary it returns."""
         out_dir, indices = self.out_dir, self.indices
-        _write_indices(out_dir, indices, self.sampling["patch_size"])
+        _write_indices(out_dir, indices, self.sampling["patch_size"], self.keys or SHARD_KEYS)
         stats = {k: m.finalize(self.sampling["whiten_eps"]) for k, m in self.moments.items()}
         save_whitening_stats(out_dir / "whitening.json", stats)
         atomic_write_json(out_dir / "splits.json", splits)
@@ -233,6 +264,7 @@ class _ShardWriter:
             "noisy_images": n_images,
             "patches": {s: sum(e["n_patches"] for e in indices["patches", s]) for s in ("train", "val")},
             "full_images": {s: len(indices["full", s]) for s in ("val", "test")},
+            "gp_features": [k for k in GP_SHARD_KEYS if k in (self.keys or ())],
             "settings": dict(self.sampling),
         }
         atomic_write_json(out_dir / "summary.json", summary)

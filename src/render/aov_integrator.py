@@ -14,7 +14,21 @@ variants) produces, per camera sample:
   directional albedo, see below; 1 where the camera ray escapes, so that diffuse / (albedo + eps) stays
   finite on background pixels. Also ``normal`` (world-space shading normal), ``depth`` (distance to the
   first hit, 0 on escape) and ``visibility`` (1 when the next-event light sample at the first hit is
-  unoccluded, 0 otherwise and on escape).
+  unoccluded, 0 otherwise and on escape);
+* ``position`` and ``secondary_albedo``, the two features of the genetic-programming filters
+  (Davletaliyev 2016, Sec. 3.2.1.2, "Vector Variables") that KPCN lacks: ``position`` is the world
+  position of the first hit (0 where the camera ray escapes); ``secondary_albedo`` the albedo at the hit
+  of the *reflected* ray, the perfect-mirror reflection of the camera ray about the first hit's shading
+  normal (one extra ray per camera sample, traced after the path). The thesis defines it as "a value of
+  the texture at the intersection point of the reflected ray" ("valuable information for the glossy
+  surfaces ... because it is possible to see the reflection of other objects on it"); its OptiX renderer
+  takes it "at the intersection of second bounce" (Sec. 3.3.2), and it does not say what an escaping ray
+  gives. We use the mirror direction for every surface (deterministic given the first hit, so the feature
+  is as smooth as the normal, not a random bounce) and 0 where either ray escapes (no texture seen: unlike
+  ``albedo`` it is never a divisor, so it needs no 1). The albedo at the secondary hit is computed as the
+  first hit's (diffuse reflectance, or the K-sample directional albedo of a glossy/specular surface).
+  Depth's variance: the thesis drops it because depth is a function of the world position (Sec.
+  3.2.1.2, "Scalar Variables"); we keep our ``depthVariance`` (KPCN's data have it).
 
 Albedo of glossy and glass surfaces. The albedo is a denoising guide: KPCN (Bako et al. 2017) divides
 diffuse by it and feeds it, its variance and its gradients to the network, and the cross-bilateral
@@ -53,9 +67,18 @@ import numpy as np
 from src.data.kpcn_buffers import KPCN_BUFFERS
 
 # Buffers written as AOVs after the film's RGB color, in ``aov_names`` order.
-AOV_BUFFERS = ("diffuse", "specular", "albedo", "normal", "depth", "visibility")
+AOV_BUFFERS = (
+    "diffuse",
+    "specular",
+    "albedo",
+    "normal",
+    "depth",
+    "visibility",
+    "position",
+    "secondary_albedo",
+)
 # Buffers whose per-sample square is also written (second moments for the variance of the mean).
-MOMENT_BUFFERS: tuple[str, ...] = ("color", "diffuse", "specular", "albedo", "normal", "depth", "visibility")
+MOMENT_BUFFERS: tuple[str, ...] = ("color", *AOV_BUFFERS)
 CHANNEL_COUNT = {buf: len(KPCN_BUFFERS[buf]) for buf in ("color", *AOV_BUFFERS)}
 #: BSDF samples per glossy/specular first hit for the albedo when the config gives none.
 DEFAULT_ALBEDO_SAMPLES = 16
@@ -153,6 +176,15 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             run &= k < self.albedo_samples
         return total / self.albedo_samples
 
+    def surface_albedo(self, si, ray, sampler, active):
+        """The albedo guide at ``si`` (hit by ``ray``): diffuse reflectance where the BSDF has a diffuse lobe,
+        else the `directional_albedo` estimate; 0 where ``active`` is false."""
+        bsdf = si.bsdf(ray)
+        has_diffuse_lobe = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
+        diffuse = bsdf.eval_diffuse_reflectance(si, active & has_diffuse_lobe)
+        glossy = self.directional_albedo(bsdf, si, sampler, active & ~has_diffuse_lobe)
+        return dr.select(active, dr.select(has_diffuse_lobe, diffuse, glossy), 0.0)
+
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
         bsdf_ctx = mi.BSDFContext()
@@ -176,6 +208,10 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
         normal = mi.Vector3f(0.0)
         hit_depth = mi.Float(0.0)
         visibility = mi.Float(0.0)
+        position = mi.Point3f(0.0)
+        mirror_o = mi.Point3f(0.0)  # the mirror-reflected ray at the first hit (secondary albedo)
+        mirror_d = mi.Vector3f(0.0)
+        mirror_valid = mi.Bool(False)
 
         while dr.hint(active, max_iterations=-1, label="KPCN path"):
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=(depth == 0))
@@ -203,6 +239,11 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             albedo = dr.select(first, dr.select(hit_first, surface_albedo, 1.0), albedo)
             normal = dr.select(hit_first, mi.Vector3f(si.sh_frame.n), normal)
             hit_depth = dr.select(hit_first, si.t, hit_depth)
+            position = dr.select(hit_first, si.p, position)
+            mirror = si.spawn_ray(si.to_world(mi.reflect(si.wi)))
+            mirror_o = dr.select(hit_first, mirror.o, mirror_o)
+            mirror_d = dr.select(hit_first, mirror.d, mirror_d)
+            mirror_valid |= hit_first
 
             active_next = (depth + 1 < self._max_depth) & si.is_valid()
 
@@ -242,6 +283,11 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             rr_continue = sampler.next_1d() < rr_prob
             active = active_next & (~rr_active | rr_continue) & (beta_max != 0.0) & (bs.pdf > 0)
 
+        # Secondary albedo: the albedo where the mirror ray hits; 0 where it or the camera ray escapes.
+        mirror_ray = mi.Ray3f(mirror_o, mirror_d)
+        si2 = scene.ray_intersect(mirror_ray, ray_flags=mi.RayFlags.All, coherent=False, active=mirror_valid)
+        secondary_albedo = self.surface_albedo(si2, mirror_ray, sampler, mirror_valid & si2.is_valid())
+
         color = L_diff + L_spec
         values = {
             "color": color,
@@ -251,6 +297,8 @@ class KPCNAovIntegrator(mi.SamplingIntegrator):
             "normal": normal,
             "depth": hit_depth,
             "visibility": visibility,
+            "position": position,
+            "secondary_albedo": secondary_albedo,
         }
         aovs = []
         for buf in AOV_BUFFERS:

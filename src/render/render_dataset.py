@@ -171,6 +171,14 @@ def render_key(scene_identity: dict, ds: Mapping, spp: int, role: str, extra: Ma
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def still_image_key_extra() -> dict:
+    """What else a still-image file depends on: the buffers the integrator writes (so files rendered before
+    `position` / `secondary_albedo` were added are rendered again)."""
+    from src.render.aov_integrator import AOV_BUFFERS
+
+    return {"buffers": list(AOV_BUFFERS)}
+
+
 @dataclass
 class RenderTotals:
     """What a dataset render did: samples and seconds rendered, files rendered and files kept."""
@@ -248,7 +256,7 @@ def render_scene_files(
     identity = source.identity()
     for spp, role in jobs:
         name = exr_name(source.name, spp)
-        key = render_key(identity, ds, spp, role)
+        key = render_key(identity, ds, spp, role, still_image_key_extra())
         if manifest.get(name) == key and (raw_dir / name).exists():
             totals.skipped += 1
             continue

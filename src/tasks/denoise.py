@@ -32,10 +32,13 @@ def _cache_key(settings: dict, raw: Path, stored: Sequence[str]) -> str:
 
 def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
     """The still images' cache key: every `task.preprocess` setting but the volumetric-only ones (so
-    adding or changing those leaves prepared still-image folders valid), and the stored KPCN inputs."""
+    adding or changing those leaves prepared still-image folders valid), the stored KPCN inputs and the
+    other stored tensors (`SHARD_CHANNEL_NAMES`: folders made before the GP features were added rebuild)."""
     settings = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
     settings = {k: v for k, v in settings.items() if k not in VOLUME_ONLY_KEYS}
-    return _cache_key(settings, raw, CANDIDATE_CHANNELS)
+    from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
+
+    return _cache_key(settings, raw, (*CANDIDATE_CHANNELS, *SHARD_CHANNEL_NAMES))
 
 
 def _cached_preprocess(out: Path, key: str) -> dict | None:

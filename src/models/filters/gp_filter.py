@@ -10,8 +10,15 @@ is computed here (Sobel, `src.gp.features`) from its feature. With `normalize` (
 every vector feature but the colour and the pixel coordinates is normalised per image (1-D by its maximum,
 3-D by its longest vector) and each variance is scaled with its feature (divided by the square of the same
 factor). A feature the data lack is a one-line ConfigError naming it, its batch key and `model.expression`,
-raised at the first call. World position and secondary texture (and their gradients and variances) are not
-rendered by this version of the integrator, so expressions 2 and 3 cannot run on its data yet.
+raised at the first call. World position and secondary texture (batch keys `position`, `secondary_albedo`,
+`position_var`, `secondary_albedo_var`) are rendered by the `kpcn_aov` integrator and stored by preprocessing
+when the raw EXRs have them; real KPCN data and older renders lack them, so expressions 2 and 3 (world
+position) then stop with that error. The guide variances and the visibility are batch keys of the denoise
+datasets (`src.data.denoise_dataset.GUIDE_KEYS`), so they need not be in `task.features`.
+
+"Scene maximum": the thesis normalises by "the maximum value in the scene" (Sec. 3.3.2); we normalise per
+image, which is the same for our data (one view per scene and sample count, each noisy image evaluated on its
+own), except that two sample counts of a scene get the maxima of their own (noisy) features.
 """
 
 from __future__ import annotations
@@ -93,7 +100,10 @@ class GPFilter(Denoiser):
                 f"model.input_features lists (add {feature} to task.features)"
             )
         else:
-            where = f"no batch key {key!r} (not rendered by this dataset)"
+            where = (
+                f"no batch key {key!r} (not in this dataset: real KPCN data and renders older than the "
+                "position/secondary_albedo buffers lack it; render with stage=render and preprocess again)"
+            )
         return ConfigError(f"model.expression needs feature {terminal!r}: {where}")
 
     def _read(self, batch: Batch, terminal: str, key: str) -> torch.Tensor:
