@@ -211,3 +211,42 @@ def test_an_operator_with_two_equal_arguments_evaluates():
     feats, color, _ = _images(n=1)
     tree = parse("exp(-(distance2(depth, depth) ** 2.0 * distance2(depth, depth) ** 2.0))")
     assert bool(filter_images([tree], feats, color, 1).valid[0].all())
+
+
+@pytest.mark.slow
+def test_filter_search_task_end_to_end(smoke_data, tmp_path):
+    """render + preprocess (the denoise task's, up to date from the fixture), search 2 islands x 4 for 2
+    generations, eval of the best expression as gp_filter; then a resumed search continues its state."""
+    import json
+
+    import yaml
+
+    from src import stages
+    from src.schema.run import validate_run
+    from src.tracking.tracker import Tracker
+    from tests.conftest import smoke_config
+
+    overrides = ["task=filter_search", "task.search.islands=2", "task.search.population=4"]
+    cfg = smoke_config(smoke_data, tmp_path / "run", [*overrides, "task.search.generations=2"])
+    validate_run(cfg)
+    stages.render(cfg)
+    stages.preprocess(cfg)
+    summary = stages.search(cfg, Tracker(None))
+    out = tmp_path / "run" / "search"
+    rows = yaml.safe_load((out / "best_expressions.yaml").read_text())
+    assert len(rows) == 2 and rows[0]["fitness"] <= rows[1]["fitness"]
+    assert rows[0]["model"]["expression"] == summary["best_expression"]
+    assert summary["best_fitness"] < 1.0  # the filter beats the noisy input
+    history = json.loads((out / "history.json").read_text())
+    assert [h["generation"] for h in history] == [0, 1, 2]
+    assert [len(h["islands"]) for h in history] == [2, 2, 2]
+    result = stages.evaluate(cfg, Tracker(None))
+    metrics = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
+    assert metrics["model"] == "gp_filter" and result["mean"]["relmse"] < result["mean"]["noisy_relmse"]
+    # resume: two more generations from the checkpoint
+    more = smoke_config(
+        smoke_data,
+        tmp_path / "run2",
+        [*overrides, "task.search.generations=4", f"task.search.resume={out / 'state.json'}"],
+    )
+    assert stages.search(more, Tracker(None))["generations"] == 4
