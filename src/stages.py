@@ -74,6 +74,11 @@ def train(cfg: DictConfig, tracker) -> dict:
     return summary
 
 
+def search(cfg: DictConfig, tracker) -> dict:
+    """Search for a method (`task=filter_search`: filter expressions by GP); logs to MLflow."""
+    return _start_tracked(cfg, "search", tracker).search(cfg, tracker)
+
+
 def evaluate(cfg: DictConfig, tracker) -> dict:
     """Score the model on the held-out data; log metrics and images."""
     return _start_tracked(cfg, "eval", tracker).evaluate(cfg, tracker)
@@ -127,6 +132,7 @@ STAGES: dict[str, Callable[..., dict]] = {
     "render": render,
     "preprocess": preprocess,
     "train": train,
+    "search": search,
     "eval": evaluate,
     "report": report,
     "summary": print_model_summary,
@@ -135,7 +141,7 @@ STAGES: dict[str, Callable[..., dict]] = {
 #: Stages that run outside a task's pipeline and log nothing.
 STANDALONE = ("summary", "config")
 #: Stages whose results go to MLflow (one run per job).
-TRACKED = ("train", "eval")
+TRACKED = ("train", "search", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.
 AFTER_RUN = ("report",)
 

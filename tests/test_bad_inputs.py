@@ -107,6 +107,17 @@ BAD_VALUES = [
         ["task.volume_features=[color,position]"],
         ["task.volume_features[1]='position'", "optionally with .var"],
     ),
+    (
+        ["task=filter_search", "task.search.crossover=0.5"],
+        ["task.search: replication + crossover + mutation = 1.05; expected 1"],
+    ),
+    (["task=filter_search", "task.search.split=test"], ["task.search.split='test' is task.eval.split"]),
+    (["task=filter_search", "+task.search.mutation_kinds.grow=1.0"], ["task.search.mutation_kinds", "grow"]),
+    (
+        ["task=filter_search", "task.search.tournament_size=0"],
+        ["task.search.tournament_size=0: expected a positive integer"],
+    ),
+    (["task=filter_search", "task.search.migrants=4"], ["task.search.migrants=4: expected fewer than"]),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}
@@ -135,6 +146,8 @@ def test_the_shipped_configs_pass_the_schema(tmp_path):
             "dataset.render_frames=[0,1]",
         ],
         ["dataset=volumetric", "profile=paper"],
+        ["task=filter_search"],
+        ["task=filter_search", "profile=paper"],
     )
     for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
         validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))

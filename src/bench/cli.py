@@ -1,7 +1,9 @@
 """Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
 --models dpcn,kpcn,resnet --profile paper]`` and ``python -m src.bench nerf [--models nerf,mipnerf,refnerf
 --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]`` and
-``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``.
+``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
+and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
+--sample 8 --device auto]``.
 
 The command line: the subcommands' arguments and their checks; a bad argument, config value or model
 name is one line on stderr and exit status 2. What each subcommand measures: `src.bench.denoise`,
@@ -17,6 +19,7 @@ from collections.abc import Sequence
 from hydra.errors import HydraException
 
 from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
+from src.bench.filter import run_filter
 from src.bench.nerf import run_nerf
 from src.bench.volpath import run_volpath
 from src.errors import NrbenchError, one_line
@@ -37,6 +40,16 @@ def _check_nerf(args: argparse.Namespace) -> str | None:
 def _check_volpath(args: argparse.Namespace) -> str | None:
     if min(args.width, args.height, args.spp, args.repeats) < 1 or args.max_depth < -1 or args.max_depth == 0:
         return "--width, --height, --spp and --repeats must be >= 1, --max-depth -1 or >= 1"
+    return None
+
+
+def _check_filter(args: argparse.Namespace) -> str | None:
+    a = args
+    sizes = (a.width, a.height, a.images, a.islands, a.population, a.sample, a.tree_batch)
+    if min(sizes) < 1:
+        return "--width, --height, --images, --islands, --population, --sample and --tree-batch must be >= 1"
+    if args.radius < 0:
+        return "--radius must be >= 0"
     return None
 
 
@@ -85,6 +98,19 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--variant", default="auto", help="auto | llvm_ad_rgb | cuda_ad_rgb")
     v.add_argument("--seed", type=int, default=0, help="seed of the first render")
     v.set_defaults(run=run_volpath, check=_check_volpath)
+
+    f = commands.add_parser("filter", help="expression evaluations/s and s/generation of the GP search")
+    f.add_argument("--width", type=int, default=512, help="image width (default: the thesis's 512)")
+    f.add_argument("--height", type=int, default=512, help="image height (default 512)")
+    f.add_argument("--images", type=int, default=1, help="training images per evaluation (default 1)")
+    f.add_argument("--islands", type=int, default=4, help="islands (default: the thesis's 4)")
+    f.add_argument("--population", type=int, default=100, help="expressions per island (default 100)")
+    f.add_argument("--radius", type=int, default=10, help="filter radius, window (2r+1)^2 (default 10)")
+    f.add_argument("--sample", type=int, default=8, help="expressions timed; the rest extrapolated")
+    f.add_argument("--tree-batch", type=int, default=16, help="expressions per batched call (default 16)")
+    f.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
+    f.add_argument("--seed", type=int, default=0, help="seed of the population and the images")
+    f.set_defaults(run=run_filter, check=_check_filter)
     return parser
 
 

@@ -192,7 +192,7 @@ def _offset_values(plan: Plan, inputs: _Inputs, static: Mapping[str, torch.Tenso
         values[key] = _vector_value(node, inputs, dy, dx) if node.kind == "vector" else _apply(node, values)
         for k in pending.get(key, ()):
             yield k, values[key]
-        for child in node.children if node.kind != "vector" else ():
+        for child in dict.fromkeys(node.children) if node.kind != "vector" else ():  # x * x: once
             if plan.last_use.get(child) == i and child not in pending:
                 del values[child]
         if key not in pending and key not in plan.last_use:

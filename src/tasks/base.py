@@ -44,6 +44,10 @@ class Task:
         """Fit `cfg.model`; the summary holds at least `checkpoint`, `steps` and `train_time_s`."""
         raise NotImplementedError
 
+    def search(self, cfg: DictConfig, tracker) -> dict[str, Any]:
+        """Search for a method (only tasks listing the stage implement it: `task=filter_search`)."""
+        raise NotImplementedError
+
     def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
         """Score the model on the held-out data (`src/eval/loop.py::Evaluation` does the loop)."""
         raise NotImplementedError

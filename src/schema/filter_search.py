@@ -1,0 +1,76 @@
+"""Schema of `task:` for the filter-search task (conf/task/filter_search.yaml and its profiles)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from src.schema.denoise import DenoiseTaskSchema, Eval
+from src.schema.types import NonNegativeFloat, PositiveFloat, PositiveInt, Probability, Schema, own_error
+
+MutationKind = Literal["insert", "replace", "swap", "delete"]
+
+
+class SeedSigmas(Schema):
+    spatial: PositiveFloat
+    color: PositiveFloat
+    normal: PositiveFloat
+    albedo: PositiveFloat
+    depth: PositiveFloat
+
+
+class Search(Schema):
+    split: Literal["val", "test"]
+    max_images: PositiveInt | None
+    crop: PositiveInt | None
+    radius: int = Field(ge=0)
+    normalize: bool
+    seed_sigmas: SeedSigmas
+    islands: PositiveInt
+    population: PositiveInt
+    generations: int = Field(ge=0)
+    migration_interval: PositiveInt
+    migrants: PositiveInt
+    tournament_size: PositiveInt
+    replication: Probability
+    crossover: Probability
+    mutation: Probability
+    crossover_mutation: Probability
+    seed_copies: Probability
+    mutation_kinds: dict[MutationKind, NonNegativeFloat]
+    max_length: PositiveInt
+    fitness_eps: PositiveFloat
+    tree_batch: PositiveInt
+    seed: int = Field(ge=0)
+    resume: str | None
+    out_dir: str
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Search:
+        total = self.replication + self.crossover + self.mutation
+        if abs(total - 1.0) > 1e-6:
+            raise own_error(f"task.search: replication + crossover + mutation = {total:g}; expected 1")
+        if not sum(self.mutation_kinds.values()) > 0:
+            raise own_error("task.search.mutation_kinds: the weights sum to 0; expected a positive sum")
+        if self.migrants >= self.population:
+            raise own_error(
+                f"task.search.migrants={self.migrants}: expected fewer than task.search.population="
+                f"{self.population}"
+            )
+        return self
+
+
+class FilterSearchTaskSchema(DenoiseTaskSchema):
+    stages: list[Literal["render", "preprocess", "search", "eval", "report"]]
+    search: Search
+    eval: Eval
+
+    @model_validator(mode="after")
+    def _held_out(self) -> FilterSearchTaskSchema:
+        if self.search.split == self.eval.split:
+            raise own_error(
+                f"task.search.split={self.search.split!r} is task.eval.split: the search must not train on "
+                "the held-out images; expected different splits"
+            )
+        return self

@@ -1,0 +1,254 @@
+"""The filter-search task (`task=filter_search`): evolve filter weight expressions with genetic
+programming (Davletaliyev 2016, Ch. 3; `src.gp.search`) on the denoising dataset, then evaluate the best
+one as `model=gp_filter` with the denoise evaluation.
+
+    render, preprocess  the denoise task's (same settings, so the prepared data are shared)
+    search              the GP on the full images of `task.search.split`; per generation each island's best
+                        and mean fitness (and count of undefined expressions) go to MLflow, the best
+                        expression to the tag `search.best_expression`; writes under `task.search.out_dir`
+                        state.json (the checkpoint, after every generation), history.json and
+                        best_expressions.yaml (each island's best, as `model=gp_filter` settings)
+    eval                the best expression of best_expressions.yaml as a GPFilter on `task.eval.split`,
+                        through `src.eval.denoise_eval` (relMSE, PSNR, SSIM, time in the usual tables)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+from omegaconf import DictConfig, OmegaConf
+
+from src.errors import ConfigError, DataError
+from src.schema.filter_search import FilterSearchTaskSchema
+from src.tasks.denoise import DenoiseTask
+
+BEST_FILE = "best_expressions.yaml"
+STATE_FILE = "state.json"
+HISTORY_FILE = "history.json"
+
+
+def search_params(cfg: DictConfig):
+    """`task.search` as `src.gp.search.SearchParams`."""
+    from src.gp.search import SearchParams
+
+    s = OmegaConf.to_container(cfg.task.search, resolve=True)
+    keys = SearchParams.__dataclass_fields__
+    return SearchParams(**{k: s[k] for k in keys})
+
+
+def seed_expression(cfg: DictConfig) -> str:
+    """The cross-bilateral seed (Sec. 3.2.5) with `task.search.seed_sigmas`."""
+    from src.gp.published import bilateral_expression
+
+    s = cfg.task.search.seed_sigmas
+    return bilateral_expression(s.spatial, s.color, s.normal, s.albedo, s.depth)
+
+
+def _feature_builder(cfg: DictConfig, expression: str):
+    """A GPFilter whose `features` builds the terminals (its `needed` is set per use)."""
+    from src.data.features import input_features
+    from src.models.filters.gp_filter import GPFilter
+
+    search = cfg.task.search
+    return GPFilter(expression, int(search.radius), input_features(cfg), bool(search.normalize))
+
+
+def training_images(cfg: DictConfig) -> tuple[dict[str, torch.Tensor], list[dict[str, Any]]]:
+    """The search's images as one batch (N, C, H, W) per key, and each image's scene/spp."""
+    from src.data.denoise_dataset import FullImageDataset
+    from src.data.features import input_features
+
+    search = cfg.task.search
+    data = FullImageDataset(cfg.paths.prepared, str(search.split), features=input_features(cfg))
+    n = len(data) if search.max_images is None else min(len(data), int(search.max_images))
+    if n == 0:
+        raise DataError(f"{cfg.paths.prepared}/full/{search.split}: no images to search on")
+    items = [data[i] for i in range(n)]
+    shapes = {tuple(item["color"].shape) for item in items}
+    if len(shapes) > 1:
+        raise DataError(f"task.search.split={search.split}: images of different sizes {sorted(shapes)}")
+    keys = [k for k, v in items[0].items() if isinstance(v, torch.Tensor)]
+    batch = {k: torch.stack([item[k] for item in items]).float() for k in keys}
+    meta = [{"scene": item["scene"], "spp": int(item["spp"])} for item in items]
+    return batch, meta
+
+
+def _crop(x: torch.Tensor, size: int | None) -> torch.Tensor:
+    if size is None:
+        return x
+    h, w = x.shape[-2:]
+    ch, cw = min(size, h), min(size, w)
+    top, left = (h - ch) // 2, (w - cw) // 2
+    return x[..., top : top + ch, left : left + cw]
+
+
+def available_terminals(builder, batch: dict[str, torch.Tensor]) -> list[str]:
+    """The grammar's feature terminals the batch can give (`GPFilter.features` builds each or names what
+    is missing): the search grammar draws only these."""
+    from src.gp.grammar import VARIABLES, VECTORS
+
+    out = []
+    for name in (*VECTORS, *VARIABLES):
+        if name == "pixel":
+            continue
+        builder.needed = {name}
+        try:
+            builder.features(batch)
+        except ConfigError:
+            continue
+        out.append(name)
+    return out
+
+
+def build_fitness(cfg: DictConfig, device: torch.device):
+    """(fitness, available terminals, image meta) of the search's images on `device`."""
+    from src.gp.search import Fitness
+
+    search = cfg.task.search
+    batch, meta = training_images(cfg)
+    builder = _feature_builder(cfg, seed_expression(cfg))
+    available = available_terminals(builder, batch)
+    builder.needed = set(available)
+    features = {k: _crop(v, search.crop).to(device) for k, v in builder.features(batch).items()}
+    color = _crop(batch["color"], search.crop).to(device)
+    reference = _crop(batch["reference"], search.crop).to(device)
+    fitness = Fitness(
+        features, color, reference, int(search.radius), float(search.fitness_eps), int(search.tree_batch)
+    )
+    return fitness, available, meta
+
+
+def make_search(cfg: DictConfig, fitness, available: list[str]):
+    """The `GPSearch` of `task.search` over the available terminals."""
+    from src.gp.grammar import GRAMMAR_VECTORS
+    from src.gp.search import GPSearch, codebook, kernel_expressions, search_pset
+
+    pset = search_pset(available)
+    book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
+    return GPSearch(fitness, seed_expression(cfg), search_params(cfg), pset, book), pset
+
+
+def best_expressions(state, cfg: DictConfig) -> list[dict[str, Any]]:
+    """Each island's best, as `model=gp_filter` settings, best first."""
+    from src.gp.search import best_per_island
+    from src.gp.text import to_infix
+
+    search = cfg.task.search
+    rows = [
+        {
+            "island": k,
+            "fitness": float(ind.fitness.values[0]),
+            "model": {
+                "name": "gp_filter",
+                "expression": to_infix(ind),
+                "radius": int(search.radius),
+                "normalize": bool(search.normalize),
+            },
+        }
+        for k, ind in enumerate(best_per_island(state))
+    ]
+    return sorted(rows, key=lambda r: r["fitness"])
+
+
+class FilterSearchTask(DenoiseTask):
+    schema = FilterSearchTaskSchema
+
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        prepared, preprocessed = Path(cfg.paths.prepared), "stage=preprocess (or dvc repro)"
+        if stage == "search":
+            return {prepared / "full" / str(cfg.task.search.split) / "index.json": preprocessed}
+        if stage == "eval":
+            best = Path(cfg.task.search.out_dir) / BEST_FILE
+            test = prepared / "full" / str(cfg.task.eval.split) / "index.json"
+            return {test: preprocessed, best: "stage=search"}
+        return super().inputs(stage, cfg)
+
+    def search(self, cfg: DictConfig, tracker) -> dict[str, Any]:
+        """Run (or resume) the search; log it; write the checkpoint, history and best expressions."""
+        import time
+
+        from tqdm import tqdm
+
+        from src.gp.search import WORST, load_state
+        from src.io.atomic import atomic_write_json, atomic_write_text
+        from src.train.device import pick_device
+
+        search_cfg = cfg.task.search
+        out = Path(search_cfg.out_dir)
+        device = pick_device(cfg.device)
+        fitness, available, meta = build_fitness(cfg, device)
+        gp_search, pset = make_search(cfg, fitness, available)
+        params = gp_search.params
+        state = None
+        if search_cfg.resume is not None:
+            state = load_state(search_cfg.resume, params, pset)
+            tracker.skip_logged_after(state.generation)
+        h, w = fitness.color.shape[-2:]
+        print(
+            f"search: {params.islands} islands x {params.population}, {params.generations} generations on "
+            f"{len(meta)} {search_cfg.split} images of {w}x{h} (radius {search_cfg.radius}, {device}); "
+            f"features {', '.join(available)}"
+        )
+        done = state.generation if state else 0
+        bar = tqdm(total=params.generations, desc="search", unit="gen", initial=done)
+        start = time.perf_counter()
+
+        def on_generation(s) -> None:
+            stats = s.history[-1]
+            metrics: dict[str, float] = {"search_evaluations": stats["evaluations"]}
+            for k, island in enumerate(stats["islands"]):
+                metrics[f"search_best_island{k}"] = island["best"]
+                if island["mean"] < WORST:
+                    metrics[f"search_mean_island{k}"] = island["mean"]
+                metrics[f"search_invalid_island{k}"] = island["invalid"]
+            best = min(stats["islands"], key=lambda i: i["best"])
+            metrics["search_best"] = best["best"]
+            tracker.log_metrics(metrics, step=s.generation)
+            tracker.set_tags({"search.best_expression": best["best_expression"][:4000]})
+            if s.generation > 0:
+                bar.update(1)
+            bar.set_postfix(best=f"{best['best']:.4f}")
+
+        state = gp_search.run(state=state, checkpoint=out / STATE_FILE, on_generation=on_generation)
+        bar.close()
+        seconds = time.perf_counter() - start
+        rows = best_expressions(state, cfg)
+        header = (
+            "# Best expression of each island (Davletaliyev 2016, Sec. 3.2.6), best first; fitness = mean\n"
+            "# relMSE(filtered) / relMSE(noisy) (Eq. 3.5) on the search images. Use one as\n"
+            '#   python -m src.run task=denoise model=gp_filter model.expression="<expr>" model.radius=<r>\n'
+        )
+        atomic_write_text(out / BEST_FILE, header + yaml.safe_dump(rows, sort_keys=False, width=10_000))
+        atomic_write_json(out / HISTORY_FILE, state.history)
+        for name in (BEST_FILE, HISTORY_FILE):
+            tracker.log_artifact(out / name, "search")
+        summary = {
+            "best_fitness": rows[0]["fitness"],
+            "best_expression": rows[0]["model"]["expression"],
+            "generations": state.generation,
+            "evaluations": sum(h["evaluations"] for h in state.history),
+            "seconds": seconds,
+            "images": meta,
+            "features": available,
+        }
+        tracker.log_metrics({"search_seconds": seconds}, step=state.generation)
+        seed_fitness = state.history[0]["islands"][0]["best"]
+        print(
+            f"search: best fitness {rows[0]['fitness']:.4f} (generation 0: {seed_fitness:.4f}"
+            f") in {seconds:.1f} s -> {out / BEST_FILE}\n  {rows[0]['model']['expression']}"
+        )
+        return summary
+
+    def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
+        """The best expression of best_expressions.yaml as `model=gp_filter`, by the denoise evaluation."""
+        rows = yaml.safe_load((Path(cfg.task.search.out_dir) / BEST_FILE).read_text())
+        best = rows[0]["model"]
+        cfg = cfg.copy()
+        OmegaConf.update(cfg, "model.expression", best["expression"], merge=False)
+        OmegaConf.update(cfg, "model.radius", best["radius"], merge=False)
+        OmegaConf.update(cfg, "model.normalize", best["normalize"], merge=False)
+        tracker.set_tags({"search.evaluated_expression": best["expression"][:4000]})
+        return super().evaluate(cfg, tracker)
