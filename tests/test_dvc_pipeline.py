@@ -52,7 +52,10 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
 
     _dvc(repo, "repro")
     for task, names in (
-        ("denoise", ["kpcn", "dpcn", "resnet", "cross_bilateral", "oidn"]),
+        (
+            "denoise",
+            ["kpcn", "dpcn", "resnet", "cross_bilateral", "oidn", "gp_expr1", "gp_expr2", "gp_expr3"],
+        ),  # noqa: E501
         ("nerf", [f"{m}-{s}" for m in ("nerf", "mipnerf", "refnerf") for s in ("spheres", "busy")]),
     ):
         for name in names:
