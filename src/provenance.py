@@ -66,6 +66,9 @@ IGNORED_PARAMS = frozenset(
         "task.eval.out_dir",
         "task.eval.checkpoint",
         "task.train.resume",
+        "task.search.out_dir",  # task=filter_search: per job
+        "task.search.resume",
+        "task.search.seed",  # = ${seed}, which reports aggregate over
         "stage",
         "seed",
     }

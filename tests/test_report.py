@@ -247,6 +247,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     for stem in ("comparison", "cost", "comparison_per_spp", "losses"):
         assert {f"{stem}.md", f"{stem}.tex", f"{stem}.csv"} <= names
     assert {"learning_curves.png", "image_grid.png", "index.html"} <= names
+    assert not {"feature_usage.csv", "search_curves.png"} & names  # no filter search among the runs
     assert not [n for n in names if n.startswith(".")]  # no temporary files left
     for name in ("comparison.md", "comparison.tex", "comparison.csv", "cost.md", "index.html"):
         assert "task.train.lr" in (out / name).read_text(), name  # the warning is visible everywhere
@@ -374,3 +375,66 @@ def test_tables_by_writes_one_quality_table_per_value_with_the_chosen_columns(st
     with pytest.raises(ConfigError) as excinfo:
         build_report(_cfg(store, tmp_path, metrics=["PSNR", "psnr"]))
     one_line_error(excinfo, "report.metrics=['PSNR', 'psnr']", "'relMSE (Bako)'")
+
+
+# ------------------------------------------------------------------------------ task=filter_search
+
+GP_EXPERIMENT = "nrbench-filter_search"
+# (crossover, seed, best fitness per generation, best expression): two settings of the expansion study
+GP_RUNS = [
+    ("0.45", 0, [0.6, 0.4, 0.3], "exp(-(distance2(normal, normal) + distance1(depth, depth)))"),
+    (
+        "0.45",
+        1,
+        [0.6, 0.5, 0.35],
+        "exp(-distance2(normal, normal)) * biweight(dot(texture, texture) * nVariance)",
+    ),  # noqa: E501
+    ("0.9", 0, [0.6, 0.6, 0.55], "exp(-(distance2(pixel, pixel) / 50.0 + distanceMax(color, color)))"),
+]
+
+
+@pytest.fixture(scope="module")
+def gp_runs(store):
+    """Three finished filter_search runs in the module's store (an experiment of their own): the logged
+    per-generation `search_best`, the tag `search.best_expression`, held-out metrics."""
+    client = MlflowClient()
+    experiment_id = client.create_experiment(
+        GP_EXPERIMENT, artifact_location=(store["tmp"] / "mlartifacts-gp").as_uri()
+    )
+    for crossover, seed, history, expression in GP_RUNS:
+        tags = {"nrbench.task": "filter_search", "search.best_expression": expression}
+        run_id = client.create_run(experiment_id, tags=tags).info.run_id
+        mutation = f"{1 - 0.1 - float(crossover):.2g}" if crossover == "0.45" else "0.09"
+        params = {"model.name": "gp_filter", "seed": str(seed), "task.search.replication": "0.1",
+                  "task.search.crossover": crossover, "task.search.mutation": mutation}  # fmt: skip
+        metrics = [Metric("search_best", v, 0, step) for step, v in enumerate(history)]
+        metrics += [Metric("eval_psnr", 30.0 - history[-1], 0, 0), Metric("eval_relmse_ratio", 0.5, 0, 0)]
+        client.log_batch(run_id, params=[Param(k, v) for k, v in params.items()], metrics=metrics)
+        client.set_terminated(run_id, "FINISHED")
+    return store
+
+
+def test_filter_search_runs_report_fitness_search_curves_and_feature_usage(gp_runs, tmp_path):
+    """The GP studies' report (Davletaliyev 2016, Table 4.2, Figures 4.6 and 4.8): best fitness (the last
+    `search_best`) per setting, the curves of `search_best` per generation, and how often each feature
+    occurs in the runs' best expressions (`pixel` and constants are no features)."""
+    axes = ["task.search.replication", "task.search.crossover", "task.search.mutation"]
+    cfg = _cfg(gp_runs, tmp_path, name="gp", experiment=GP_EXPERIMENT, axes=axes,
+               metrics=["best fitness", "relMSE / noisy", "PSNR"])  # fmt: skip
+    summary = build_report(cfg)
+    out = tmp_path / "gp"
+    table = pd.read_csv(out / "comparison.csv", comment="#", index_col=0)
+    table = table.set_index("task.search.crossover")
+    assert table.loc[0.45, "best fitness"] == pytest.approx((0.3 + 0.35) / 2)
+    assert table.loc[0.9, "best fitness"] == pytest.approx(0.55) and table.loc[0.9, "runs"] == 1
+    assert not summary["warnings"]
+    usage = pd.read_csv(out / "feature_usage.csv", comment="#", index_col=0)
+    # most frequent first, ties by name
+    assert list(usage.index) == ["normal", "color", "depth", "texture", "nVariance"]
+    assert usage.loc["normal", "occurrences"] == 4 and usage.loc["normal", "runs"] == 2
+    assert usage.loc["nVariance", "occurrences"] == 1 and usage.loc["color", "runs"] == 1
+    assert "pixel" not in usage.index and usage["share"].sum() == pytest.approx(1.0)
+    assert {"feature_usage.md", "feature_usage.tex", "search_curves.png"} <= set(summary["files"])
+    page = (out / "index.html").read_text()
+    assert "Features of the best expressions" in page and "best fitness per generation" in page
+    assert len(_embedded_pngs(page)) == 1  # the search curves; no loss curves, no images

@@ -6,7 +6,9 @@ selects, written to `<report.out_dir>/<report.name>/`:
     comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
     cost.{md,tex,csv}                 parameters, training time, iterations, inference time
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
+    feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
     learning_curves.png, image_grid.png, index.html (self-contained)
+    search_curves.png                 task=filter_search: best fitness per generation, one curve per run
 
 Every file is written atomically. When no run matches, `DataError` names the filter that matched
 nothing and no file is written.
@@ -25,13 +27,14 @@ import mlflow
 from src.io.atomic import atomic_write_text
 from src.multirun import quiet_mlflow_logs
 from src.report.collect import DEFAULT_AXES, config_value, differing_params, find_runs, param_column
-from src.report.figures import DEFAULT_CROP, image_grid, learning_curves, run_labels
+from src.report.figures import DEFAULT_CROP, image_grid, learning_curves, run_labels, search_curves
 from src.report.html import render_html
 from src.report.tables import (
     axis_label,
     comparison_table,
     config_values,
     cost_table,
+    feature_usage_table,
     loss_table,
     per_value_table,
     select_metrics,
@@ -48,7 +51,9 @@ TABLE_HEADINGS = {
     "comparison_per_spp": "Quality per spp",
     "cost": "Cost",
     "losses": "Final losses (validation, then training)",
+    "feature_usage": "Features of the best expressions (occurrences)",
 }
+SEARCH_HEADING = "Filter search: best fitness per generation"
 _STEM_UNSAFE = re.compile(r"[^\w.-]")  # characters a per-value table's file name replaces by "_"
 GRID_HEADING = "Test images (noisy | denoised | reference)"
 
@@ -102,11 +107,16 @@ def build_report(cfg: Any) -> dict[str, Any]:
     name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
     out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name
     files = _write_tables(tables, out_dir, warnings)
+    if (usage := feature_usage_table(runs)) is not None:  # no confounding notes: it compares no rows
+        tables["feature_usage"] = usage
+        files |= _write_tables({"feature_usage": usage}, out_dir, [])
     curves, grid = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
-    for path in (curves, grid):
+    search = search_curves(runs, out_dir / "search_curves.png", axes)
+    for path in (curves, search, grid):
         if path is not None:
             files[path.name] = path
-    page = _page(name, runs, axes, tables, {"Learning curves": curves, GRID_HEADING: grid}, warnings)
+    figures = {"Learning curves": curves, SEARCH_HEADING: search, GRID_HEADING: grid}
+    page = _page(name, runs, axes, tables, figures, warnings)
     files["index.html"] = atomic_write_text(out_dir / "index.html", page)
     return {
         "runs": len(runs),

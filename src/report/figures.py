@@ -1,7 +1,8 @@
-"""Report figures from MLflow runs: learning curves (metric histories) and an image comparison grid
-(the tone-mapped `eval/png/*.png` artifacts each evaluated run logs).
+"""Report figures from MLflow runs: learning curves (metric histories), the filter search's best fitness per
+generation (`search_curves`), and an image comparison grid (the tone-mapped `eval/png/*.png` artifacts each
+evaluated run logs).
 
-Both return the written PNG's path, or None (with a log line) when the runs lack what they need, so a
+Each returns the written PNG's path, or None (with a log line) when the runs lack what they need, so a
 report over baseline-only runs (no training curves) or runs without images still completes.
 """
 
@@ -141,6 +142,37 @@ def learning_curves(
         handles, names = panels[0][0].get_legend_handles_labels()
     fig.legend(handles, names, loc="lower center", ncol=min(len(names), 4), fontsize="small", frameon=False)
     fig.tight_layout(rect=(0, 0.08 + 0.03 * (len(names) // 4), 1, 1))
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return out_png
+
+
+SEARCH_METRIC = "search_best"
+
+
+def search_curves(runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] | None = None) -> Path | None:
+    """The best fitness (`search_best`: relMSE(filtered) / relMSE(noisy), Davletaliyev 2016, Eq. 3.5) of
+    each task=filter_search run against the generation, one curve per run (Davletaliyev 2016, Figure 4.6:
+    relMSE against the number of iterations). None when no run logged `search_best`."""
+    if f"metrics.{SEARCH_METRIC}" not in runs or runs[f"metrics.{SEARCH_METRIC}"].isna().all():
+        log.info("report: no run logged %s; no search curves", SEARCH_METRIC)
+        return None
+    client = MlflowClient()
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    for label, run_id in zip(run_labels(runs, axes), runs["run_id"], strict=True):
+        steps, values = _history(client, run_id, SEARCH_METRIC)
+        if steps:
+            ax.plot(steps, values, marker="." if len(steps) < 30 else None, label=label)
+    if not ax.lines:
+        plt.close(fig)
+        return None
+    ax.set_xlabel("generation")
+    ax.set_ylabel("best fitness: relMSE(filtered) / relMSE(noisy)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small", ncol=1 + len(ax.lines) // 12, frameon=False)
+    fig.tight_layout()
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, format="png", dpi=110)

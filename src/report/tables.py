@@ -9,14 +9,18 @@ higher_is_better None means "no best value" (e.g. iteration counts).
 
 from __future__ import annotations
 
+import logging
 import math
 import re
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 
 import pandas as pd
 
 from src.errors import ConfigError
 from src.report.collect import DEFAULT_AXES, param_column
+
+log = logging.getLogger("nrbench.report")
 
 #: label -> (MLflow metric key, higher is better, format)
 MetricSpec = tuple[str, bool | None, str]
@@ -29,6 +33,9 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     "relMSE (Eq. 3.5)": ("eval_relmse_spp", False, "{:.4g}"),  # GP thesis: RGB sum x spp/2 (denoising)
     "relMSE / noisy": ("eval_relmse_ratio", False, "{:.4g}"),  # the GP thesis's fitness term
     "FLIP": ("eval_flip", False, "{:.4f}"),
+    # task=filter_search: the search's best fitness, mean relMSE(filtered) / relMSE(noisy) on the search
+    # images (Davletaliyev 2016, Eq. 3.5); `search_best` is logged per generation, MLflow keeps the last.
+    "best fitness": ("search_best", False, "{:.4g}"),
 }
 COST_METRICS: dict[str, MetricSpec] = {
     "params": ("param_count", False, "{:,.0f}"),
@@ -187,6 +194,60 @@ def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.Data
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training time, iterations and inference time (per image and per megapixel)."""
     return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
+
+
+BEST_EXPRESSION_TAG = "tags.search.best_expression"
+FEATURE_USAGE_METRICS: dict[str, MetricSpec] = {
+    "occurrences": ("", None, "{:,.0f}"),
+    "share": ("", None, "{:.3f}"),
+}
+
+
+def feature_counts(expression: str) -> Counter[str]:
+    """How often each feature terminal (a vector terminal but `pixel`, or a scalar variable) occurs in an
+    expression, as tree nodes: `distance2(depth, depth)` counts depth twice."""
+    from deap import gp
+
+    from src.gp.grammar import VARIABLES, VECTORS
+    from src.gp.text import parse
+
+    features = (set(VECTORS) - {"pixel"}) | set(VARIABLES)
+    nodes = parse(expression)
+    return Counter(str(n.value) for n in nodes if isinstance(n, gp.Terminal) and n.value in features)
+
+
+def feature_usage_table(runs: pd.DataFrame) -> pd.DataFrame | None:
+    """Feature terminals of the runs' best expressions (tag `search.best_expression`, task=filter_search):
+    per feature its `occurrences` (nodes, summed over the runs), their `share` of all feature occurrences,
+    and `runs` (how many best expressions read it); most frequent first (Davletaliyev 2016, Figure 4.8:
+    "frequencies of occurrences of different features"). None when no run has a parsable expression."""
+    if BEST_EXPRESSION_TAG not in runs:
+        return None
+    total: Counter[str] = Counter()
+    used: Counter[str] = Counter()
+    for expression in runs[BEST_EXPRESSION_TAG].dropna():
+        try:
+            counts = feature_counts(str(expression))
+        except Exception as err:  # e.g. a tag cut at its 4000 characters: that run is left out, logged
+            log.warning("report: cannot parse a best expression (%s); left out of feature_usage", err)
+            continue
+        total.update(counts)
+        used.update(counts.keys())
+    if not total:
+        return None
+    order = sorted(total, key=lambda f: (-total[f], f))
+    all_occurrences = sum(total.values())
+    table = pd.DataFrame(
+        {
+            "occurrences": [float(total[f]) for f in order],
+            "share": [total[f] / all_occurrences for f in order],
+            RUNS_COLUMN: [used[f] for f in order],
+        },
+        index=pd.Index(order, name="feature"),
+    )
+    table.attrs["metrics"] = dict(FEATURE_USAGE_METRICS)
+    table.attrs["axes"] = ["feature"]
+    return table
 
 
 # ------------------------------------------------------------------------------------------ cells
