@@ -12,6 +12,16 @@ OmegaConf.register_new_resolver(
     "nrbench.join", lambda *lists: ",".join(str(item) for items in lists for item in items), replace=True
 )
 
+
+def _scale(value, *factors) -> str:
+    """`${nrbench.scale:${task.search.population},0.5,1,2,4}` -> "2,4,8,16" at population 4: a sweep's
+    values as multiples of the profile's value (integers, at least 1), so one study fits every profile."""
+    return ",".join(str(max(1, round(float(value) * float(f)))) for f in factors)
+
+
+# `${nrbench.scale:<value>,<factor>,...}`: see `_scale`.
+OmegaConf.register_new_resolver("nrbench.scale", _scale, replace=True)
+
 # `in_channels: ${nrbench.channels:${task.features}}`: a denoiser's input channel count, derived from the
 # configured feature list (src/data/features.py) instead of typed by hand.
 OmegaConf.register_new_resolver("nrbench.channels", _feature_count, replace=True)

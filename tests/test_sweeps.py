@@ -25,7 +25,16 @@ from src.errors import ConfigError
 from src.train.checkpoint import load_checkpoint
 from tests.conftest import CONF_DIR, ROOT, one_line_error, smoke_config
 
-STUDIES = {"denoisers", "shared_vs_separate", "whitening", "nerf_variants", "nerf_thesis", "lr_search"}
+STUDIES = {
+    "denoisers",
+    "shared_vs_separate",
+    "whitening",
+    "nerf_variants",
+    "nerf_thesis",
+    "lr_search",
+    "gp_expansion",
+    "gp_population",
+}
 GROUPS = {"model", "task", "dataset"}
 
 
@@ -111,6 +120,37 @@ def test_lr_search_uses_the_optuna_sweeper_on_a_validation_loss():
     distributions, fixed = search_space([f"{k}={v}" for k, v in sweeper.params.items()])
     assert set(distributions) == {"task.train.lr", "task.train.batch_size"} and fixed == []
     assert distributions["task.train.lr"].log
+
+
+# Davletaliyev 2016, Table 4.2: (replication, crossover, mutation) -> the best expression's relMSE.
+TABLE_4_2 = {(0.10, 0.15, 0.75): 0.98257, (0.10, 0.45, 0.45): 0.377417, (0.33, 0.33, 0.34): 0.70105,
+             (0.01, 0.90, 0.09): 1.16676}  # fmt: skip
+EXPANSION = ("replication", "crossover", "mutation")
+
+
+def test_the_gp_expansion_sweep_is_table_4_2_s_four_settings():
+    """Four settings (not the product of the three keys), each a valid job whose task.search has them."""
+    cfg = compose_sweep("gp_expansion")
+    assert cfg.task.name == "filter_search" and cfg.model.name == "gp_filter"
+    override = swept(cfg)["task.search"]
+    settings = [tuple(float(d[k]) for k in EXPANSION) for d in override.sweep_iterator()]
+    assert settings == list(TABLE_4_2) and all(sum(s) == pytest.approx(1.0) for s in settings)
+    # a job's setting is merged into task.search (the other search keys stay the profile's)
+    job = compose_sweep("gp_expansion", [f"task.search={next(override.sweep_string_iterator())}"])
+    assert tuple(job.task.search[k] for k in EXPANSION) == settings[0]
+    assert job.task.search.islands == cfg.task.search.islands
+    assert list(cfg.report.axes) == [f"task.search.{k}" for k in EXPANSION]
+    assert list(cfg.report.metrics)[0] == "best fitness" and "PSNR" in cfg.report.metrics
+
+
+@pytest.mark.parametrize(("profile", "population"), [("smoke", 4), ("cpu", 16), ("paper", 100)])
+def test_the_gp_population_sweep_scales_with_the_profile(profile, population):
+    """Figure 4.7's axis at 1/2, 1, 2 and 4 times the profile's population per island."""
+    cfg = compose_sweep("gp_population", [f"profile={profile}"])
+    values = [int(v) for v in swept(cfg)["task.search.population"].sweep_string_iterator()]
+    assert cfg.task.search.population == population
+    assert values == [population // 2, population, 2 * population, 4 * population]
+    assert list(cfg.report.axes) == ["task.search.population"]
 
 
 @pytest.mark.parametrize(
@@ -323,6 +363,7 @@ def test_the_compared_models_live_in_one_place():
     def items(kind):
         return {s.split("@", 1)[1] for s in stages if s.startswith(f"{kind}@")}
 
+    assert items("denoise_config") == set(learned + baselines)  # dvc.yaml's foreach lists them by name
     assert items("denoise_train") == items("denoise_eval") == set(learned)
     assert items("denoise_baseline") == set(baselines)
     assert items("nerf_train") == {f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes}
@@ -353,3 +394,22 @@ def test_the_nerf_thesis_sweep_writes_the_thesis_tables(tmp_path, mitsuba_varian
     assert (
         (cost["iterations"] == 30).all() and (cost["params"] > 0).all() and (cost["train time (s)"] > 0).all()
     )
+
+
+@pytest.mark.slow
+def test_the_gp_expansion_sweep_reports_each_setting(smoke_data, tmp_path):
+    """`+sweep=gp_expansion` at the smoke profile, two seeds: one row per Table 4.2 setting with the best
+    fitness and the held-out relMSE / PSNR (no confounding warning: the per-job search dir and the
+    search seed do not count), the search curves and the feature usage of the best expressions."""
+    sweep(["+sweep=gp_expansion", "seed=0,1"], smoke_data, tmp_path)
+    out = tmp_path / "reports" / "sweeps" / "gp_expansion"
+    rows = read_csv(out / "comparison.csv")
+    assert {tuple(float(r[f"task.search.{k}"]) for k in EXPANSION) for r in rows} == set(TABLE_4_2)
+    for r in rows:
+        assert float(r["best fitness"]) > 0 and float(r["PSNR"]) > 0 and float(r["relMSE / noisy"]) > 0, r
+        assert r["runs"] == "2"
+    assert "Warning" not in (out / "comparison.md").read_text()
+    usage = read_csv(out / "feature_usage.csv")
+    assert usage and all(int(u["runs"]) >= 1 and float(u["occurrences"]) >= 1 for u in usage)
+    assert (out / "search_curves.png").is_file() and (out / "feature_usage.md").is_file()
+    assert "best fitness per generation" in (out / "index.html").read_text()
