@@ -22,6 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mlflow  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 from PIL import Image  # noqa: E402
 
@@ -153,25 +154,30 @@ SEARCH_METRIC = "search_best"
 
 
 def search_curves(runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] | None = None) -> Path | None:
-    """The best fitness (`search_best`: relMSE(filtered) / relMSE(noisy), Davletaliyev 2016, Eq. 3.5) of
-    each task=filter_search run against the generation, one curve per run (Davletaliyev 2016, Figure 4.6:
-    relMSE against the number of iterations). None when no run logged `search_best`."""
+    """The fitness (relMSE(filtered) / relMSE(noisy), Davletaliyev 2016, Eq. 3.5) of each task=filter_search
+    run against the generation, one colour per run: solid the minimum so far (the thesis's measure in its
+    Figure 4.6, relMSE against the number of iterations, Sec. 4.2), faint the generation's best
+    (`search_best`, which may rise again). None when no run logged `search_best`."""
     if f"metrics.{SEARCH_METRIC}" not in runs or runs[f"metrics.{SEARCH_METRIC}"].isna().all():
         log.info("report: no run logged %s; no search curves", SEARCH_METRIC)
         return None
     client = MlflowClient()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    for label, run_id in zip(run_labels(runs, axes), runs["run_id"], strict=True):
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (label, run_id) in enumerate(zip(run_labels(runs, axes), runs["run_id"], strict=True)):
         steps, values = _history(client, run_id, SEARCH_METRIC)
         if steps:
-            ax.plot(steps, values, marker="." if len(steps) < 30 else None, label=label)
-    if not ax.lines:
+            color, marker = colors[i % len(colors)], "." if len(steps) < 30 else None
+            ax.plot(steps, np.minimum.accumulate(values), color=color, marker=marker, label=label)
+            ax.plot(steps, values, color=color, alpha=0.3)
+    if not ax.get_legend_handles_labels()[0]:
         plt.close(fig)
         return None
     ax.set_xlabel("generation")
-    ax.set_ylabel("best fitness: relMSE(filtered) / relMSE(noisy)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_ylabel("relMSE(filtered) / relMSE(noisy)\n(solid: minimum so far, faint: generation's best)")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small", ncol=1 + len(ax.lines) // 12, frameon=False)
+    ax.legend(fontsize="small", ncol=1 + len(ax.lines) // 24, frameon=False)
     fig.tight_layout()
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:

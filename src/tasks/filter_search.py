@@ -206,6 +206,9 @@ class FilterSearchTask(DenoiseTask):
                 metrics[f"search_invalid_island{k}"] = island["invalid"]
             best = min(stats["islands"], key=lambda i: i["best"])
             metrics["search_best"] = best["best"]
+            # The thesis's Figures 4.6-4.7 measure: the minimum over every expression so far (Sec. 4.2);
+            # search_best can rise again when a generation loses its best (little replication).
+            metrics["search_best_so_far"] = min(i["best"] for h in s.history for i in h["islands"])
             tracker.log_metrics(metrics, step=s.generation)
             tracker.set_tags({"search.best_expression": best["best_expression"][:4000]})
             if s.generation > 0:
