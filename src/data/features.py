@@ -94,16 +94,20 @@ PAPER_CHANNELS = feature_channels(PAPER_FEATURES)
 assert len(CANDIDATE_CHANNELS) == 38 and len(PAPER_CHANNELS) == 28
 
 
-def channel_indices(selected: Sequence[str], stored: Sequence[str], where: str) -> list[int]:
+def channel_indices(
+    selected: Sequence[str],
+    stored: Sequence[str],
+    where: str,
+    key: str = FEATURES_KEY,
+    rerun: str = "run stage=preprocess again to store every candidate feature",
+) -> list[int]:
     """Positions of the `selected` channel names in `stored` (what a prepared folder holds); a one-line
-    error naming `where` if the data lack one (prepared by an older version: preprocess again)."""
+    error naming `where` and the config `key` if the data lack one (prepared by an older version: the
+    `rerun` advice)."""
     position = {name: i for i, name in enumerate(stored)}
     missing = [name for name in selected if name not in position]
     if missing:
-        raise DataError(
-            f"{where}: no channel {missing[0]!r} for {FEATURES_KEY} ({len(missing)} missing); "
-            "run stage=preprocess again to store every candidate feature"
-        )
+        raise DataError(f"{where}: no channel {missing[0]!r} for {key} ({len(missing)} missing); {rerun}")
     return [position[name] for name in selected]
 
 

@@ -35,7 +35,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 
-from src.errors import ConfigError, DataError
+from src.data.features import channel_indices
+from src.errors import ConfigError
 from src.render.volume_aovs import CHANNEL_COUNT
 
 #: Where the setting lives, for error messages.
@@ -139,11 +140,5 @@ assert len(VOLUME_CANDIDATE_CHANNELS) == 62
 def volume_channel_indices(selected: Sequence[str], stored: Sequence[str], where: str) -> list[int]:
     """Positions of the `selected` channel names in `stored`; a one-line DataError naming `where` if the
     prepared data lack one (prepared by an older version: preprocess again)."""
-    position = {name: i for i, name in enumerate(stored)}
-    missing = [name for name in selected if name not in position]
-    if missing:
-        raise DataError(
-            f"{where}: no channel {missing[0]!r} for {VOLUME_FEATURES_KEY} ({len(missing)} missing); "
-            "run stage=preprocess dataset=volumetric again to store every candidate"
-        )
-    return [position[name] for name in selected]
+    rerun = "run stage=preprocess dataset=volumetric again to store every candidate"
+    return channel_indices(selected, stored, where, VOLUME_FEATURES_KEY, rerun)
