@@ -257,14 +257,19 @@ BASE_SCENES: dict[str, Callable[[np.random.Generator, Mapping, Mapping], dict]] 
 }
 
 
-def build_procedural_scene(base: str, seed: int, ds: Mapping) -> dict:
-    """The scene dict of base scene ``base`` permuted by ``seed`` (same seed, same scene), from the
-    dataset config ``ds``: its ``randomize`` ranges and its ``base_scenes.<base>`` constants."""
-    if base not in BASE_SCENES:
-        raise ConfigError(
-            f"dataset.bases: unknown base scene '{base}'; expected one of {sorted(BASE_SCENES)}"
-        )
+def base_constants(base: str, ds: Mapping, known: Mapping) -> Mapping:
+    """``dataset.base_scenes.<base>`` of a base scene among ``known`` (a family's builders); a one-line
+    ConfigError for an unknown base or missing constants."""
+    if base not in known:
+        raise ConfigError(f"dataset.bases: unknown base scene '{base}'; expected one of {sorted(known)}")
     constants = (ds.get("base_scenes") or {}).get(base)
     if constants is None:
         raise ConfigError(f"dataset.base_scenes.{base} is missing; base scene '{base}' needs its constants")
+    return constants
+
+
+def build_procedural_scene(base: str, seed: int, ds: Mapping) -> dict:
+    """The scene dict of base scene ``base`` permuted by ``seed`` (same seed, same scene), from the
+    dataset config ``ds``: its ``randomize`` ranges and its ``base_scenes.<base>`` constants."""
+    constants = base_constants(base, ds, BASE_SCENES)
     return BASE_SCENES[base](np.random.default_rng(seed), ds["randomize"], constants)

@@ -39,7 +39,16 @@ import numpy as np
 
 from src.errors import ConfigError
 from src.render import volume_grids as vg
-from src.render.scenes import WORLD_UP, _color, _ground, _objects, _uniform, sky_envmap, tabletop
+from src.render.scenes import (
+    WORLD_UP,
+    _color,
+    _ground,
+    _objects,
+    _uniform,
+    base_constants,
+    sky_envmap,
+    tabletop,
+)
 
 #: Id of the scene-wide medium that the sensor and the surfaces of fog, smoke and haze scenes refer to.
 ATMOSPHERE = "atmosphere"
@@ -280,39 +289,34 @@ def plume_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res:
     return _medium_dict(density, _albedo(p, draw, feature, frame), box, draw)
 
 
+def _drifting_fbm(draw, med: Mapping, grid_res: int, frame: float):
+    """(box, voxel centres, fBm at frame ``frame``) of a thin medium's modulation over ``med.box``: the
+    noise domain drifts with the wind and evolves in time (fog and haze share it)."""
+    box = _box(med["box"])
+    p = vg.voxel_centres(box, vg.grid_shape(box, grid_res))
+    points = _noise_points(p, draw, float(med["feature_size"]), frame)
+    noise = vg.fbm(points, draw.lattices, float(med["persistence"]), time=draw.evolve * frame)
+    return box, p, noise
+
+
 def fog_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res: int, frame: float) -> dict:
     """Height fog over ``med.box``: exp(-h / H) above the box's floor (H from ``med.scale_height``),
     modulated by drifting fBm (``med.modulation``)."""
     draw = _draw_medium(rng, rnd, med)
     scale_height = _uniform(rng, med["scale_height"])
     modulation = _uniform(rng, med["modulation"])
-    box = _box(med["box"])
-    p = vg.voxel_centres(box, vg.grid_shape(box, grid_res))
-    feature = float(med["feature_size"])
-    noise = vg.fbm(
-        _noise_points(p, draw, feature, frame),
-        draw.lattices,
-        float(med["persistence"]),
-        time=draw.evolve * frame,
-    )
+    box, p, noise = _drifting_fbm(draw, med, grid_res, frame)
     density = vg.height_fog_density(p[..., 1] - box.lower[1], scale_height, noise, modulation)
-    return _medium_dict(density, _albedo(p, draw, feature, frame), box, draw)
+    return _medium_dict(density, _albedo(p, draw, float(med["feature_size"]), frame), box, draw)
 
 
 def haze_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res: int, frame: float) -> dict:
     """Thin, nearly uniform haze over ``med.box`` (fBm ``med.modulation``) for the sun's shafts."""
     draw = _draw_medium(rng, rnd, med)
     modulation = _uniform(rng, med["modulation"])
-    box = _box(med["box"])
-    p = vg.voxel_centres(box, vg.grid_shape(box, grid_res))
-    feature = float(med["feature_size"])
-    noise = vg.fbm(
-        _noise_points(p, draw, feature, frame),
-        draw.lattices,
-        float(med["persistence"]),
-        time=draw.evolve * frame,
-    )
-    return _medium_dict(vg.haze_density(noise, modulation), _albedo(p, draw, feature, frame), box, draw)
+    box, p, noise = _drifting_fbm(draw, med, grid_res, frame)
+    albedo = _albedo(p, draw, float(med["feature_size"]), frame)
+    return _medium_dict(vg.haze_density(noise, modulation), albedo, box, draw)
 
 
 # --- lights and surfaces -----------------------------------------------------------------------------------
@@ -436,14 +440,7 @@ BASE_SCENES: dict[str, tuple[Callable, Callable]] = {
 
 
 def _constants(base: str, ds: Mapping) -> Mapping:
-    if base not in BASE_SCENES:
-        raise ConfigError(
-            f"dataset.bases: unknown base scene '{base}'; expected one of {sorted(BASE_SCENES)}"
-        )
-    constants = (ds.get("base_scenes") or {}).get(base)
-    if constants is None:
-        raise ConfigError(f"dataset.base_scenes.{base} is missing; base scene '{base}' needs its constants")
-    return constants
+    return base_constants(base, ds, BASE_SCENES)
 
 
 def _check_frame(frame: float, ds: Mapping) -> None:
