@@ -138,6 +138,16 @@ def volume_channel_names() -> list[str]:
     return names
 
 
+def _split_contribution(contrib, first_is_volume, single, surface, volume_single, volume_multi):
+    """Add one radiance contribution to the buffer its path belongs to (module docstring): surface
+    unless the first vertex is a medium collision, then single- or multiple-scatter volume."""
+    return (
+        surface + dr.select(first_is_volume, 0.0, contrib),
+        volume_single + dr.select(single, contrib, 0.0),
+        volume_multi + dr.select(first_is_volume & ~single, contrib, 0.0),
+    )
+
+
 def _mis_weight(pdf_a, pdf_b):
     """Power heuristic, 0 where it is not finite (as Mitsuba's ``mis_weight``)."""
     a2 = dr.square(pdf_a)
@@ -482,9 +492,9 @@ class VolumetricAovIntegrator(mi.SamplingIntegrator):
             contrib = dr.maximum(dr.select(active_e, throughput * mis * emitted, 0.0), 0.0)
             if dr.hint(features, mode="scalar"):
                 single = first_is_volume & (depth == 1)
-                L_surface += dr.select(first_is_volume, 0.0, contrib)
-                L_single += dr.select(single, contrib, 0.0)
-                L_multi += dr.select(first_is_volume & ~single, contrib, 0.0)
+                L_surface, L_single, L_multi = _split_contribution(
+                    contrib, first_is_volume, single, L_surface, L_single, L_multi
+                )
             else:
                 L_surface += contrib
 
@@ -517,9 +527,9 @@ class VolumetricAovIntegrator(mi.SamplingIntegrator):
                 # Vertices of this path: the collision is counted in depth, the surface not yet.
                 vertices = dr.select(active_e_medium, depth, depth + 1)
                 single = first_is_volume & (vertices == 1)
-                L_surface += dr.select(first_is_volume, 0.0, contrib)
-                L_single += dr.select(single, contrib, 0.0)
-                L_multi += dr.select(first_is_volume & ~single, contrib, 0.0)
+                L_surface, L_single, L_multi = _split_contribution(
+                    contrib, first_is_volume, single, L_surface, L_single, L_multi
+                )
             else:
                 L_surface += contrib
 
