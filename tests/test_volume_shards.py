@@ -165,6 +165,12 @@ def test_log_modulus_on_radiance_and_targets_invert_to_the_reference(prepared):
     torch.testing.assert_close(inverse_log_modulus(seq["color_t"]), chw(color))
     torch.testing.assert_close(seq["motion"], chw(np.stack([n["motion"] for n in noisy])))
     assert seq["motion"].min() < 0  # signed, untransformed
+    # The frame-batch guides and parts come whatever the selection (here: no albedo, no surface).
+    torch.testing.assert_close(seq["albedo"], chw(np.stack([n["albedo"] for n in noisy])))
+    torch.testing.assert_close(
+        inverse_log_modulus(seq["surface_t"]), chw(np.stack([n["surface"] for n in noisy]))
+    )
+    assert seq["depth"].shape[1] == 1 and seq["normal"].shape[1] == 3
     surface = chw(np.stack([r["surface"] for r in ref]))
     torch.testing.assert_close(inverse_volume_transform(seq["target_surface"], "log_modulus"), surface)
 

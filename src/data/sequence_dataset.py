@@ -8,8 +8,9 @@
 Items are dicts of float32 tensors, frames first then channels: (k, C, P, P) for samples, (F, C, H, W)
 for sequences, under `SEQUENCE_KEYS`, where `inputs` holds only the channels of `features`
 (`task.volume_features`; None: all 62 candidates), selected by name; plus `color_t` (the transformed
-noisy colour, what a KPCN's kernels filter) and `motion` (flow in pixels to the next frame), taken from
-the stored candidates whatever the selection. `inverse_volume_transform(x, dataset.volume_transform)`
+noisy colour, what a KPCN's kernels filter), `surface_t` / `volume_t`, the guides `albedo`, `normal`,
+`depth` and `motion` (flow in pixels to the next frame), taken from the stored candidates whatever the
+selection (the frame-batch keys of `src.models.denoise.base`). `inverse_volume_transform(x, dataset.volume_transform)`
 maps `target` / `color_t` / a network's output back to linear radiance.
 """
 
@@ -31,7 +32,15 @@ from src.data.volume_features import Features, volume_channel_indices, volume_fe
 from src.data.volume_shards import SEQUENCE_KEYS
 
 Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
-_ALWAYS = {"color_t": ("color_r", "color_g", "color_b"), "motion": ("motion_x", "motion_y")}
+#: Tensors taken from the stored candidates whatever `features` selects (the frame-batch keys of
+#: `src.models.denoise.base`): what kernels filter, what filters are guided by, the flow.
+_ALWAYS = {
+    **{f"{b}_t": (f"{b}_r", f"{b}_g", f"{b}_b") for b in ("color", "surface", "volume")},
+    "albedo": ("albedo_r", "albedo_g", "albedo_b"),
+    "normal": ("normal_x", "normal_y", "normal_z"),
+    "depth": ("depth",),
+    "motion": ("motion_x", "motion_y"),
+}
 
 
 class _Selection:

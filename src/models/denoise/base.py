@@ -13,6 +13,20 @@ A batch is a dict of float32 (N, C, H, W) tensors, as `src.data.denoise_dataset`
     color, reference          noisy and reference colour, linear HDR (3)
     diffuse_target, specular_target   transformed reference (training targets)
 
+A *frame batch* of the volumetric sequences (`dataset=volumetric`, `src.data.sequence_dataset`: one frame
+per row, the frames of a training sample or sequence flattened into N) holds instead:
+
+    inputs                    the `task.volume_features` channels (`src.data.volume_features`), radiance
+                              and unbounded buffers under `task.preprocess.volume_transform`, NOT whitened
+    color_t, surface_t, volume_t   the noisy colour and its surface / volume parts (3 each), transformed
+    color, reference          noisy and reference colour, linear HDR (3)
+    target, target_surface, target_volume   the reference colour / surface / volume, transformed
+    albedo, normal, depth     guides as stored (albedo, normal in [-1, 1], depth over the sequence's scale)
+    motion                    screen-space flow to the next frame, pixels (2)
+
+and every model of it returns {"color": ...}, linear HDR colour (a network in the transformed space maps
+its output back itself), so learned models and filters share the sequence trainer and evaluation.
+
 `Denoiser.forward(batch)` returns a dict:
     learned models: {"diffuse": ..., "specular": ...} in the transformed space (then `final_color`
                     rebuilds linear colour with the inverse transform);
