@@ -11,7 +11,8 @@ for sequences, under `SEQUENCE_KEYS`, where `inputs` holds only the channels of 
 noisy colour, what a KPCN's kernels filter), `surface_t` / `volume_t`, the guides `albedo`, `normal`,
 `depth` and `motion` (flow in pixels to the next frame), taken from the stored candidates whatever the
 selection (the frame-batch keys of `src.models.denoise.base`).
-`inverse_volume_transform(x, dataset.volume_transform)` maps `target` / `color_t` / a network's output back to linear radiance.
+`inverse_volume_transform(x, dataset.volume_transform)` maps `target` / `color_t` / a network's output
+back to linear radiance.
 """
 
 from __future__ import annotations
