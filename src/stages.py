@@ -79,6 +79,12 @@ def search(cfg: DictConfig, tracker) -> dict:
     return _start_tracked(cfg, "search", tracker).search(cfg, tracker)
 
 
+def select_features(cfg: DictConfig, tracker) -> dict:
+    """Choose the denoiser's auxiliary features automatically (the denoising task on the volumetric
+    sequences: a probe trained with feature dropout, then greedy forward selection); logs to MLflow."""
+    return _start_tracked(cfg, "select_features", tracker).select_features(cfg, tracker)
+
+
 def evaluate(cfg: DictConfig, tracker) -> dict:
     """Score the model on the held-out data; log metrics and images."""
     return _start_tracked(cfg, "eval", tracker).evaluate(cfg, tracker)
@@ -133,6 +139,7 @@ STAGES: dict[str, Callable[..., dict]] = {
     "preprocess": preprocess,
     "train": train,
     "search": search,
+    "select_features": select_features,
     "eval": evaluate,
     "report": report,
     "summary": print_model_summary,
@@ -141,7 +148,7 @@ STAGES: dict[str, Callable[..., dict]] = {
 #: Stages that run outside a task's pipeline and log nothing.
 STANDALONE = ("summary", "config")
 #: Stages whose results go to MLflow (one run per job).
-TRACKED = ("train", "search", "eval")
+TRACKED = ("train", "search", "select_features", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.
 AFTER_RUN = ("report",)
 
@@ -154,11 +161,12 @@ def stages_to_run(cfg: DictConfig) -> list[str]:
         raise ConfigError(f"task.stages: unknown stage(s) {unknown}; expected some of {sorted(STAGES)}")
     if cfg.stage == "all":
         return task_stages
-    if cfg.stage in STANDALONE:
+    if cfg.stage in STANDALONE or cfg.stage in cfg.task.get("optional_stages", ()):
         return [cfg.stage]
     if cfg.stage not in task_stages:
         raise ConfigError(
             f"stage: unknown stage '{cfg.stage}' for task '{cfg.task.name}'; "
-            f"expected all, one of {task_stages}, or {' / '.join(STANDALONE)}"
+            f"expected all, one of {task_stages + list(cfg.task.get('optional_stages', ()))}, "
+            f"or {' / '.join(STANDALONE)}"
         )
     return [cfg.stage]

@@ -127,6 +127,13 @@ def volume_feature_channels(features: Features | None) -> tuple[str, ...]:
     return tuple(name for feature in features for name in _channels(str(feature)))
 
 
+def run_volume_features(cfg) -> list[str] | None:
+    """`task.volume_features` of a run config as plain data (None: every candidate); what its checkpoint
+    records. (Resolved here, where `feature_selection.size` may have chosen them.)"""
+    features = cfg.task.volume_features
+    return None if features is None else [str(f) for f in features]
+
+
 def volume_feature_count(features: Features | None) -> int:
     """Number of input channels per frame (the `${nrbench.volume_channels:${task.volume_features}}`
     resolver)."""

@@ -34,8 +34,9 @@ from src.models.denoise.models import infer_tiled
 
 log = logging.getLogger(__name__)
 
-#: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>).
-SCORES = ("psnr", "ssim", "relmse", "relmse_spp", "relmse_ratio", "smape", "mse", "lpips", "flip")
+#: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
+#: (flicker) only where there are sequences (`src.eval.sequence_eval`).
+SCORES = ("psnr", "ssim", "relmse", "relmse_spp", "relmse_ratio", "smape", "mse", "lpips", "flip", "temporal")
 
 
 @torch.no_grad()

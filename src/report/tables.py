@@ -33,6 +33,8 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     "relMSE (Eq. 3.5)": ("eval_relmse_spp", False, "{:.4g}"),  # GP thesis: RGB sum x spp/2 (denoising)
     "relMSE / noisy": ("eval_relmse_ratio", False, "{:.4g}"),  # the GP thesis's fitness term
     "FLIP": ("eval_flip", False, "{:.4f}"),
+    # Sequences (dataset=volumetric): mean |Δt output - Δt reference|, tone-mapped (src/metrics/temporal.py)
+    "Flicker": ("eval_temporal", False, "{:.4g}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
     # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best (the
     # expression evaluated on the test split), and the minimum over all generations (its Sec. 4.2 measure).

@@ -70,6 +70,42 @@ class Preprocess(Schema):
     patches_per_sequence: PositiveInt
 
 
+def _known_loss(value: Any) -> Any:
+    """The trainer's own check (`get_loss`): a known name, or an importable `_target_`."""
+    from src.train.losses import get_loss
+
+    passes(get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True))
+    return value
+
+
+class VolumetricTrain(Schema):
+    loss: str | Target
+    temporal_weight: NonNegativeFloat
+    temporal_mode: Literal["signed", "abs"]
+    temporal_warp: bool
+    schedule: Target | None
+
+    _known_loss = field_validator("loss")(classmethod(lambda cls, value: _known_loss(value)))
+
+
+class FeatureSelection(Schema):
+    size: NonNegativeInt | None
+    order: Literal["greedy", "random"]
+    random_seed: NonNegativeInt
+    start: list[str]
+    candidates: list[str] | None
+    dropout: Probability
+    neutral: dict[str, float]
+    max_size: PositiveInt | None
+    val_batches: PositiveInt | None
+    dir: str
+
+    @field_validator("start", "candidates")
+    @classmethod
+    def _known_features(cls, value: list[str] | None) -> list[str] | None:
+        return value if value is None else passes(volume_feature_channels, value)
+
+
 class Train(Schema):
     lr: PositiveFloat
     batch_size: PositiveInt
@@ -84,17 +120,9 @@ class Train(Schema):
     resume: str | None
     checkpoint_dir: str
     curves_file: str
+    volumetric: VolumetricTrain
 
-    @field_validator("loss")
-    @classmethod
-    def _known_loss(cls, value: Any) -> Any:
-        """The trainer's own check (`get_loss`): a known name, or an importable `_target_`."""
-        from src.train.losses import get_loss
-
-        passes(
-            get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True)
-        )
-        return value
+    _known_loss = field_validator("loss")(classmethod(lambda cls, value: _known_loss(value)))
 
 
 class Eval(Schema):
@@ -112,8 +140,10 @@ class DenoiseTaskSchema(Schema):
     name: str
     target: str = Field(alias="_target_")
     stages: list[Literal["render", "preprocess", "train", "eval", "report"]]
+    optional_stages: list[Literal["select_features"]]
     features: list[str]
     volume_features: list[str] | None
+    feature_selection: FeatureSelection
     preprocess: Preprocess
     train: Train
     eval: Eval

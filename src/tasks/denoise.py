@@ -50,15 +50,17 @@ def _cached_preprocess(out: Path, key: str) -> dict | None:
 
 
 def _check_dataset_stage(stage: str, cfg: DictConfig) -> None:
-    """A one-line ConfigError for a stage the volumetric dataset cannot run yet (train, eval: there is no
-    volumetric denoiser yet), or a preprocessing window longer than its sequences."""
-    if cfg.dataset.name != "volumetric":
-        return
-    if stage in ("train", "eval"):
+    """A one-line ConfigError for a stage this dataset cannot run: feature selection outside the
+    volumetric sequences, or a preprocessing window longer than its sequences."""
+    volumetric = cfg.dataset.name == "volumetric"
+    if stage == "select_features" and not volumetric:
         raise ConfigError(
-            f"dataset=volumetric: stage={stage} is not supported yet (there is no denoiser of the "
-            "volumetric sequences yet); run stage=render, then stage=preprocess, to make its training data"
+            f"stage=select_features: the feature selection chooses among the volumetric candidates "
+            f"(task.volume_features); dataset={cfg.dataset.name} has a fixed feature list (task.features); "
+            "run it with dataset=volumetric"
         )
+    if not volumetric:
+        return
     k, frames = cfg.task.preprocess.sequence_frames, cfg.dataset.frames
     if stage == "preprocess" and k > frames:
         raise ConfigError(
@@ -132,7 +134,7 @@ class DenoiseTask(Task):
         prepared, preprocessed = Path(cfg.paths.prepared), "stage=preprocess (or dvc repro)"
         if stage == "preprocess":
             return {Path(cfg.paths.raw): "stage=render (or dvc repro)"}
-        if stage == "train":
+        if stage in ("train", "select_features"):
             return {prepared / "patches" / "train" / "index.json": preprocessed}
         if stage == "eval":
             return {prepared / "full" / str(cfg.task.eval.split) / "index.json": preprocessed}
@@ -143,7 +145,7 @@ class DenoiseTask(Task):
         return Path(cfg.paths.raw)
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
-        """The volumetric dataset has no denoiser yet: train and eval fail at job start."""
+        """Stages this dataset cannot run fail at job start (`_check_dataset_stage`)."""
         for stage in stages:
             _check_dataset_stage(stage, cfg)
 
@@ -228,17 +230,39 @@ class DenoiseTask(Task):
         return summary
 
     def train(self, cfg: DictConfig, tracker) -> dict:
+        """Fit the denoiser: on still-image patches, or (`dataset=volumetric`) on k-frame samples with the
+        temporal loss (`src.train.sequence_trainer`)."""
+        if cfg.dataset.name == "volumetric":
+            from src.train.sequence_trainer import train_sequence_denoiser
+
+            return train_sequence_denoiser(cfg, tracker)
         from src.train.trainer import train_denoiser
 
         return train_denoiser(cfg, tracker)
 
-    def evaluate(self, cfg: DictConfig, tracker) -> dict:
-        from src.eval.denoise_eval import evaluate_denoiser
+    def select_features(self, cfg: DictConfig, tracker) -> dict:
+        """The feature-selection probe and its greedy forward selection (`src.train.select_features`)."""
+        from src.train.select_features import select_features
 
-        summary = evaluate_denoiser(cfg, tracker)
+        return select_features(cfg, tracker)
+
+    def evaluate(self, cfg: DictConfig, tracker) -> dict:
+        if cfg.dataset.name == "volumetric":
+            from src.eval.sequence_eval import evaluate_sequences
+
+            summary = evaluate_sequences(cfg, tracker)
+        else:
+            from src.eval.denoise_eval import evaluate_denoiser
+
+            summary = evaluate_denoiser(cfg, tracker)
         mean = summary["mean"]
+        flicker = (
+            f", flicker {mean['temporal']:.4f} (noisy {mean['noisy_temporal']:.4f})"
+            if "temporal" in mean
+            else ""
+        )
         print(
-            f"eval: {cfg.model.name} on {summary['images']} images: PSNR {mean['psnr']:.2f} dB "
+            f"eval: {cfg.model.name} on {summary['images']} images{flicker}: PSNR {mean['psnr']:.2f} dB "
             f"(noisy {mean['noisy_psnr']:.2f}), SSIM {mean['ssim']:.4f}, relMSE (Bako) {mean['relmse']:.5f} "
             f"(noisy {mean['noisy_relmse']:.5f}), {mean['ms_per_mpixel']:.1f} ms/MP "
             f"-> {cfg.task.eval.out_dir}"

@@ -80,20 +80,41 @@ class DenoiserTrainer(TrainingLoop):
     unit = "patch"
 
     def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
-        self.features = input_features(cfg)
-        prepared = Path(cfg.paths.prepared)
-        data = {"seed": int(cfg.seed), "features": self.features}
-        self.train_data = PatchShardDataset(prepared, "train", shuffle=True, **data)
-        self.val_data = PatchShardDataset(prepared, "val", shuffle=False, **data)
-        whitening = (
-            selected_whitening(prepared / "whitening.json", self.train_data.select)
-            if cfg.model.get("whiten")
-            else None
-        )
-        super().__init__(cfg, tracker, on_step, whitening=whitening)
+        self.features = self.configured_features(cfg)
+        self.train_data, self.val_data = self.datasets(cfg)
+        super().__init__(cfg, tracker, on_step, **self.build_context(cfg))
         self.eps = float(cfg.task.preprocess.eps_albedo)
         self.loss = get_loss(self.t.loss)
         self.history: dict[str, float] = {}  # the last completed epoch's train/val losses
+
+    # -- what the volumetric trainer (`src.train.sequence_trainer`) replaces -------------------------------
+    def configured_features(self, cfg: DictConfig) -> list[str] | None:
+        """The input features of this run (what its checkpoint records)."""
+        return input_features(cfg)
+
+    def datasets(self, cfg: DictConfig) -> tuple[Any, Any]:
+        """The train and validation patch datasets."""
+        data = {"seed": int(cfg.seed), "features": self.features}
+        prepared = Path(cfg.paths.prepared)
+        return (
+            PatchShardDataset(prepared, "train", shuffle=True, **data),
+            PatchShardDataset(prepared, "val", shuffle=False, **data),
+        )
+
+    def build_context(self, cfg: DictConfig) -> dict[str, Any]:
+        """What the model's builder gets besides its config: the whitening statistics of its inputs."""
+        if not cfg.model.get("whiten"):
+            return {"whitening": None}
+        prepared = Path(cfg.paths.prepared)
+        return {"whitening": selected_whitening(prepared / "whitening.json", self.train_data.select)}
+
+    def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Every logged loss of one batch (`component_losses`)."""
+        return component_losses(self.model, batch, self.loss, self.eps)
+
+    def objective(self, losses: dict[str, Any]) -> Any:
+        """What the optimiser minimises of `losses` (`objective`)."""
+        return objective(losses)
 
     def checkpoint_extra(self) -> dict[str, Any]:
         return {"features": self.features}
@@ -124,9 +145,9 @@ class DenoiserTrainer(TrainingLoop):
     def train_step(self, batch: Batch) -> tuple[dict[str, float], int]:
         self.model.train()
         with _autocast(self.device, bool(self.t.amp)):
-            losses = component_losses(self.model, batch, self.loss, self.eps)
+            losses = self.losses(batch)
         self.optimizer.zero_grad(set_to_none=True)
-        objective(losses).backward()
+        self.objective(losses).backward()
         self.optimizer.step()
         return {k: float(v.detach()) for k, v in losses.items()}, len(batch["color"])
 
@@ -137,12 +158,12 @@ class DenoiserTrainer(TrainingLoop):
         means = Means()
         for batch in self._batches(self.val_data, epoch=0):
             with _autocast(self.device, bool(self.t.amp)):
-                means.add(component_losses(self.model, batch, self.loss, self.eps), len(batch["color"]))
+                means.add(self.losses(batch), len(batch["color"]))
         return means.result()
 
     def after_step(self, values: dict[str, float], size: int, bar: tqdm) -> None:
         bar.update(size)
-        bar.set_postfix(step=self.pos.step, loss=f"{objective(values):.4f}")
+        bar.set_postfix(step=self.pos.step, loss=f"{self.objective(values):.4f}")
         if self.pos.step % int(self.t.log_every) == 0:
             self.tracker.log_metrics(
                 {f"train_step_loss_{k}": v for k, v in values.items()}, step=self.pos.step

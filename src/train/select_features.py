@@ -1,0 +1,170 @@
+"""`stage=select_features` (dataset=volumetric): automatic auxiliary-feature selection after Zhang et al.
+2022, as the 2023 production volumetric denoising talk (Zhu et al.) adapted it, and the choice of a run's
+features from its result (`task.feature_selection.size`).
+
+1. One probe denoiser (the run's `model`) is trained on the start set plus every candidate with random
+   feature dropout (`SequenceTrainer(probe=True)`): each sample drops each candidate with probability
+   `dropout`, its channels set to their neutral values.
+2. Greedy forward selection with that probe and no retraining (`feature_selection.greedy_forward_selection`):
+   from the start set (the noisy colour), each round adds the candidate whose addition lowers the probe's
+   validation loss most, every feature not selected held at its neutral value.
+
+Writes, under `task.feature_selection.dir`: `probe/` (its checkpoints and curves), `selection.json` (the
+ordered rows, what made them), `selection.csv` (the talk's "Table 1": rank, feature, channels, validation
+loss) and `selection_curve.png` (loss against the number of features); all are also MLflow artifacts of
+the run, with `select_loss` logged per round. A later run with `size=k` trains on the start set plus the
+first k (`features_for_size`, read when `task.volume_features` resolves), so the feature count follows a
+storage budget without a new selection.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, volume_feature_channels
+from src.errors import ConfigError
+from src.io.atomic import atomic_path, atomic_write_csv, atomic_write_json
+from src.provenance import provenance
+from src.train import feature_selection as fs
+from src.train.loop import Means
+from src.train.sequence_trainer import SequenceTrainer, flatten_frames
+
+SELECTION_FILE = "selection.json"
+KEY = "task.feature_selection"
+
+
+def selection_candidates(start: list[str], candidates: list[str] | None) -> list[str]:
+    """The features tried: `candidates`, or every stored candidate not in the start set."""
+    pool = list(candidates) if candidates is not None else list(VOLUME_CANDIDATE_FEATURES)
+    return [f for f in pool if f not in start]
+
+
+def features_for_size(selection: DictConfig) -> list[str]:
+    """What `task.volume_features` becomes with `size` = k: the start set plus the selection's first k
+    (`order: greedy`, read from `<dir>/selection.json`) or k candidates drawn at random (`order: random`)."""
+    start, size = [str(f) for f in selection.start], int(selection.size)
+    if selection.order == "random":
+        pool = selection_candidates(start, selection.candidates)
+        return fs.random_features(pool, start, size, int(selection.random_seed))
+    path = Path(selection.dir) / SELECTION_FILE
+    if not path.is_file():
+        raise ConfigError(
+            f"{KEY}.size={size}: {path} not found; run stage=select_features dataset=volumetric first "
+            f"(or set {KEY}.order=random)"
+        )
+    rows = json.loads(path.read_text())["rows"]
+    if [str(f) for f in rows[0]["features"]] != start:
+        raise ConfigError(f"{KEY}.start={start}: {path} was selected from {rows[0]['features']}")
+    return fs.selected_features(rows, size)
+
+
+def probe_config(cfg: DictConfig) -> DictConfig:
+    """The run's config as the probe trains: every candidate as input, its own checkpoints and curves."""
+    sel = cfg.task.feature_selection
+    start = [str(f) for f in sel.start]
+    probe = copy.deepcopy(cfg)
+    probe.task.volume_features = start + selection_candidates(start, sel.candidates)
+    probe.task.feature_selection.size = None
+    probe_dir = Path(sel.dir) / "probe"
+    probe.task.train.checkpoint_dir = str(probe_dir / "checkpoints")
+    probe.task.train.curves_file = str(probe_dir / "curves.csv")
+    return probe
+
+
+@torch.no_grad()
+def _validation_loss(trainer: SequenceTrainer, batches: list[dict], keep: torch.Tensor) -> float:
+    """The probe's mean validation objective with only the `keep` features (others neutral)."""
+    means = Means()
+    for batch in batches:
+        n, k = batch["inputs"].shape[:2]
+        frames = flatten_frames(batch)
+        mask = keep.expand(n * k, -1)
+        frames["inputs"] = fs.drop_features(
+            frames["inputs"], mask, trainer.dropout.slices, trainer.dropout.neutral, channel_axis=1
+        )
+        losses = trainer.losses_of_frames(frames, batch, n, k)
+        means.add({"total": float(losses["total"])}, n)
+    return means.result()["total"]
+
+
+def _save_curve(path: Path, rows: list[dict[str, Any]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot([r["round"] for r in rows], [r["loss"] for r in rows], marker="o")
+    for r in rows[1:]:
+        ax.annotate(r["added"], (r["round"], r["loss"]), fontsize=6, rotation=45, ha="left", va="bottom")
+    ax.set_xlabel("features added to the noisy colour")
+    ax.set_ylabel("probe validation loss")
+    ax.set_title("Greedy forward feature selection (probe, no retraining)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
+def select_features(cfg: DictConfig, tracker) -> dict[str, Any]:
+    """Train the probe, run the greedy selection, write and log the ordered table (module docstring)."""
+    sel = cfg.task.feature_selection
+    probe = probe_config(cfg)
+    trainer = SequenceTrainer(probe, tracker, probe=True)
+    if cfg.task.train.resume:
+        trainer.restore(cfg.task.train.resume)
+    summary = trainer.fit()
+    trainer.model.eval()
+    limit = sel.val_batches
+    batches = []
+    for i, batch in enumerate(trainer._batches(trainer.val_data, epoch=0)):
+        if limit is not None and i >= int(limit):
+            break
+        batches.append(batch)
+    features = [name for name, _ in trainer.dropout.slices]
+
+    def loss_of(subset) -> float:
+        keep = fs.keep_only(subset, features).to(trainer.device)
+        return _validation_loss(trainer, batches, keep)
+
+    start = [str(f) for f in sel.start]
+    candidates = [f for f in features if f not in start]
+    rows = fs.greedy_forward_selection(loss_of, candidates, start, max_size=sel.max_size)
+    for row in rows:
+        row["channels"] = len(volume_feature_channels(row["features"]))
+        tracker.log_metrics(
+            {"select_loss": row["loss"], "select_channels": row["channels"]}, step=row["round"]
+        )
+    out = Path(sel.dir)
+    table = [
+        {
+            "rank": r["round"],
+            "feature": r["added"] or "+".join(start),
+            "channels": r["channels"],
+            "val_loss": r["loss"],
+        }
+        for r in rows
+    ]
+    atomic_write_csv(out / "selection.csv", table)
+    _save_curve(out / "selection_curve.png", rows)
+    record = {
+        "model": cfg.model.name,
+        "start": start,
+        "candidates": candidates,
+        "rows": rows,
+        "probe": {k: summary[k] for k in ("steps", "train_time_s", "param_count")},
+        "provenance": provenance(cfg, Path(cfg.paths.raw)),
+        "settings": OmegaConf.to_container(sel, resolve=True),
+    }
+    atomic_write_json(out / SELECTION_FILE, record)  # last: its presence means the selection is complete
+    for name in (SELECTION_FILE, "selection.csv", "selection_curve.png"):
+        tracker.log_artifact(str(out / name), "feature_selection")
+    order = ", ".join(r["added"] for r in rows[1:])
+    print(f"select_features: {len(rows) - 1} rounds, order: {order} -> {out / SELECTION_FILE}")
+    return {"rows": rows, "dir": str(out)}
