@@ -92,7 +92,7 @@ def test_random_keep_mask_rate_and_always_keep():
     assert torch.allclose(drop_rate, torch.full((4,), 0.3), atol=0.015)
     assert keep[:, 1:4].any(dim=1).float().mean() < 1  # independent: some rows drop all of them
     assert random_keep_mask(10, 3, 0.0).all() and not random_keep_mask(10, 3, 1.0).any()
-    with pytest.raises(ConfigError, match=r"task\.feature_selection\.p_drop"):
+    with pytest.raises(ConfigError, match=r"task\.feature_selection\.dropout"):
         random_keep_mask(10, 3, 1.5)
 
 

@@ -284,6 +284,7 @@ class VolumetricBaseScenes(Schema):
 
 class VolumetricDataset(Schema):
     name: Literal["volumetric"]
+    experiment_suffix: str
     bases: list[Literal["cloud", "smoke_tabletop", "fog_objects", "godrays"]] = Field(min_length=1)
     scenes_per_base: PositiveInt
     frames: PositiveInt

@@ -40,7 +40,7 @@ from src.errors import ConfigError
 FEATURE_SELECTION_KEY = "task.feature_selection"
 NEUTRAL_KEY = f"{FEATURE_SELECTION_KEY}.neutral"
 SIZE_KEY = f"{FEATURE_SELECTION_KEY}.size"
-P_DROP_KEY = f"{FEATURE_SELECTION_KEY}.p_drop"
+P_DROP_KEY = "task.feature_selection.dropout"
 
 #: One row of the greedy selection: round, the feature added (None in round 0), the ordered selection so
 #: far (start set included) and its validation loss.
