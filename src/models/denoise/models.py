@@ -140,16 +140,21 @@ class TwoBranchArgs(_TwoBranchRequired, total=False):
     whitening: Whitening
 
 
+def output_channels(output: str, kernel_size: int | None) -> int:
+    """Channels a backbone outputs for `output`: k*k kernel scores (checked: a positive odd k) or the
+    3 colour channels of direct prediction."""
+    if output == "kernel":
+        return at_least("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
+    return COLOR_CHANNELS
+
+
 def _two_branch(
     make_net: Callable[[int], nn.Module], in_channels: int, branches: TwoBranchArgs
 ) -> TwoBranchDenoiser:
     """One network (shared) or two, around the common output/whitening options (checked by
     `TwoBranchDenoiser`; the kernel size first, as it sets the networks' output channels)."""
     output, kernel_size = branches["output"], branches.get("kernel_size")
-    if output == "kernel":
-        out_channels = at_least("kernel_size", kernel_size if kernel_size is not None else 0, odd=True) ** 2
-    else:
-        out_channels = COLOR_CHANNELS
+    out_channels = output_channels(output, kernel_size)
     diffuse = make_net(out_channels)
     specular = diffuse if branches["shared"] else make_net(out_channels)
     return TwoBranchDenoiser(
@@ -163,19 +168,39 @@ def _two_branch(
     )
 
 
-def conv_stack_denoiser(
-    *, in_channels: int, width: int, depth: int, conv_kernel: int, **branches: Unpack[TwoBranchArgs]
-) -> TwoBranchDenoiser:
-    """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch."""
+def conv_stack_maker(
+    *, in_channels: int, width: int, depth: int, conv_kernel: int
+) -> Callable[[int], ConvStack]:
+    """out_channels -> a `ConvStack` of these (range-checked) sizes: the DPCN/KPCN backbone."""
     sizes = {
         "in_channels": at_least("in_channels", in_channels),
         "width": at_least("width", width),
         "depth": at_least("depth", depth),
         "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
     }
-    return _two_branch(
-        lambda out_channels: ConvStack(**sizes, out_channels=out_channels), in_channels, branches
-    )
+    return lambda out_channels: ConvStack(**sizes, out_channels=out_channels)
+
+
+def residual_maker(
+    *, in_channels: int, width: int, blocks: int, conv_kernel: int, predictor_width: int
+) -> Callable[[int], ResidualKernelNet]:
+    """out_channels -> a `ResidualKernelNet` of these (range-checked) sizes: the residual KPCN backbone."""
+    sizes = {
+        "in_channels": at_least("in_channels", in_channels),
+        "width": at_least("width", width),
+        "blocks": at_least("blocks", blocks, minimum=0),
+        "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
+        "predictor_width": at_least("predictor_width", predictor_width),
+    }
+    return lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels)
+
+
+def conv_stack_denoiser(
+    *, in_channels: int, width: int, depth: int, conv_kernel: int, **branches: Unpack[TwoBranchArgs]
+) -> TwoBranchDenoiser:
+    """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch."""
+    make = conv_stack_maker(in_channels=in_channels, width=width, depth=depth, conv_kernel=conv_kernel)
+    return _two_branch(make, in_channels, branches)
 
 
 def residual_denoiser(
@@ -189,16 +214,14 @@ def residual_denoiser(
 ) -> TwoBranchDenoiser:
     """Residual KPCN (Vogels et al. 2018 style): a `ResidualKernelNet` per branch, or one shared by both
     (`shared`, an ablation of the seed thesis)."""
-    sizes = {
-        "in_channels": at_least("in_channels", in_channels),
-        "width": at_least("width", width),
-        "blocks": at_least("blocks", blocks, minimum=0),
-        "conv_kernel": at_least("conv_kernel", conv_kernel, odd=True),
-        "predictor_width": at_least("predictor_width", predictor_width),
-    }
-    return _two_branch(
-        lambda out_channels: ResidualKernelNet(**sizes, out_channels=out_channels), in_channels, branches
+    make = residual_maker(
+        in_channels=in_channels,
+        width=width,
+        blocks=blocks,
+        conv_kernel=conv_kernel,
+        predictor_width=predictor_width,
     )
+    return _two_branch(make, in_channels, branches)
 
 
 def _tile_starts(size: int, tile: int) -> range:

@@ -6,6 +6,12 @@ output pixel during one forward pass on a small random batch (bias additions and
 the usual convention). Kernel application (Bako et al. 2017, Eq. 5-6) is reported separately:
 k*k*3 MACs per branch per pixel for the weighted sum, plus ~3*k*k FLOPs for the softmax (subtract max,
 exp, sum).
+
+Models of the volumetric frame batches (`frame_batch = True`: `frame_models.py`, `unet_kpcn.py`) are probed
+with `random_frame_batch` and report their non-convolution cost themselves (`kernel_flops_per_pixel()`:
+one branch's kernel application, or the U-Net KPCN's kernels at every scale weighted by the scale's pixel
+fraction plus the composition); their scale compositors' convolutions are counted by the hooks and also
+shown on their own.
 """
 
 from __future__ import annotations
@@ -53,8 +59,54 @@ def random_batch(
     return batch
 
 
+#: Frame-batch keys with 3 channels (`base.py`), all but `inputs` and `motion`.
+FRAME_RGB_KEYS = (
+    "color_t",
+    "surface_t",
+    "volume_t",
+    "color",
+    "reference",
+    "target",
+    "target_surface",
+    "target_volume",
+    "albedo",
+    "normal",
+)
+
+
+def random_frame_batch(
+    height: int,
+    width: int,
+    *,
+    in_channels: int,
+    batch_size: int = 1,
+    generator: torch.Generator | None = None,
+    device: torch.device | str | None = None,
+) -> dict[str, torch.Tensor]:
+    """A random volumetric frame batch (every key of the `base.py` frame-batch contract) in plausible
+    ranges (radiance >= 0, normals in [-1, 1], depth in [0, 1], motion in pixels); for benchmarks and
+    FLOP counting, not for accuracy. The transformed keys are random values >= 0, valid under either
+    volume transform."""
+
+    def rand(channels: int, lo: float = 0.0, hi: float = 1.0) -> torch.Tensor:
+        x = torch.rand((batch_size, channels, height, width), generator=generator)
+        return (lo + (hi - lo) * x).to(device)
+
+    batch = {key: rand(3) for key in FRAME_RGB_KEYS}
+    batch["normal"] = rand(3, -1.0, 1.0)
+    batch["inputs"] = rand(in_channels, -1.0, 1.0)
+    batch["depth"] = rand(1)
+    batch["motion"] = rand(2, -4.0, 4.0)
+    return batch
+
+
+def is_frame_model(model: nn.Module) -> bool:
+    """Whether `model` reads volumetric frame batches (`base.py`) rather than diffuse/specular ones."""
+    return bool(getattr(model, "frame_batch", False))
+
+
 def _conv_macs(model: nn.Module, run) -> int:
-    """Total conv MACs of one call of `run()`, counted by forward hooks on every Conv2d."""
+    """Total conv MACs of one call of `run()`, counted by forward hooks on every Conv2d of `model`."""
     total = 0
 
     def hook(conv: nn.Conv2d, _inputs, output: torch.Tensor) -> None:
@@ -79,30 +131,49 @@ def kernel_application_flops(kernel_size: int, channels: int = 3) -> int:
     return 2 * taps * channels + SOFTMAX_FLOPS_PER_TAP * taps
 
 
+def _probe_size(model: nn.Module) -> int:
+    """PROBE_SIZE, rounded up to the model's `size_multiple` (a U-Net pads its input to a multiple of
+    2^(S-1): probing at such a size keeps the per-pixel counts exact)."""
+    multiple = int(getattr(model, "size_multiple", 1))
+    return -(-max(PROBE_SIZE, multiple) // multiple) * multiple
+
+
 def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) -> dict[str, Any]:
-    """FLOPs per output pixel: {"total", "conv", "kernel"} (both branches of a two-branch model).
+    """FLOPs per output pixel: {"total", "conv", "kernel", "compositor"} ("kernel": both branches of a
+    two-branch model, or what a frame model's `kernel_flops_per_pixel()` reports; "compositor": the part
+    of "conv" in a U-Net KPCN's scale compositors, else 0).
 
     A plain network (e.g. a `ConvStack`) is fed an (1, in_channels, s, s) tensor; a `Denoiser` a random
-    batch. A non-learned filter reports its own `flops_per_pixel()` as "total" if it defines one, else
-    every entry is None (unknown).
+    batch (a frame batch for frame models). A non-learned filter reports its own `flops_per_pixel()` as
+    "total" if it defines one, else every entry is None (unknown).
     """
     if isinstance(model, Denoiser) and not model.learned:
         own = getattr(model, "flops_per_pixel", None)
         total = float(own()) if callable(own) else None
-        return {"total": total, "conv": None, "kernel": None}
+        return {"total": total, "conv": None, "kernel": None, "compositor": None}
     device = next((p.device for p in model.parameters()), torch.device("cpu"))
-    pixels = PROBE_SIZE * PROBE_SIZE
+    size = _probe_size(model)
+    pixels = size * size
+    compositor = 0.0
     if isinstance(model, Denoiser):
         # The batch must match the model's inputs, whatever the caller guessed.
         in_channels = getattr(model, "in_channels", in_channels)
-        batch = random_batch(PROBE_SIZE, PROBE_SIZE, in_channels=in_channels, device=device)
+        make = random_frame_batch if is_frame_model(model) else random_batch
+        batch = make(size, size, in_channels=in_channels, device=device)
         conv = 2 * _conv_macs(model, lambda: model(batch)) / pixels
+        compositors = getattr(model, "compositors", None)
+        if compositors is not None:
+            compositor = 2 * _conv_macs(compositors, lambda: model(batch)) / pixels
     else:
-        x = torch.rand(1, in_channels, PROBE_SIZE, PROBE_SIZE, device=device)
+        x = torch.rand(1, in_channels, size, size, device=device)
         conv = 2 * _conv_macs(model, lambda: model(x)) / pixels
+    own_kernel = getattr(model, "kernel_flops_per_pixel", None)
     kernel_size = getattr(model, "kernel_size", None)
-    kernel = len(BRANCHES) * kernel_application_flops(kernel_size) if kernel_size else 0
-    return {"total": conv + kernel, "conv": conv, "kernel": kernel}
+    if callable(own_kernel):
+        kernel = float(own_kernel())
+    else:
+        kernel = len(BRANCHES) * kernel_application_flops(kernel_size) if kernel_size else 0
+    return {"total": conv + kernel, "conv": conv, "kernel": kernel, "compositor": compositor}
 
 
 def _fmt(x: float | None, digits: int = 0) -> str:
@@ -132,7 +203,11 @@ def model_summary(
     lines += _parameter_lines(model)
     breakdown = ""
     if flops["conv"] is not None:
-        breakdown = f" total = conv {_fmt(flops['conv'])} + kernel application {_fmt(flops['kernel'])}"
+        of_which = f" (of which scale compositors {_fmt(flops['compositor'])})" if flops["compositor"] else ""
+        what = "kernel application and composition" if flops["compositor"] else "kernel application"
+        breakdown = f" total = conv {_fmt(flops['conv'])}{of_which} + {what} {_fmt(flops['kernel'])}"
+    if is_frame_model(model):
+        lines.append(f"inputs: volumetric frame batch, in_channels {model.in_channels}")
     lines.append(f"FLOPs per pixel: {_fmt(flops['total'])}{breakdown}")
     lines.append(f"GFLOPs per {width}x{height} frame: {_fmt(frame_gflops, 1)}")
     return "\n".join(lines)
