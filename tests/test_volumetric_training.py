@@ -1,0 +1,141 @@
+"""Training, evaluation and feature selection on the volumetric sequences (issue 17), end to end on a
+tiny synthetic prepared dataset (`tests/test_volume_shards.py`'s frames): the sequence trainer's losses,
+the evaluation's flicker column, `stage=select_features` and `task.feature_selection.size`, and their
+one-line errors from the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import mlflow
+import pandas as pd
+import pytest
+import torch
+
+from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
+from src.stages import evaluate, select_features, train
+from src.tracking.mlflow_tracking import job_run
+from src.tracking.tracker import Tracker
+from src.train.checkpoint import load_checkpoint
+from src.train.sequence_trainer import SequenceTrainer
+from tests.conftest import ROOT, cli_job, one_line_cli_error, smoke_config
+from tests.test_volume_shards import _preprocess, _raw
+
+SMALL = ["task.train.epochs=2", "task.train.batch_size=4", "task.eval.save_exr=false"]
+FAST_METRICS = ["metrics.lpips.enabled=false", "metrics.flip.enabled=false"]
+
+
+@pytest.fixture(scope="module")
+def vol_data(tmp_path_factory):
+    """<data>/volumetric/{raw,prepared} of four synthetic 4-frame scenes (2 train, 1 val, 1 test)."""
+    data = tmp_path_factory.mktemp("voldata")
+    raw = _raw(data / "volumetric" / "raw")
+    _preprocess(raw, data / "volumetric" / "prepared", patch_size=8)
+    return data
+
+
+def _cfg(data, run_dir, *overrides):
+    base = ["dataset=volumetric", "model=unet_kpcn", *SMALL, *FAST_METRICS]
+    return smoke_config(data, run_dir, [*base, *overrides])
+
+
+def test_sequence_training_fits_smape_plus_weighted_temporal_loss_and_logs_each_term(vol_data, tmp_path):
+    cfg = _cfg(vol_data, tmp_path, "task.train.volumetric.temporal_weight=0.5")
+    with job_run(cfg, run_name="unet-test", tags={}) as tracker:
+        summary = train(cfg, tracker)
+        evaluate(cfg, tracker)
+        run_id = tracker.run_id
+    client = mlflow.MlflowClient(cfg.tracking.uri)
+    metrics = client.get_run(run_id).data.metrics
+    for split in ("train", "val"):
+        for term in ("color", "temporal", "total"):
+            assert f"{split}_loss_{term}" in metrics, (split, term)
+    curves = pd.read_csv(tmp_path / "curves.csv")
+    expected = curves["val_loss_color"] + 0.5 * curves["val_loss_temporal"]
+    pd.testing.assert_series_equal(curves["val_loss_total"], expected, check_names=False, rtol=1e-5)
+    assert (
+        metrics["eval_temporal"] >= 0 and "eval_noisy_temporal" in metrics and "eval_temporal_spp2" in metrics
+    )
+    state = load_checkpoint(summary["checkpoint"])
+    assert state["features"] is None  # every candidate
+    rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
+    assert len(rows) == 2 and set(rows["frames"]) == {4}  # the test scene at 2 and 8 spp, 4 frames each
+    assert rows["temporal"].notna().all() and (rows["noisy_temporal"] > 0).all()
+    assert len(list((tmp_path / "eval" / "strips").glob("*.png"))) == 2  # the middle frame of each
+
+
+def test_the_temporal_weight_changes_the_objective_only_through_the_temporal_term(vol_data, tmp_path):
+    batch = next(
+        iter(torch.utils.data.DataLoader(_trainer(vol_data, tmp_path, 0.0).train_data, batch_size=3))
+    )
+    values = {w: _trainer(vol_data, tmp_path / str(w), w).losses(batch) for w in (0.0, 2.0)}
+    torch.testing.assert_close(values[0.0]["color"], values[2.0]["color"])  # same seed: same weights
+    torch.testing.assert_close(values[0.0]["total"], values[0.0]["color"])
+    assert values[2.0]["temporal"] > 0
+    torch.testing.assert_close(values[2.0]["total"], values[2.0]["color"] + 2.0 * values[2.0]["temporal"])
+
+
+def _trainer(data, run_dir, weight, probe=False, *overrides):
+    cfg = _cfg(data, run_dir, f"task.train.volumetric.temporal_weight={weight}", *overrides)
+    return SequenceTrainer(cfg, Tracker(), probe=probe)
+
+
+def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(vol_data, tmp_path):
+    trainer = _trainer(vol_data, tmp_path, 0.5, True, "task.feature_selection.dropout=1.0")
+    inputs = torch.rand((6, 62, 8, 8)) + 2.0  # no stored value is a neutral value
+    dropped = trainer.dropout(inputs, 2, 3, step=0)
+    names = [name for name, _ in trainer.dropout.slices]
+    for name, channels in trainer.dropout.slices:
+        expected = 1.0 if name == "transmittance" else 0.0
+        if name in ("color", "color.var"):
+            assert torch.equal(dropped[:, channels], inputs[:, channels]), name
+        else:
+            assert (dropped[:, channels] == expected).all(), name
+    assert names == list(VOLUME_CANDIDATE_FEATURES)
+
+
+def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_data, tmp_path):
+    overrides = [
+        "task.feature_selection.candidates=[albedo,depth,transmittance,motion]",
+        "task.train.epochs=1",
+    ]
+    cfg = _cfg(vol_data, tmp_path, *overrides)
+    summary = select_features(cfg, Tracker())
+    rows = summary["rows"]
+    assert [r["round"] for r in rows] == [0, 1, 2, 3, 4] and rows[0]["features"] == ["color", "color.var"]
+    assert sorted(r["added"] for r in rows[1:]) == ["albedo", "depth", "motion", "transmittance"]
+    out = vol_data / "volumetric" / "feature_selection"
+    table = pd.read_csv(out / "selection.csv")
+    assert list(table["rank"]) == [0, 1, 2, 3, 4] and (out / "selection_curve.png").is_file()
+    assert (out / "probe" / "checkpoints" / "final.pt").is_file()
+    # A run with size=2 trains on the colour plus the first two, its model sized to match.
+    sized = _cfg(vol_data, tmp_path, "task.feature_selection.size=2")
+    assert list(sized.task.volume_features) == rows[2]["features"]
+    assert sized.model.in_channels == 4 + sum(
+        {"albedo": 3, "depth": 1, "transmittance": 1, "motion": 2}[f] for f in rows[2]["features"][2:]
+    )
+    random_arm = _cfg(
+        vol_data, tmp_path, "task.feature_selection.size=2", "task.feature_selection.order=random"
+    )
+    assert len(random_arm.task.volume_features) == 4 and list(random_arm.task.volume_features)[:2] == [
+        "color",
+        "color.var",
+    ]
+    assert json.loads((out / "selection.json").read_text())["provenance"]["git_commit"]
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (
+            ["dataset=volumetric", "stage=train", "task.feature_selection.size=3"],
+            ["task.feature_selection.size=3", "select_features"],
+        ),
+        (["stage=select_features"], ["stage=select_features", "dataset=volumetric"]),
+    ],
+)
+def test_feature_selection_errors_are_one_line(tmp_path, args, needles):
+    command, env = cli_job([*args, "profile=smoke"], tmp_path)
+    result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    one_line_cli_error(result, *needles)
