@@ -68,6 +68,21 @@ def _check_dataset_stage(stage: str, cfg: DictConfig) -> None:
         )
 
 
+def _check_model_dataset(stage: str, cfg: DictConfig) -> None:
+    """A one-line ConfigError for training or evaluating a model of the volumetric frame batches (its
+    builder's `frame_batch`: the U-Net KPCN, `conf/model_dataset/*_volumetric.yaml`) on a still-image
+    dataset, whose diffuse/specular batches it cannot read."""
+    if stage not in ("train", "eval") or cfg.dataset.name == "volumetric":
+        return
+    from src.models.instantiate import resolve_target
+
+    if getattr(resolve_target(cfg.model), "frame_batch", False):
+        raise ConfigError(
+            f"model={cfg.model.name} reads the volumetric frame batches: stage={stage} needs "
+            f"dataset=volumetric, not dataset={cfg.dataset.name}"
+        )
+
+
 def _render_volumetric(ds: dict, raw: Path, variant: str, summary_path: Path) -> tuple[dict, Path]:
     """Render the volumetric sequences (or the `render_scenes` / `render_frames` subset a fanned-out job
     was given); returns the summary and where to write it: one file per subset, so jobs keep theirs."""
@@ -147,6 +162,7 @@ class DenoiseTask(Task):
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Stages this dataset cannot run fail at job start (`_check_dataset_stage`)."""
         for stage in stages:
+            _check_model_dataset(stage, cfg)
             _check_dataset_stage(stage, cfg)
 
     def render(self, cfg: DictConfig) -> dict:
@@ -273,3 +289,16 @@ class DenoiseTask(Task):
         from src.models.denoise.summary import model_summary
 
         return model_summary(model, model_cfg)
+
+    def training_summary(self, model, cfg: DictConfig) -> str:
+        """For a model of the volumetric frame batches: the `task.volume_features` it reads (the model
+        config knows only their channel count)."""
+        from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, volume_feature_channels
+        from src.models.denoise.summary import is_frame_model
+
+        if not is_frame_model(model):
+            return ""
+        selected = cfg.task.volume_features
+        features = list(VOLUME_CANDIDATE_FEATURES) if selected is None else [str(f) for f in selected]
+        channels = len(volume_feature_channels(features))
+        return f"input features (task.volume_features, {channels} channels): {', '.join(features)}"
