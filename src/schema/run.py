@@ -84,6 +84,10 @@ class DenoiseCompare(Schema):
     baselines: list[str]
 
 
+class VolumetricCompare(DenoiseCompare):
+    selected_size: NonNegativeInt
+
+
 class NerfCompare(Schema):
     models: list[str]
     scenes: list[str]
@@ -93,6 +97,7 @@ class Compare(Schema):
     """conf/compare.yaml: the models and scenes the sweeps and dvc.yaml compare."""
 
     denoise: DenoiseCompare
+    volumetric: VolumetricCompare
     nerf: NerfCompare
 
 
