@@ -24,7 +24,7 @@ from hydra_plugins.nrbench_optuna_sweeper.optuna_sweeper import (
 from src import _scale
 from src.errors import ConfigError
 from src.train.checkpoint import load_checkpoint
-from tests.conftest import CONF_DIR, ROOT, one_line_error, smoke_config
+from tests.conftest import CONF_DIR, ROOT, compose_config, one_line_error, smoke_config
 
 STUDIES = {
     "denoisers",
@@ -35,6 +35,9 @@ STUDIES = {
     "lr_search",
     "gp_expansion",
     "gp_population",
+    "unet_vs_kpcn",
+    "feature_selection",
+    "temporal_loss",
 }
 GROUPS = {"model", "task", "dataset"}
 
@@ -62,13 +65,13 @@ def test_sweep_composes_with_its_report_and_every_swept_value(name, profile):
     cfg = compose_sweep(name, [f"profile={profile}"])
     assert cfg.report.name == f"sweeps/{name}"
     assert str(cfg.hydra.sweep.dir).startswith(f"multirun/sweeps/{name}/")
-    for axis in cfg.report.axes:
-        assert OmegaConf.select(cfg, str(axis)) is not None, axis
+    for axis in cfg.report.axes:  # a key of the config (its value may be null, e.g. feature_selection.size)
+        assert OmegaConf.select(cfg, str(axis), default=KeyError) is not KeyError, axis
     for key, override in swept(cfg).items():
-        if key in GROUPS:  # each choice of a config group composes as a job would
+        if key.lstrip("+") in GROUPS or key.startswith("+"):  # each choice of a config group composes as a job would
             for choice in override.sweep_string_iterator():
                 job = compose_sweep(name, [f"profile={profile}", f"{key}={choice}"])
-                assert job[key].name == choice
+                assert key.startswith("+") or job[key].name == choice
         else:
             assert OmegaConf.select(cfg, key) is not None, key
 
@@ -367,6 +370,33 @@ def test_the_compared_models_live_in_one_place():
     assert items("denoise_train") == items("denoise_eval") == set(learned)
     assert items("denoise_baseline") == set(baselines)
     assert items("nerf_train") == {f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes}
+    vol_learned, vol_baselines = list(compare.volumetric.learned), list(compare.volumetric.baselines)
+    unet_vs_kpcn = swept(compose_sweep("unet_vs_kpcn"))
+    assert list(unet_vs_kpcn["model"].sweep_string_iterator()) == vol_learned + vol_baselines
+    assert items("vol_config") == set(vol_learned + vol_baselines)
+    assert items("vol_train") == items("vol_eval") == set(vol_learned)
+    assert items("vol_baseline") == set(vol_baselines)
+
+
+def test_the_volumetric_studies_sweep_what_they_name():
+    """feature_selection: four arms (all, selected k, colour only, k random); temporal_loss: lambda 0 and
+    the default; both on the U-Net KPCN and the volumetric sequences, in their own MLflow experiment."""
+    selection, temporal = compose_sweep("feature_selection"), compose_sweep("temporal_loss")
+    arms = swept(selection)["+selection_arm"]
+    assert list(arms.sweep_string_iterator()) == ["all", "selected", "color_only", "random"]
+    weights = list(swept(temporal)["task.train.volumetric.temporal_weight"].sweep_string_iterator())
+    assert weights[0] == "0.0" and float(weights[1]) == temporal.task.train.volumetric.temporal_weight > 0
+    for cfg in (selection, temporal):
+        assert cfg.dataset.name == "volumetric" and cfg.model.name == "unet_kpcn"
+        assert cfg.tracking.experiment == "nrbench-denoise-volumetric"
+    k = selection.compare.volumetric.selected_size
+    for arm, (size, order) in {
+        "selected": (k, "greedy"),
+        "color_only": (0, "greedy"),
+        "random": (k, "random"),
+    }.items():
+        arm_cfg = compose_config(["+sweep=feature_selection", f"+selection_arm={arm}"])
+        assert (arm_cfg.task.feature_selection.size, arm_cfg.task.feature_selection.order) == (size, order)
 
 
 @pytest.mark.slow
