@@ -118,6 +118,10 @@ BAD_VALUES = [
         ["task.search.tournament_size=0: expected a positive integer"],
     ),
     (["task=filter_search", "task.search.migrants=4"], ["task.search.migrants=4: expected fewer than"]),
+    (["model=unet_kpcn", "model.widths=[]"], ["model.widths", "non-empty list"]),
+    (["model=unet_kpcn", "model.components=diffuse"], ["model.components", "surface_volume"]),
+    (["model=unet_kpcn", "model.filter_space=log"], ["model.filter_space", "'transformed'"]),
+    (["dataset=volumetric", "model=kpcn", "model.whiten=true"], ["model.whiten", "dataset=volumetric"]),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}
@@ -146,6 +150,8 @@ def test_the_shipped_configs_pass_the_schema(tmp_path):
             "dataset.render_frames=[0,1]",
         ],
         ["dataset=volumetric", "profile=paper"],
+        ["dataset=volumetric", "model=unet_kpcn"],
+        ["dataset=volumetric", "model=resnet", "profile=paper"],
         ["task=filter_search"],
         ["task=filter_search", "profile=paper"],
     )

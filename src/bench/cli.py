@@ -1,6 +1,6 @@
 """Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
---models dpcn,kpcn,resnet --profile paper]`` and ``python -m src.bench nerf [--models nerf,mipnerf,refnerf
---profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]`` and
+--models dpcn,kpcn,resnet,unet_kpcn --profile paper]`` and ``python -m src.bench nerf [--models
+nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]`` and
 ``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
 and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
 --sample 8 --device auto]``.
@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--repeats", type=int, default=3, help="timed runs per model (median reported)")
     d.add_argument("--warmup", type=int, default=1, help="untimed runs first (allocator, cuDNN autotune)")
     d.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda | cuda:N")
-    d.add_argument("--models", default="dpcn,kpcn,resnet", help="comma-separated conf/model names")
+    d.add_argument("--models", default="dpcn,kpcn,resnet,unet_kpcn", help="comma-separated conf/model names")
     d.add_argument(
         "--profile", default="paper", help="profile whose model sizes are used (paper: Bako et al.)"
     )

@@ -57,4 +57,11 @@ def format_ratios(by_name: Mapping[str, Row]) -> list[str]:
                 f"{_ratio(row, net, 'seconds')}   "
                 f"(target <= ~1.2x; FLOP ratio {_ratio(row, net, 'flops_per_pixel')})"
             )
+    unet, oidn = by_name.get("unet_kpcn"), by_name.get("oidn")
+    if unet is not None:
+        lines += [
+            f"  unet_kpcn / kpcn time: {_ratio(unet, kpcn, 'seconds')}   "
+            f"(FLOP ratio {_ratio(unet, kpcn, 'flops_per_pixel')}; target <= 0.10x: >= 10x faster)",
+            f"  unet_kpcn / oidn time: {_ratio(unet, oidn, 'seconds')}   (target <= 2x)",
+        ]
     return lines

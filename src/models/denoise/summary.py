@@ -139,9 +139,9 @@ def _probe_size(model: nn.Module) -> int:
 
 
 def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) -> dict[str, Any]:
-    """FLOPs per output pixel: {"total", "conv", "kernel", "compositor"} ("kernel": both branches of a
-    two-branch model, or what a frame model's `kernel_flops_per_pixel()` reports; "compositor": the part
-    of "conv" in a U-Net KPCN's scale compositors, else 0).
+    """FLOPs per output pixel: {"total", "conv", "kernel"} ("kernel": both branches of a two-branch model,
+    or what a frame model's `kernel_flops_per_pixel()` reports), and for a U-Net KPCN "compositor": the
+    part of "conv" in its scale compositors.
 
     A plain network (e.g. a `ConvStack`) is fed an (1, in_channels, s, s) tensor; a `Denoiser` a random
     batch (a frame batch for frame models). A non-learned filter reports its own `flops_per_pixel()` as
@@ -150,11 +150,11 @@ def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) ->
     if isinstance(model, Denoiser) and not model.learned:
         own = getattr(model, "flops_per_pixel", None)
         total = float(own()) if callable(own) else None
-        return {"total": total, "conv": None, "kernel": None, "compositor": None}
+        return {"total": total, "conv": None, "kernel": None}
     device = next((p.device for p in model.parameters()), torch.device("cpu"))
     size = _probe_size(model)
     pixels = size * size
-    compositor = 0.0
+    compositor = None
     if isinstance(model, Denoiser):
         # The batch must match the model's inputs, whatever the caller guessed.
         in_channels = getattr(model, "in_channels", in_channels)
@@ -173,7 +173,8 @@ def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) ->
         kernel = float(own_kernel())
     else:
         kernel = len(BRANCHES) * kernel_application_flops(kernel_size) if kernel_size else 0
-    return {"total": conv + kernel, "conv": conv, "kernel": kernel, "compositor": compositor}
+    flops = {"total": conv + kernel, "conv": conv, "kernel": kernel}
+    return flops if compositor is None else flops | {"compositor": compositor}
 
 
 def _fmt(x: float | None, digits: int = 0) -> str:
@@ -203,8 +204,9 @@ def model_summary(
     lines += _parameter_lines(model)
     breakdown = ""
     if flops["conv"] is not None:
-        of_which = f" (of which scale compositors {_fmt(flops['compositor'])})" if flops["compositor"] else ""
-        what = "kernel application and composition" if flops["compositor"] else "kernel application"
+        compositor = flops.get("compositor")
+        of_which = f" (of which scale compositors {_fmt(compositor)})" if compositor else ""
+        what = "kernel application and composition" if compositor else "kernel application"
         breakdown = f" total = conv {_fmt(flops['conv'])}{of_which} + {what} {_fmt(flops['kernel'])}"
     if is_frame_model(model):
         lines.append(f"inputs: volumetric frame batch, in_channels {model.in_channels}")

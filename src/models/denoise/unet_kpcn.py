@@ -265,6 +265,16 @@ class UNetKPCN(Denoiser):
             features[s] = h
         return [head(f) for head, f in zip(self.heads, features, strict=True)]
 
+    def filter_scales(self, logits: list[torch.Tensor], radiance: torch.Tensor, component: int = 0):
+        """f_s = K_s * D^s(radiance) for every scale s: the `component`-th kernel of each scale's scores
+        (`kernel_logits`) applied to the radiance pyramid (padded frame)."""
+        taps = self.kernel_size**2
+        pyramid = radiance_pyramid(radiance, self.scales)
+        return [
+            apply_kernel(scores[:, component * taps : (component + 1) * taps], level, self.kernel_size)
+            for scores, level in zip(logits, pyramid, strict=True)
+        ]
+
     def _compose(self, filtered: list[torch.Tensor], compositors: nn.ModuleList) -> torch.Tensor:
         """c_0 from the filtered pyramid f_0..f_{S-1}, coarse to fine (`compose_scales`)."""
         to_net = (
@@ -283,17 +293,12 @@ class UNetKPCN(Denoiser):
         height, width = x.shape[-2:]
         multiple = self.size_multiple
         logits = self.kernel_logits(pad_to_multiple(x, multiple))
-        taps = self.kernel_size**2
         color = None
         for i, key in enumerate(self.keys):
             radiance = pad_to_multiple(batch[key], multiple)
             if self.filter_space == "linear":
                 radiance = inverse_volume_transform(radiance, self.transform)
-            pyramid = radiance_pyramid(radiance, self.scales)
-            filtered = [
-                apply_kernel(scores[:, i * taps : (i + 1) * taps], level, self.kernel_size)
-                for scores, level in zip(logits, pyramid, strict=True)
-            ]
+            filtered = self.filter_scales(logits, radiance, i)
             part = self._compose(filtered, self.compositors[i])
             if self.filter_space == "transformed":
                 part = inverse_volume_transform(part, self.transform)

@@ -1,0 +1,206 @@
+"""The U-Net KPCN (`src/models/denoise/unet_kpcn.py`) and the one-branch frame models
+(`src/models/denoise/frame_models.py`) of the volumetric frame batches: the multi-scale kernels, Vogels et
+al.'s scale composition, tiled inference, configs and `stage=summary`. Tiny sizes, CPU, a few seconds."""
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from src.data.volume_shards import volume_transform
+from src.errors import ConfigError
+from src.models.denoise.models import infer_tiled
+from src.models.denoise.summary import flops_per_pixel, model_summary, random_frame_batch
+from src.models.denoise.unet_kpcn import (
+    UNetKPCN,
+    compose_scales,
+    downsample,
+    pad_to_multiple,
+    radiance_pyramid,
+    upsample,
+)
+from src.models.instantiate import build_method
+from tests.conftest import compose_config, one_line_error
+
+IN = 5
+
+
+def tiny(**overrides):
+    args = dict(
+        in_channels=IN,
+        widths=[4, 6, 8],
+        convs_per_level=1,
+        conv_kernel=3,
+        kernel_size=3,
+        compositor_width=4,
+        components="color",
+        filter_space="linear",
+        transform="log_modulus",
+    )
+    torch.manual_seed(0)
+    return UNetKPCN(**(args | overrides)).eval()
+
+
+def frame_batch(height, width, seed=0):
+    return random_frame_batch(height, width, in_channels=IN, generator=torch.Generator().manual_seed(seed))
+
+
+def brute_force_kernel(logits, image, k):
+    """out[y, x] = sum_ij softmax(logits)[ij, y, x] * image[clamp(y+i-r), clamp(x+j-r)], pixel by pixel."""
+    n, c, h, w = image.shape
+    r = k // 2
+    weights = torch.softmax(logits.double(), dim=1)
+    out = torch.zeros(n, c, h, w, dtype=torch.float64)
+    for y in range(h):
+        for x in range(w):
+            for i in range(k):
+                for j in range(k):
+                    yy, xx = min(max(y + i - r, 0), h - 1), min(max(x + j - r, 0), w - 1)
+                    out[:, :, y, x] += weights[:, i * k + j, y, x, None] * image[:, :, yy, xx].double()
+    return out
+
+
+def test_the_kernel_at_every_scale_is_a_softmax_window_over_that_scales_radiance():
+    model = tiny()
+    batch = frame_batch(12, 8)  # non-square; scales 12x8, 6x4, 3x2
+    logits = model.kernel_logits(batch["inputs"])
+    radiance = torch.rand(1, 3, 12, 8, generator=torch.Generator().manual_seed(1))
+    filtered = model.filter_scales(logits, radiance)
+    pyramid = radiance_pyramid(radiance, 3)
+    assert [f.shape[-2:] for f in filtered] == [(12, 8), (6, 4), (3, 2)]
+    for s in range(3):
+        expected = brute_force_kernel(logits[s], pyramid[s], 3)
+        torch.testing.assert_close(filtered[s].double(), expected, atol=1e-6, rtol=1e-6)
+
+
+def test_downsample_of_upsample_is_the_identity_and_downsample_is_the_2x2_mean():
+    c = torch.rand(2, 3, 3, 5)
+    assert torch.equal(downsample(upsample(c)), c)
+    x = torch.arange(16.0).view(1, 1, 4, 4)
+    assert downsample(x)[0, 0, 0, 0] == (0 + 1 + 4 + 5) / 4
+
+
+def test_the_composition_keeps_the_fine_scale_at_a_0_and_swaps_in_the_coarse_band_at_a_1():
+    g = torch.Generator().manual_seed(2)
+    fine, coarse = torch.rand(1, 3, 6, 4, generator=g), torch.rand(1, 3, 3, 2, generator=g)
+    torch.testing.assert_close(compose_scales(fine, coarse, torch.zeros(1, 1, 6, 4)), fine)
+    swapped = compose_scales(fine, coarse, torch.ones(1, 1, 6, 4))
+    torch.testing.assert_close(swapped, fine - upsample(downsample(fine)) + upsample(coarse))
+    torch.testing.assert_close(downsample(swapped), coarse)  # the coarse band is exactly c
+
+
+def test_tiled_inference_equals_the_full_frame_on_a_non_square_frame():
+    model = tiny()
+    batch = frame_batch(61, 90)  # neither side a multiple of 2^(S-1) = 4
+    assert model.halo % model.size_multiple == 0
+    with torch.inference_mode():
+        full = model(batch)["color"]
+        tiled = infer_tiled(model, batch, tile=16)["color"]
+    torch.testing.assert_close(tiled, full, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize(("height", "width"), [(13, 7), (5, 17), (1, 1)])
+def test_any_frame_size_comes_back_at_its_size(height, width):
+    out = tiny()(frame_batch(height, width))["color"]
+    assert out.shape == (1, 3, height, width)
+    assert pad_to_multiple(torch.rand(1, 1, height, width), 4).shape[-2:] == (
+        -(-height // 4) * 4,
+        -(-width // 4) * 4,
+    )
+
+
+@pytest.mark.parametrize("components", ["color", "surface_volume"])
+@pytest.mark.parametrize("filter_space", ["linear", "transformed"])
+@pytest.mark.parametrize("transform", ["log_modulus", "none"])
+def test_a_constant_radiance_stays_constant(components, filter_space, transform):
+    model = tiny(components=components, filter_space=filter_space, transform=transform)
+    batch = frame_batch(10, 14)
+    value = {"color_t": 2.5, "surface_t": 1.5, "volume_t": 1.0}
+    for key, v in value.items():
+        batch[key] = volume_transform(torch.full((1, 3, 10, 14), v), transform)
+    with torch.inference_mode():
+        out = model(batch)["color"]
+    torch.testing.assert_close(out, torch.full_like(out, 2.5), atol=1e-5, rtol=1e-5)
+
+
+def test_surface_volume_has_two_kernel_heads_per_scale_and_twice_the_kernel_cost():
+    one, two = tiny(), tiny(components="surface_volume")
+    assert [h.out_channels for h in two.heads] == [2 * h.out_channels for h in one.heads]
+    assert two.kernel_flops_per_pixel() == 2 * one.kernel_flops_per_pixel()
+
+
+@pytest.mark.parametrize(
+    ("model", "target"),
+    [
+        ("kpcn", "frame_conv_stack_denoiser"),
+        ("dpcn", "frame_conv_stack_denoiser"),
+        ("resnet", "frame_residual"),
+    ],
+)
+def test_the_frame_kpcn_dpcn_and_resnet_build_from_the_volumetric_config_and_run(model, target):
+    cfg = compose_config(["dataset=volumetric", f"model={model}", "profile=smoke"])
+    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+    assert target in model_cfg["_target_"] and model_cfg["in_channels"] == 62
+    net = build_method(model_cfg).eval()
+    batch = random_frame_batch(9, 13, in_channels=62)
+    with torch.inference_mode():
+        out = net(batch)["color"]
+    assert out.shape == (1, 3, 9, 13) and torch.isfinite(out).all()
+    with torch.inference_mode():  # tiled equals full frame here too (halo = receptive field)
+        torch.testing.assert_close(infer_tiled(net, batch, tile=4)["color"], out, atol=1e-5, rtol=1e-5)
+
+
+def test_stage_summary_names_flops_per_pixel_and_the_volume_features():
+    from src.tasks.denoise import DenoiseTask
+
+    cfg = compose_config(["dataset=volumetric", "model=unet_kpcn", "task.volume_features=[color,albedo]"])
+    model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+    model = build_method(model_cfg)
+    text = model_summary(model, model_cfg)
+    assert "FLOPs per pixel" in text and "kernel application and composition" in text
+    assert "in_channels 6" in text
+    assert DenoiseTask().training_summary(model, cfg).endswith("6 channels): color, albedo")
+    flops = flops_per_pixel(model)
+    assert 0 < flops["compositor"] < flops["conv"] and flops["kernel"] == model.kernel_flops_per_pixel()
+
+
+def test_the_paper_unet_kpcn_fits_the_cpu_budget():
+    model_cfg = OmegaConf.to_container(
+        compose_config(["model=unet_kpcn", "profile=paper"]).model, resolve=True
+    )
+    model = build_method(model_cfg)
+    assert 3 <= model.scales <= 5
+    assert flops_per_pixel(model)["total"] <= 150_000
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "needles"),
+    [
+        ("widht", 3, ["model.widht: not an argument of UNetKPCN"]),
+        ("widths", [], ["model.widths", "non-empty list"]),
+        ("widths", [8, 0], ["model.widths"]),
+        ("kernel_size", 4, ["model.kernel_size", "odd"]),
+        ("components", "diffuse", ["model.components", "surface_volume"]),
+        ("filter_space", "log", ["model.filter_space", "transformed"]),
+        ("transform", "log", ["model.transform", "log_modulus"]),
+    ],
+)
+def test_a_bad_unet_kpcn_value_is_a_one_line_config_error(key, value, needles):
+    model_cfg = OmegaConf.to_container(
+        compose_config(["model=unet_kpcn", "profile=smoke"]).model, resolve=True
+    )
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(model_cfg | {key: value})
+    one_line_error(excinfo, *needles)
+
+
+def test_whitening_a_frame_model_and_training_unet_kpcn_on_still_images_are_one_line_errors():
+    from src.tasks.denoise import DenoiseTask
+
+    cfg = compose_config(["dataset=volumetric", "model=kpcn", "profile=smoke", "model.whiten=true"])
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(OmegaConf.to_container(cfg.model, resolve=True))
+    one_line_error(excinfo, "model.whiten", "dataset=volumetric")
+    cfg = compose_config(["model=unet_kpcn", "profile=smoke"])
+    with pytest.raises(ConfigError) as excinfo:
+        DenoiseTask().check_stages(["train"], cfg)
+    one_line_error(excinfo, "model=unet_kpcn", "dataset=volumetric", "dataset=procedural")
