@@ -68,7 +68,9 @@ def test_sweep_composes_with_its_report_and_every_swept_value(name, profile):
     for axis in cfg.report.axes:  # a key of the config (its value may be null, e.g. feature_selection.size)
         assert OmegaConf.select(cfg, str(axis), default=KeyError) is not KeyError, axis
     for key, override in swept(cfg).items():
-        if key.lstrip("+") in GROUPS or key.startswith("+"):  # each choice of a config group composes as a job would
+        if key.lstrip("+") in GROUPS or key.startswith(
+            "+"
+        ):  # each choice of a config group composes as a job would
             for choice in override.sweep_string_iterator():
                 job = compose_sweep(name, [f"profile={profile}", f"{key}={choice}"])
                 assert key.startswith("+") or job[key].name == choice
