@@ -61,18 +61,21 @@ def gp_relmse(
     return {"relmse_spp": ours, "noisy_relmse_spp": noisy_value, "relmse_ratio": ratio}
 
 
-class _Images(Sequence):
-    """The held-out images with their batch on the device (loaded before the timed call)."""
+class OnDevice(Sequence):
+    """The held-out items of `data` with their tensors on the device under "batch" (loaded before the
+    timed call): a still image as a batch of one, a sequence's frames as the batch (`as_batch_of_one`
+    False)."""
 
-    def __init__(self, data: FullImageDataset, device: torch.device) -> None:
-        self.data, self.device = data, device
+    def __init__(self, data, device: torch.device, as_batch_of_one: bool = True) -> None:
+        self.data, self.device, self.single = data, device, as_batch_of_one
 
     def __len__(self) -> int:
         return len(self.data)
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         item = self.data[i]
-        batch = {k: v[None].to(self.device) for k, v in item.items() if isinstance(v, torch.Tensor)}
+        tensors = {k: v for k, v in item.items() if isinstance(v, torch.Tensor)}
+        batch = {k: (v[None] if self.single else v).to(self.device) for k, v in tensors.items()}
         return {"item": item, "batch": batch}
 
 
@@ -90,7 +93,7 @@ class DenoiseEvaluation(Evaluation):
 
     def items(self) -> Sequence[dict[str, Any]]:
         data = FullImageDataset(self.cfg.paths.prepared, self.cfg.task.eval.split, features=self.features)
-        return _Images(data, self.device)
+        return OnDevice(data, self.device)
 
     def infer(self, item: dict[str, Any]) -> torch.Tensor:
         return denoise_tiled(self.model, item["batch"], int(self.cfg.task.eval.tile), self.eps)

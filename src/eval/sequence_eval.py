@@ -25,7 +25,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.data.sequence_dataset import SequenceDataset
 from src.data.volume_features import run_volume_features
-from src.eval.denoise_eval import DenoiseEvaluation, _save_images, gp_relmse
+from src.eval.denoise_eval import DenoiseEvaluation, OnDevice, _save_images, gp_relmse
 from src.eval.loop import Evaluation
 from src.metrics.image import image_metrics
 from src.metrics.temporal import temporal_error
@@ -35,21 +35,6 @@ from src.models.denoise.models import infer_tiled
 def _frames_hwc(x: torch.Tensor) -> np.ndarray:
     """(F, 3, H, W) -> (F, H, W, 3) float32 numpy."""
     return x.permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
-
-
-class _Sequences(Sequence):
-    """The held-out sequences, each with its frame batches on the device (loaded before the timed call)."""
-
-    def __init__(self, data: SequenceDataset, device: torch.device) -> None:
-        self.data, self.device = data, device
-
-    def __len__(self) -> int:
-        return len(self.data)
-
-    def __getitem__(self, i: int) -> dict[str, Any]:
-        item = self.data[i]
-        frames = {k: v.to(self.device) for k, v in item.items() if isinstance(v, torch.Tensor)}
-        return {"item": item, "frames": frames}
 
 
 def _check_trained(trained: list[str] | None, configured: list[str] | None, checkpoint: str) -> None:
@@ -76,11 +61,11 @@ class SequenceEvaluation(DenoiseEvaluation):
 
     def items(self) -> Sequence[dict[str, Any]]:
         data = SequenceDataset(self.cfg.paths.prepared, self.cfg.task.eval.split, features=self.features)
-        return _Sequences(data, self.device)
+        return OnDevice(data, self.device, as_batch_of_one=False)
 
     @torch.no_grad()
     def infer(self, item: dict[str, Any]) -> torch.Tensor:
-        frames, tile = item["frames"], int(self.cfg.task.eval.tile)
+        frames, tile = item["batch"], int(self.cfg.task.eval.tile)
         count = frames["color"].shape[0]
         outputs = [
             infer_tiled(self.model, {k: v[f : f + 1] for k, v in frames.items()}, tile)["color"].float()
