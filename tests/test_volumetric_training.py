@@ -140,3 +140,28 @@ def test_feature_selection_needs_the_volumetric_candidates(tmp_path):
     with pytest.raises(ConfigError) as excinfo:
         DenoiseTask().check_stages(["select_features"], cfg)
     one_line_error(excinfo, "stage=select_features", "dataset=volumetric")
+
+
+@pytest.mark.slow
+def test_an_interrupted_probe_resumes_to_the_weights_of_an_uninterrupted_one(vol_data, tmp_path):
+    """The probe's dropout masks depend on (seed, step) only, so resuming inside an epoch replays them."""
+    from src.train.loop import run_training
+    from tests.conftest import stop_at
+
+    def probe_trainer(cfg, tracker, on_step=None):
+        return SequenceTrainer(cfg, tracker, on_step, probe=True)
+
+    def cfg(name, *extra):
+        return _cfg(vol_data, tmp_path / name, "task.train.epochs=2", "tracking.enabled=false", *extra)
+
+    logged = ("steps",)
+    straight = run_training(probe_trainer, cfg("a"), Tracker(), None, logged)
+    with pytest.raises(KeyboardInterrupt):
+        run_training(probe_trainer, cfg("b"), Tracker(), stop_at(straight["steps"] // 2 + 1), logged)
+    resumed = run_training(
+        probe_trainer, cfg("c", f"task.train.resume={tmp_path}/b/checkpoints"), Tracker(), None, logged
+    )
+    assert resumed["steps"] == straight["steps"]
+    a, c = load_checkpoint(straight["checkpoint"])["model"], load_checkpoint(resumed["checkpoint"])["model"]
+    for key, value in a.items():
+        assert torch.equal(c[key], value), key
