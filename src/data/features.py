@@ -72,9 +72,14 @@ def _check(features: Features) -> None:
                 f"{FEATURES_KEY}[{i}]={feature!r}: expected a buffer of {list(FEATURE_BUFFERS)}, "
                 f"optionally with .var or .grad"
             )
+    check_no_repeats(features, FEATURES_KEY)
+
+
+def check_no_repeats(features: Features, key: str) -> None:
+    """A one-line ConfigError naming `key` when a feature list names a feature more than once."""
     duplicates = sorted({str(f) for f in features if list(features).count(f) > 1})
     if duplicates:
-        raise ConfigError(f"{FEATURES_KEY}: {duplicates} listed more than once")
+        raise ConfigError(f"{key}: {duplicates} listed more than once")
 
 
 def feature_channels(features: Features) -> tuple[str, ...]:

@@ -35,7 +35,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 
-from src.data.features import channel_indices
+from src.data.features import channel_indices, check_no_repeats
 from src.errors import ConfigError
 from src.render.volume_aovs import CHANNEL_COUNT
 
@@ -113,9 +113,7 @@ def _check(features: Features) -> None:
                 f"{VOLUME_FEATURES_KEY}[{i}]={feature!r}: expected a buffer of "
                 f"{list(VOLUME_FEATURE_BUFFERS)}, optionally with .var (not motion)"
             )
-    duplicates = sorted({str(f) for f in features if list(features).count(f) > 1})
-    if duplicates:
-        raise ConfigError(f"{VOLUME_FEATURES_KEY}: {duplicates} listed more than once")
+    check_no_repeats(features, VOLUME_FEATURES_KEY)
 
 
 def volume_feature_channels(features: Features | None) -> tuple[str, ...]:

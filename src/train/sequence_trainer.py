@@ -32,7 +32,6 @@ from omegaconf import DictConfig, OmegaConf
 from src.data.sequence_dataset import SequencePatchDataset
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, run_volume_features
 from src.data.volume_shards import volume_transform
-from src.errors import ConfigError
 from src.models.denoise.base import Batch
 from src.train import feature_selection as fs
 from src.train.loop import OnStep, build_schedule, run_training
@@ -112,12 +111,8 @@ class _FeatureDropout:
         features = list(features or VOLUME_CANDIDATE_FEATURES)
         self.slices = fs.feature_slices(features)
         names = [name for name, _ in self.slices]
-        missing = [str(f) for f in sel.start if str(f) not in names]
-        if missing:
-            raise ConfigError(
-                f"task.feature_selection.start: {missing} not among the probe's features {names}"
-            )
-        self.always = [names.index(str(f)) for f in sel.start]
+        # keep_only: a one-line ConfigError if the start set names a feature the probe does not read.
+        self.always = fs.keep_only(sel.start, names).nonzero().flatten().tolist()
         self.neutral = fs.neutral_values(features, OmegaConf.to_container(sel.neutral, resolve=True))
         self.p, self.seed = float(sel.dropout), int(cfg.seed)
 
