@@ -16,6 +16,7 @@ from src.train.feature_selection import (
     random_features,
     random_keep_mask,
     selected_features,
+    spread_indices,
 )
 
 FEATURES = ["color", "albedo", "albedo.var", "transmittance", "depth", "motion"]  # 3+3+1+3+1+2 = 13
@@ -196,3 +197,10 @@ def test_random_features_sizes_seed_and_errors():
     for bad in (6, -1):
         with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
             random_features(candidates, ["color"], bad, seed=0)
+
+
+def test_spread_indices_cover_the_whole_validation_set():
+    assert spread_indices(12, 4) == [0, 3, 6, 9]
+    assert spread_indices(12, None) == list(range(12))
+    assert spread_indices(3, 5) == [0, 1, 2]
+    assert spread_indices(10, 3) == [0, 3, 6]

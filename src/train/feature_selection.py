@@ -133,6 +133,15 @@ def keep_only(selected: Collection[str], features: Features) -> torch.Tensor:
     return torch.tensor([str(f) in chosen for f in features], dtype=torch.bool)
 
 
+def spread_indices(total: int, count: int | None) -> list[int]:
+    """`count` indices spread evenly over range(total) (all of them when count is None or >= total): the
+    validation batches a subset is scored on. Unshuffled validation data lists one sequence after another,
+    so the first `count` batches would see one scene only."""
+    if count is None or count >= total:
+        return list(range(total))
+    return sorted({int(i * total / count) for i in range(count)})
+
+
 def _remaining(candidates: Sequence[str], start: Sequence[str]) -> list[str]:
     """`candidates` without the start set and repeats, in order."""
     return [c for c in dict.fromkeys(candidates) if c not in set(start)]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -121,12 +122,9 @@ def select_features(cfg: DictConfig, tracker) -> dict[str, Any]:
         trainer.restore(cfg.task.train.resume)
     summary = trainer.fit()
     trainer.model.eval()
-    limit = sel.val_batches
-    batches = []
-    for i, batch in enumerate(trainer._batches(trainer.val_data, epoch=0)):
-        if limit is not None and i >= int(limit):
-            break
-        batches.append(batch)
+    total = math.ceil(len(trainer.val_data) / int(cfg.task.train.batch_size))
+    keep = set(fs.spread_indices(total, sel.val_batches))
+    batches = [b for i, b in enumerate(trainer._batches(trainer.val_data, epoch=0)) if i in keep]
     features = [name for name, _ in trainer.dropout.slices]
 
     def loss_of(subset) -> float:
