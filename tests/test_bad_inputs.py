@@ -10,6 +10,7 @@ import pytest
 
 from src.errors import ConfigError, DataError
 from src.schema.run import validate_run
+from src.stages import stages_to_run, task_of
 from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_config
 
 #: (overrides, what the one line must contain)
@@ -156,7 +157,9 @@ def test_the_shipped_configs_pass_the_schema(tmp_path):
         ["task=filter_search", "profile=paper"],
     )
     for overrides in (*shipped, ["task=nerf", "dataset=blender", f"dataset.root={tmp_path}"]):
-        validate_run(smoke_config(tmp_path / "data", tmp_path / "run", overrides))
+        cfg = smoke_config(tmp_path / "data", tmp_path / "run", overrides)
+        validate_run(cfg)
+        task_of(cfg).check_stages(stages_to_run(cfg), cfg)
 
 
 def run_cli(args, data):

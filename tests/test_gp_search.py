@@ -213,6 +213,31 @@ def test_an_operator_with_two_equal_arguments_evaluates():
     assert bool(filter_images([tree], feats, color, 1).valid[0].all())
 
 
+def test_search_images_follow_spp_then_max_images():
+    from src.tasks.filter_search import search_image_indices
+
+    images = [{"scene": s, "spp": n} for s in ("a", "b") for n in (4, 16)]
+    assert search_image_indices(images, [4], None) == [0, 2]
+    assert search_image_indices(images, None, 3) == [0, 1, 2]
+    assert search_image_indices(images, [16], 1) == [1]
+    assert search_image_indices(images, [8], None) == []
+
+
+def test_searching_on_an_unrendered_spp_fails_at_job_start():
+    from omegaconf import OmegaConf
+
+    from src.errors import ConfigError
+    from src.tasks.filter_search import FilterSearchTask
+    from tests.conftest import compose_config, one_line_error
+
+    cfg = compose_config(["task=filter_search", "profile=smoke", "task.search.spp=[4,8]"])
+    with pytest.raises(ConfigError) as excinfo:
+        FilterSearchTask().check_stages(["render", "search"], cfg)
+    one_line_error(excinfo, "task.search.spp=[4, 8]", "[8] not rendered", "dataset.noisy_spp=[4, 16]")
+    OmegaConf.update(cfg, "task.search.spp", [4])
+    FilterSearchTask().check_stages(["render", "search"], cfg)
+
+
 @pytest.mark.slow
 def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     """render + preprocess (the denoise task's, up to date from the fixture), search 2 islands x 4 for 2

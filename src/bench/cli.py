@@ -45,9 +45,12 @@ def _check_volpath(args: argparse.Namespace) -> str | None:
 
 def _check_filter(args: argparse.Namespace) -> str | None:
     a = args
-    sizes = (a.width, a.height, a.images, a.islands, a.population, a.sample, a.tree_batch)
-    if min(sizes) < 1:
-        return "--width, --height, --images, --islands, --population, --sample and --tree-batch must be >= 1"
+    sizes = (a.width, a.height, a.images, a.islands, a.population, a.sample, a.tree_batch, a.frame_width)
+    if min(*sizes, a.frame_height) < 1:
+        return (
+            "--width, --height, --images, --islands, --population, --sample, --tree-batch, --frame-width and "
+            "--frame-height must be >= 1"
+        )
     if args.radius < 0:
         return "--radius must be >= 0"
     return None
@@ -110,6 +113,13 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--tree-batch", type=int, default=16, help="expressions per batched call (default 16)")
     f.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
     f.add_argument("--seed", type=int, default=0, help="seed of the population and the images")
+    f.add_argument("--frame-width", type=int, default=1280, help="frame timed per expression (default 1280)")
+    f.add_argument("--frame-height", type=int, default=720, help="(default 720)")
+    f.add_argument(
+        "--frame-expressions",
+        default="gp_expr1;gp_expr2;gp_expr3",
+        help="';'-separated published names or expressions to time on one frame ('': none)",
+    )
     f.set_defaults(run=run_filter, check=_check_filter)
     return parser
 

@@ -4,7 +4,11 @@ Sec. 4.1, Table 4.1: seconds per generation at 32x32 ... 512x512).
 A generation-0 population (islands x population mutants of the bilateral seed, `src.gp.search`) is
 evaluated on synthetic images with every feature terminal; `--sample` of its expressions are timed
 (batched as the search does, `--tree-batch` per call) and the rate is extrapolated to the whole
-population: expressions per second and seconds per generation (the output says when it extrapolates).
+population: expressions per second, weight evaluations per second (expressions x pixels x window offsets)
+and seconds per generation (the output says when it extrapolates). Then each of `--frame-expressions`
+(default: the three published ones, `src.gp.published`) filters one synthetic `--frame-width` x
+`--frame-height` frame (default 1280x720, the issue's real-time target; the thesis reports < 1 s on its GPU):
+seconds per frame, after one untimed warm-up on a 64x64 crop.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import time
 import torch
 
 from src.bench.timing import device_name
+from src.errors import ConfigError
 from src.train.device import pick_device
 
 
@@ -38,6 +43,43 @@ def _synthetic(images: int, height: int, width: int, device: torch.device, seed:
     return features, color, reference
 
 
+def _timed(fn, device: torch.device) -> float:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    start = time.perf_counter()
+    fn()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return time.perf_counter() - start
+
+
+def frame_lines(args: argparse.Namespace, device: torch.device) -> list[str]:
+    """Seconds to filter one `--frame-width` x `--frame-height` frame with each `--frame-expressions` entry
+    (a published name or an expression) at `--radius`."""
+    from src.gp.evaluate import filter_images
+    from src.gp.published import PUBLISHED
+    from src.gp.text import ExpressionError, parse
+
+    names = [n.strip() for n in args.frame_expressions.split(";") if n.strip()]
+    if not names:
+        return []
+    features, color, _ = _synthetic(1, args.frame_height, args.frame_width, device, args.seed)
+    crop = {k: v[..., :64, :64] for k, v in features.items()}
+    weights = args.frame_width * args.frame_height * (2 * args.radius + 1) ** 2
+    lines = [f"  one {args.frame_width}x{args.frame_height} frame, radius {args.radius}:"]
+    for name in names:
+        try:
+            tree = [parse(PUBLISHED.get(name, name))]
+        except ExpressionError as err:
+            raise ConfigError(f"--frame-expressions: {err}") from None
+        filter_images(tree, crop, color[..., :64, :64], args.radius)  # warm-up
+        seconds = _timed(lambda t=tree: filter_images(t, features, color, args.radius), device)
+        lines.append(
+            f"    {name[:60]}: {seconds:.2f} s per frame ({weights / seconds / 1e6:.1f} M weights/s)"
+        )
+    return lines
+
+
 def run_filter(args: argparse.Namespace) -> str:
     from src.gp.grammar import GRAMMAR_VECTORS, VARIABLES, VECTORS
     from src.gp.published import bilateral_expression
@@ -56,14 +98,9 @@ def run_filter(args: argparse.Namespace) -> str:
     unique = list({str(t): t for t in population}.values())
     sample = unique[: min(args.sample, len(unique))]
     fitness(sample[: min(2, len(sample))])  # warm-up: allocator, kernel selection
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    start = time.perf_counter()
-    fitness(sample)
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    seconds = time.perf_counter() - start
+    seconds = _timed(lambda: fitness(sample), device)
     rate = len(sample) / seconds
+    weights = rate * args.images * args.width * args.height * (2 * args.radius + 1) ** 2
     total = len(population)
     extrapolated = len(sample) < len(unique)
     lengths = sum(len(t) for t in sample) / len(sample)
@@ -73,11 +110,13 @@ def run_filter(args: argparse.Namespace) -> str:
         f"{args.islands} islands x {args.population} = {total} expressions ({len(unique)} distinct, "
         f"generation 0: mutants of the bilateral seed, mean length {lengths:.1f} nodes in the sample)",
         f"  timed {len(sample)} expressions in {seconds:.2f} s, {args.tree_batch} per batched call: "
-        f"{rate:.3f} expression evaluations/s ({rate * args.images:.3f} expression-images/s)",
+        f"{rate:.3f} expression evaluations/s ({rate * args.images:.3f} expression-images/s, "
+        f"{weights / 1e6:.1f} M weight evaluations/s)",
         f"  seconds per generation ({len(unique)} distinct evaluations, as the search dedupes): "
         f"{len(unique) / rate:.1f} s"
         + (f" (extrapolated from {len(sample)} of {len(unique)} distinct)" if extrapolated else ""),
         "  thesis (Davletaliyev 2016, Table 4.1, 512x512, one iteration): 183.14 s on its GPU (CUDA), "
         "27501.9 s on its CPU",
+        *frame_lines(args, device),
     ]
     return "\n".join(lines)

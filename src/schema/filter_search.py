@@ -22,6 +22,7 @@ class SeedSigmas(Schema):
 
 class Search(Schema):
     split: Literal["val", "test"]
+    spp: list[PositiveInt] | None
     max_images: PositiveInt | None
     crop: PositiveInt | None
     radius: int = Field(ge=0)

@@ -56,6 +56,15 @@ def _feature_builder(cfg: DictConfig, expression: str):
     return GPFilter(expression, int(search.radius), input_features(cfg), bool(search.normalize))
 
 
+def search_image_indices(
+    images: list[dict[str, Any]], spp: list[int] | None, max_images: int | None
+) -> list[int]:
+    """Indices of the split's images (index entries with `spp`) the search trains on: those at one of the
+    sample counts `spp` (None: all), the first `max_images` of them (None: all)."""
+    wanted = [i for i, meta in enumerate(images) if spp is None or int(meta["spp"]) in spp]
+    return wanted if max_images is None else wanted[: int(max_images)]
+
+
 def training_images(cfg: DictConfig) -> tuple[dict[str, torch.Tensor], list[dict[str, Any]]]:
     """The search's images as one batch (N, C, H, W) per key, and each image's scene/spp."""
     from src.data.denoise_dataset import FullImageDataset
@@ -63,10 +72,11 @@ def training_images(cfg: DictConfig) -> tuple[dict[str, torch.Tensor], list[dict
 
     search = cfg.task.search
     data = FullImageDataset(cfg.paths.prepared, str(search.split), features=input_features(cfg))
-    n = len(data) if search.max_images is None else min(len(data), int(search.max_images))
-    if n == 0:
-        raise DataError(f"{cfg.paths.prepared}/full/{search.split}: no images to search on")
-    items = [data[i] for i in range(n)]
+    wanted = search_image_indices(data.images, search.spp, search.max_images)
+    if not wanted:
+        spp = "" if search.spp is None else f" at task.search.spp={list(search.spp)}"
+        raise DataError(f"{cfg.paths.prepared}/full/{search.split}: no images to search on{spp}")
+    items = [data[i] for i in wanted]
     shapes = {tuple(item["color"].shape) for item in items}
     if len(shapes) > 1:
         raise DataError(f"task.search.split={search.split}: images of different sizes {sorted(shapes)}")
@@ -165,6 +175,18 @@ class FilterSearchTask(DenoiseTask):
             test = prepared / "full" / str(cfg.task.eval.split) / "index.json"
             return {test: preprocessed, best: "stage=search"}
         return super().inputs(stage, cfg)
+
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        """The denoise task's checks, and `task.search.spp` among the dataset's noisy sample counts."""
+        super().check_stages(stages, cfg)
+        spp, rendered = cfg.task.search.spp, cfg.dataset.get("noisy_spp")
+        if "search" in stages and spp is not None and rendered is not None:
+            missing = sorted(set(spp) - set(rendered))
+            if missing:
+                raise ConfigError(
+                    f"task.search.spp={list(spp)}: {missing} not rendered; expected among dataset.noisy_spp="
+                    f"{list(rendered)}"
+                )
 
     def search(self, cfg: DictConfig, tracker) -> dict[str, Any]:
         """Run (or resume) the search; log it; write the checkpoint, history and best expressions."""
