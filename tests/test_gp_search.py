@@ -1,8 +1,12 @@
 """The GP search (src/gp/search.py, Davletaliyev 2016 Sec. 3.2) on tiny synthetic images, and
 `task=filter_search` end to end (slow)."""
 
+import json
+import os
 import random
+import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -27,6 +31,7 @@ from src.gp.search import (
     search_pset,
 )
 from src.gp.text import parse
+from tests.conftest import ROOT
 
 AVAILABLE = ["color", "normal", "texture", "depth", "nGradient"]
 SEED = bilateral_expression(5.0, 0.5, 0.3, 0.1, 0.05)
@@ -202,6 +207,26 @@ def test_resume_from_a_checkpoint_gives_the_same_final_populations(tmp_path):
     other = SearchParams(**{**params.__dict__, "tournament_size": 3})
     with pytest.raises(Exception, match="tournament_size"):
         load_state(ckpt, other)
+
+
+def _resume_and_dump(checkpoint: str, out: str) -> None:
+    """Run in a fresh interpreter by the test below: resume `checkpoint` to 4 generations, dump the texts."""
+    params = SearchParams(islands=2, population=6, generations=4, migration_interval=2, seed=3)
+    resumed = _search(params).run(state=load_state(checkpoint, params))
+    Path(out).write_text(json.dumps(_texts(resumed)))
+
+
+def test_resume_in_another_process_gives_the_same_final_populations(tmp_path):
+    """A resume in a new interpreter (its own RNG state, hash seed and object ids, on which DEAP's sets of
+    primitive types depend) gives the uninterrupted run's populations."""
+    params = SearchParams(islands=2, population=6, generations=4, migration_interval=2, seed=3)
+    whole = _search(params).run()
+    ckpt, out = tmp_path / "search.json", tmp_path / "resumed.json"
+    _search(SearchParams(**{**params.__dict__, "generations": 2})).run(checkpoint=ckpt)
+    code = f"from tests.test_gp_search import _resume_and_dump; _resume_and_dump({str(ckpt)!r}, {str(out)!r})"
+    env = {**os.environ, "PYTHONHASHSEED": "12345"}
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True, timeout=300)
+    assert json.loads(out.read_text()) == _texts(whole)
 
 
 def test_an_operator_with_two_equal_arguments_evaluates():
