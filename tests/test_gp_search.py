@@ -287,6 +287,7 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     assert len(rows) == 2 and rows[0]["fitness"] <= rows[1]["fitness"]
     assert rows[0]["model"]["expression"] == summary["best_expression"]
     assert summary["best_fitness"] < 1.0  # the filter beats the noisy input
+    assert summary["images"] and {m["spp"] for m in summary["images"]} == {4}  # task.search.spp
     history = json.loads((out / "history.json").read_text())
     assert [h["generation"] for h in history] == [0, 1, 2]
     assert [len(h["islands"]) for h in history] == [2, 2, 2]
