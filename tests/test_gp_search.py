@@ -294,6 +294,13 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     result = stages.evaluate(cfg, Tracker(None))
     metrics = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
     assert metrics["model"] == "gp_filter" and result["mean"]["relmse"] < result["mean"]["noisy_relmse"]
+    import pandas as pd
+
+    islands = pd.read_csv(tmp_path / "run" / "eval" / "islands.csv")  # every island's best, held out
+    assert list(islands["island"]) == [r["island"] for r in rows]
+    assert islands["psnr"].iloc[0] == pytest.approx(result["mean"]["psnr"])
+    assert list(islands["expression"]) == [r["model"]["expression"] for r in rows]
+    assert (tmp_path / "run" / "eval" / f"island{rows[1]['island']}" / "metrics.json").exists()
     # resume: two more generations from the checkpoint
     more = smoke_config(
         smoke_data,

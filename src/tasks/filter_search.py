@@ -17,6 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import torch
 import yaml
 from omegaconf import DictConfig, OmegaConf
@@ -26,6 +27,9 @@ from src.schema.filter_search import FilterSearchTaskSchema
 from src.tasks.denoise import DenoiseTask
 
 BEST_FILE = "best_expressions.yaml"
+ISLANDS_FILE = "islands.csv"
+#: Held-out means in islands.csv, beside each island's fitness and expression.
+ISLAND_COLUMNS = ("psnr", "ssim", "relmse", "relmse_ratio", "ms_per_mpixel")
 STATE_FILE = "state.json"
 HISTORY_FILE = "history.json"
 
@@ -139,6 +143,14 @@ def make_search(cfg: DictConfig, fitness, available: list[str]):
     pset = search_pset(available)
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
     return GPSearch(fitness, seed_expression(cfg), search_params(cfg), pset, book), pset
+
+
+def _with_expression(cfg: DictConfig, model: dict[str, Any]) -> DictConfig:
+    """`cfg` with `model.expression`, `.radius` and `.normalize` of one best_expressions.yaml entry."""
+    cfg = cfg.copy()
+    for key in ("expression", "radius", "normalize"):
+        OmegaConf.update(cfg, f"model.{key}", model[key], merge=False)
+    return cfg
 
 
 def best_expressions(state, cfg: DictConfig) -> list[dict[str, Any]]:
@@ -268,12 +280,31 @@ class FilterSearchTask(DenoiseTask):
         return summary
 
     def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """The best expression of best_expressions.yaml as `model=gp_filter`, by the denoise evaluation."""
+        """Each island's best expression (best_expressions.yaml) as `model=gp_filter`, by the denoise
+        evaluation: the best one into `task.eval.out_dir` and the run's metrics, the other islands' into
+        `<out_dir>/island<k>/` (not logged as the run's metrics); their means side by side in
+        `<out_dir>/islands.csv` (logged as an artifact)."""
+        from src.io.atomic import atomic_write_text
+        from src.tracking.tracker import Tracker
+
         rows = yaml.safe_load((Path(cfg.task.search.out_dir) / BEST_FILE).read_text())
-        best = rows[0]["model"]
-        cfg = cfg.copy()
-        OmegaConf.update(cfg, "model.expression", best["expression"], merge=False)
-        OmegaConf.update(cfg, "model.radius", best["radius"], merge=False)
-        OmegaConf.update(cfg, "model.normalize", best["normalize"], merge=False)
-        tracker.set_tags({"search.evaluated_expression": best["expression"][:4000]})
-        return super().evaluate(cfg, tracker)
+        tracker.set_tags({"search.evaluated_expression": rows[0]["model"]["expression"][:4000]})
+        summaries, table = [], []
+        for rank, row in enumerate(rows):
+            island_cfg = _with_expression(cfg, row["model"])
+            if rank > 0:  # numbers only: no images, no run metrics
+                out_dir = f"{cfg.task.eval.out_dir}/island{row['island']}"
+                OmegaConf.update(
+                    island_cfg, "task.eval", {"out_dir": out_dir, "save_exr": False, "strips": False}
+                )
+            summaries.append(super().evaluate(island_cfg, tracker if rank == 0 else Tracker(None)))
+            mean = summaries[-1]["mean"]
+            table.append(
+                {"island": row["island"], "fitness": row["fitness"]}
+                | {k: mean[k] for k in ISLAND_COLUMNS}
+                | {"expression": row["model"]["expression"]}
+            )
+        out = Path(cfg.task.eval.out_dir) / ISLANDS_FILE
+        atomic_write_text(out, pd.DataFrame(table).to_csv(index=False))
+        tracker.log_artifact(out, "eval")
+        return summaries[0]
