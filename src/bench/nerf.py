@@ -13,6 +13,7 @@ first test pose of `task=nerf profile=<profile>`'s dataset (`BenchCamera.from_da
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any
 
@@ -70,7 +71,8 @@ def nerf_model_configs(models: str, profile: str) -> dict[str, dict[str, Any]]:
 def _nerf_header(args, device: torch.device, micro: int | None) -> str:
     split = "whole batch" if micro is None else f"micro-batches of {micro} rays"
     return (
-        f"nerf benchmark: profile {args.profile}, device {device} ({device_name(device)}), seed {args.seed}, "
+        f"nerf benchmark: profile {args.profile}, device {device} ({device_name(device)}, OMP_WAIT_POLICY "
+        f"{os.environ.get('OMP_WAIT_POLICY', 'unset')}), seed {args.seed}, "
         f"torch {torch.__version__}; train: median of {args.steps} Adam steps of {args.batch} rays "
         f"({split}) after 1 warm-up, every row timed in turn; render: {args.render_rays} rays in chunks "
         f"of {args.chunk}, 1 timed pass after 1 warm-up"
