@@ -48,6 +48,10 @@ BAD_VALUES = [
     (["task=nerf", "task.train.val_every=0"], ["task.train.val_every=0: expected a positive integer"]),
     (["task=nerf", "task.train.precrop_frac=1.5"], ["task.train.precrop_frac=1.5: expected a value <= 1"]),
     (["task=nerf", "task.train.micro_batch_rays=0"], ["task.train.micro_batch_rays=0: expected a positive"]),
+    (
+        ["task=nerf", "task.train.cpu_micro_batch_rays=0"],
+        ["task.train.cpu_micro_batch_rays=0: expected a positive"],
+    ),
     (["task=nerf", "task.train.batching=one_image"], ["task.train.batching='one_image'", "'single_image'"]),
     (["task=nerf", "model.opaque_background=maybe"], ["model.opaque_background", "maybe"]),
     (["task=nerf", "task.eval.split=train"], ["task.eval.split='train'"]),

@@ -17,6 +17,7 @@ COLUMNS = (
     "train rays/s",
     "train ratio",
     "train GFLOP/s",
+    "of matmul",
     "render rays/s",
     "render ratio",
     "render GFLOP/s",
@@ -35,12 +36,17 @@ def table_rows(out: str) -> list[dict[str, str]]:
     assert re.split(r"\s{2,}", lines[start].strip()) == list(COLUMNS), lines[start]
     rows = []
     for line in lines[start + 1 :]:
-        if line.startswith("FLOP/ray:"):  # the footnotes follow the table
+        if not line.strip() or line.startswith("FLOP/ray:"):  # the ratios and footnotes follow
             break
         cells = re.split(r"\s{2,}", line.strip())
         assert len(cells) == len(COLUMNS), line
         rows.append(dict(zip(COLUMNS, cells, strict=True)))
     return rows
+
+
+def model_rows(rows):
+    """The timed models' rows (not nerf-pytorch's, not the matmul reference)."""
+    return [r for r in rows if r["render rays/s"] != "-"]
 
 
 def _check_derived_columns(rows):
@@ -66,8 +72,12 @@ def test_nerf_bench_prints_one_row_per_model_relative_to_the_first(capsys):
     code = bench_main(["nerf", "--models", "nerf,mipnerf", *SMOKE])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    rows = table_rows(captured.out)
+    all_rows = table_rows(captured.out)
+    rows = model_rows(all_rows)
     assert [r["model"] for r in rows] == ["nerf", "mipnerf"]
+    assert all_rows[-1]["model"] == "matmul [1536,256]x[256,256]"  # 64 rays x (8 + 16) samples
+    matmul = _number(all_rows[-1]["train GFLOP/s"])
+    assert all_rows[-1]["of matmul"] == "1.00" and matmul > 0
     for r in rows:
         for column in ("params", "FLOP/ray", "train rays/s", "render rays/s"):
             assert _number(r[column]) > 0, (column, r)
@@ -77,7 +87,11 @@ def test_nerf_bench_prints_one_row_per_model_relative_to_the_first(capsys):
     _check_derived_columns(rows)
     # The smoke sizes (conf/model_profile/*_smoke.yaml), not the paper's: NeRF fine level = 8 + 8 samples.
     assert rows[0]["note"] == "8+16 samples" and rows[1]["note"] == "8+8 samples"
+    for r in rows:
+        assert _number(r["of matmul"]) == pytest.approx(_number(r["train GFLOP/s"]) / matmul, abs=0.01)
     assert "profile smoke" in captured.out and "3 x the forward FLOPs" in captured.out
+    assert "micro-batches of 32 rays" in captured.out  # task.train.cpu_micro_batch_rays, as training
+    assert "refnerf / mipnerf" not in captured.out  # Ref-NeRF not timed
     assert "[2/2] mipnerf" in captured.err  # progress, one line per model, on stderr
 
 
@@ -116,3 +130,64 @@ def test_benchmark_camera_is_read_from_the_nerf_dataset_config():
     assert farther["far"][0].item() == 7.0 and base["far"][0].item() == 6.0
     elevation = math.degrees(math.asin(base["origins"][0, 2].item() / 4.0))
     assert elevation == pytest.approx(30.0)
+
+
+FAKE_RUN_NERF = """
+import sys, torch
+from torch import nn
+import imageio, cv2  # stand-ins when absent
+print("Found ckpts []")  # as create_nerf's prints: must not reach the report
+
+
+def create_nerf(args):
+    assert (args.N_samples, args.N_importance, args.netwidth, args.multires) == (64, 128, 256, 10)
+    coarse, fine = nn.Linear(6, 3), nn.Linear(6, 3)
+    print("Not ndc!")
+    kwargs = {"network_fn": coarse, "network_fine": fine, "N_samples": 1, "use_viewdirs": True}
+    optimizer = torch.optim.Adam([*coarse.parameters(), *fine.parameters()], lr=args.lrate)
+    return kwargs, dict(kwargs), 0, None, optimizer
+
+
+def render(H, W, K, chunk, rays, near, far, network_fn, network_fine, retraw, **kwargs):
+    x = torch.cat([rays[0], rays[1]], dim=-1)
+    return network_fine(x), None, None, {"rgb0": network_fn(x)}
+
+
+def img2mse(x, y):
+    return ((x - y) ** 2).mean()
+"""
+
+
+def test_nerf_bench_times_nerf_pytorch_from_a_directory(capsys, tmp_path):
+    """--peer-nerf-pytorch DIR imports DIR/run_nerf.py (here a stand-in with its interface) and times its
+    step with ours; its prints stay out of the report; the ratio line compares the two."""
+    (tmp_path / "run_nerf.py").write_text(FAKE_RUN_NERF)
+    (tmp_path / "run_nerf_helpers.py").write_text("")
+    code = bench_main(["nerf", "--models", "nerf", *SMOKE, "--peer-nerf-pytorch", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = table_rows(captured.out)
+    assert [r["model"] for r in rows][:2] == ["nerf", "nerf-pytorch"]
+    peer = rows[1]
+    assert peer["params"] == "42" and peer["render rays/s"] == "-"
+    assert _number(peer["train ratio"]) > 0
+    assert re.search(r"nerf vs nerf-pytorch: [0-9.]+ x its training rays/s", captured.out)
+    assert "Found ckpts" not in captured.out and "Not ndc!" not in captured.out
+
+
+def test_nerf_bench_peer_directory_without_nerf_pytorch_is_one_line(capsys, tmp_path):
+    code = bench_main(["nerf", "--models", "nerf", *SMOKE, "--peer-nerf-pytorch", str(tmp_path)])
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    assert captured.err.count("\n") == 1 and "run_nerf.py" in captured.err
+
+
+def test_nerf_bench_prints_the_refnerf_over_mipnerf_ratio(capsys):
+    code = bench_main(["nerf", "--models", "mipnerf,refnerf", *SMOKE, "--micro-batch", "0"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = {r["model"]: r for r in table_rows(captured.out)}
+    expected = _number(rows["refnerf"]["train ratio"])
+    line = next(x for x in captured.out.splitlines() if x.startswith("refnerf / mipnerf"))
+    assert float(line.split(": ")[1].split()[0]) == pytest.approx(expected, abs=0.01)
+    assert "(whole batch)" in captured.out

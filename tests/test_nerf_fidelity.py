@@ -111,7 +111,7 @@ def saved_bytes_per_ray(model, rays: int = 4) -> float:
 
 
 @pytest.mark.parametrize("name", NAMES)
-@pytest.mark.parametrize(("profile", "tolerance"), [("smoke", 0.3), ("cpu", 0.1)])
+@pytest.mark.parametrize(("profile", "tolerance"), [("smoke", 0.5), ("cpu", 0.1)])
 def test_activation_estimate_matches_the_saved_tensors(name, profile, tolerance):
     model = build_method(model_cfg(name, profile))
     estimate = activation_bytes_per_ray(model)
@@ -129,11 +129,11 @@ def test_summary_prints_the_step_activation_memory(capsys):
     base = ["task=nerf", "model=refnerf", "profile=paper", "stage=summary"]
     print_model_summary(compose_config(base))
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert line.startswith("activation memory per training step (estimate, the whole batch): 139.")
-    assert "16384 rays x 256 samples x 33.2 KB per sample" in line
+    assert line.startswith("activation memory per training step (estimate, the whole batch): 119.")
+    assert "16384 rays x 256 samples x 28.5 KB per sample" in line
     print_model_summary(compose_config([*base, "task.train.micro_batch_rays=4096"]))
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert "micro-batches of 4096 of 16384 rays): 34.77 GB" in line
+    assert "micro-batches of 4096 of 16384 rays): 29.83 GB" in line
 
 
 def test_a_step_that_does_not_fit_the_gpu_is_one_line_naming_micro_batch_rays():
@@ -144,12 +144,12 @@ def test_a_step_that_does_not_fit_the_gpu_is_one_line_naming_micro_batch_rays():
     free = 80e9  # an 80 GB H100, empty
     with pytest.raises(ConfigError) as excinfo:
         check_activation_memory(model, 16384, None, free)
-    one_line_error(excinfo, "task.train.micro_batch_rays=None", "139.1 GB", "80.0 GB free")
-    one_line_error(excinfo, "set task.train.micro_batch_rays=4096 (or less)")
-    assert 4096 * per_ray <= 0.8 * free < 8192 * per_ray
-    check_activation_memory(model, 16384, 4096, free)  # the suggestion passes
-    with pytest.raises(ConfigError) as excinfo:  # 8192 rays need about 70 GB
-        check_activation_memory(model, 16384, 8192, 60e9)
+    one_line_error(excinfo, "task.train.micro_batch_rays=None", "119.3 GB", "80.0 GB free")
+    one_line_error(excinfo, "set task.train.micro_batch_rays=8192 (or less)")
+    assert 8192 * per_ray <= 0.8 * free < 16384 * per_ray
+    check_activation_memory(model, 16384, 8192, free)  # the suggestion passes
+    with pytest.raises(ConfigError) as excinfo:  # 8192 rays need about 60 GB
+        check_activation_memory(model, 16384, 8192, 50e9)
     one_line_error(excinfo, "task.train.micro_batch_rays=8192", "set task.train.micro_batch_rays=4096")
     with pytest.raises(ConfigError) as excinfo:
         check_activation_memory(model, 16384, 1, per_ray / 2)
@@ -157,9 +157,9 @@ def test_a_step_that_does_not_fit_the_gpu_is_one_line_naming_micro_batch_rays():
 
 
 def test_the_trainer_checks_before_training(tmp_path, monkeypatch):
-    """The trainer asks the device for its free memory (here injected: 1 MB, as if CUDA were full) and
+    """The trainer asks the device for its free memory (here injected: 100 kB, as if CUDA were full) and
     stops before loading any data; the CLI turns the ConfigError into exit status 2."""
-    monkeypatch.setattr(nerf_trainer, "device_free_bytes", lambda device: 1_000_000)
+    monkeypatch.setattr(nerf_trainer, "device_free_bytes", lambda device: 100_000)
     cfg = smoke_config(tmp_path, tmp_path / "run", ["task=nerf", "model=mipnerf"])
     with pytest.raises(ConfigError) as excinfo:
         NerfTrainer(cfg, tracker=None)

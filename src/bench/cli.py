@@ -1,6 +1,7 @@
 """Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
 --models dpcn,kpcn,resnet,unet_kpcn --profile paper]`` and ``python -m src.bench nerf [--models
-nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto]`` and
+nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto
+--micro-batch N --threads N --peer-nerf-pytorch DIR]`` and
 ``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
 and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
 --sample 8 --device auto]``.
@@ -34,6 +35,10 @@ def _check_denoise(args: argparse.Namespace) -> str | None:
 def _check_nerf(args: argparse.Namespace) -> str | None:
     if min(args.batch, args.steps, args.render_rays, args.chunk) < 1:
         return "--batch, --steps, --render-rays and --chunk must be >= 1"
+    if (args.micro_batch is not None and args.micro_batch < 0) or (
+        args.threads is not None and args.threads < 1
+    ):
+        return "--micro-batch must be >= 0, --threads >= 1"
     return None
 
 
@@ -90,6 +95,20 @@ def _parser() -> argparse.ArgumentParser:
     n.add_argument("--chunk", type=int, default=4096, help="rays per forward pass when rendering")
     n.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
     n.add_argument("--seed", type=int, default=0, help="seed of the random weights, rays and samples")
+    n.add_argument(
+        "--micro-batch",
+        type=int,
+        default=None,
+        help="rays per forward + backward pass of a training step, 0 = the whole batch (default: as "
+        "training does: task.train.micro_batch_rays, on CPU task.train.cpu_micro_batch_rays)",
+    )
+    n.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    n.add_argument(
+        "--peer-nerf-pytorch",
+        metavar="DIR",
+        default=None,
+        help="also time nerf-pytorch's training step (a checkout of github.com/yenchenlin/nerf-pytorch)",
+    )
     n.set_defaults(run=run_nerf, check=_check_nerf)
 
     v = commands.add_parser("volpath", help="samples/s of the volumetric AOV integrator vs Mitsuba's volpath")

@@ -11,10 +11,10 @@ from omegaconf import OmegaConf
 CONF_DIR = Path(__file__).resolve().parent.parent.parent / "conf"
 
 
-def _compose(overrides: list[str], group: str) -> dict[str, Any]:
+def _compose(overrides: list[str], group: str, resolve: bool = True) -> dict[str, Any]:
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose("config", overrides=overrides)
-    return OmegaConf.to_container(cfg[group], resolve=True)  # type: ignore[return-value]
+    return OmegaConf.to_container(cfg[group], resolve=resolve)  # type: ignore[return-value]
 
 
 def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
@@ -29,3 +29,9 @@ def load_dataset_config(task: str, profile: str) -> dict[str, Any]:
     """The `dataset:` group as `python -m src.run task=<task> profile=<profile>` composes it (the task's
     default dataset, with its task profile's overrides)."""
     return _compose([f"task={task}", f"profile={profile}"], "dataset")
+
+
+def load_task_config(task: str, profile: str) -> dict[str, Any]:
+    """The `task:` group as `python -m src.run task=<task> profile=<profile>` composes it, unresolved (its
+    run paths need a Hydra run)."""
+    return _compose([f"task={task}", f"profile={profile}"], "task", resolve=False)

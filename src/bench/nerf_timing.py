@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -12,12 +11,12 @@ import torch
 
 from src.bench.timing import time_runs
 from src.data.rays import focal_from_fov, generate_rays
-from src.models.instantiate import build_method
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase, RefNeRF
 from src.models.nerf.summary import nerf_mlp_flops_per_ray
 from src.models.parameters import count_parameters
 from src.render.multiview_cameras import look_at_c2w, sphere_position
+from src.train.nerf_trainer import optimizer_step
 
 
 @dataclass(frozen=True)
@@ -48,24 +47,27 @@ class BenchCamera:
 
 @dataclass
 class NerfRow:
-    """One model's measurements."""
+    """One row of the table: a model (`kind` "model"), nerf-pytorch ("peer", no rendering) or the matmul
+    reference ("reference": its forward FLOPs spread over the batch's rays, so that the GFLOP/s columns
+    compare; no rays/s)."""
 
     name: str
-    params: int
+    params: int | None
     flops_per_ray: int  # MLP forward FLOPs per ray, coarse + fine
     train_seconds: float  # median seconds of one step of `train_rays` rays
     train_rays: int
-    render_seconds: float  # seconds of one pass over `render_rays` rays
-    render_rays: int
+    render_seconds: float | None = None  # seconds of one pass over `render_rays` rays
+    render_rays: int = 0
     note: str = ""
+    kind: str = "model"
 
     @property
     def train_seconds_per_ray(self) -> float:
         return self.train_seconds / self.train_rays
 
     @property
-    def render_seconds_per_ray(self) -> float:
-        return self.render_seconds / self.render_rays
+    def render_seconds_per_ray(self) -> float | None:
+        return None if self.render_seconds is None else self.render_seconds / self.render_rays
 
 
 def benchmark_rays(
@@ -85,31 +87,19 @@ def benchmark_rays(
 
 
 def train_step_fn(
-    model: NerfModelBase, rays: Mapping[str, torch.Tensor], target: torch.Tensor, lr: float = 5e-4
-) -> Callable[[], None]:
-    """One training step on a fixed ray batch, as `NerfTrainer.train_step` does it: stratified (jittered)
-    samples, the model's loss, backward, Adam step."""
-    model.train()
-    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
-
-    def step() -> None:
-        loss, _ = model.loss(model(rays, randomized=True), target)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-
-    return step
-
-
-def time_training(
     model: NerfModelBase,
     rays: Mapping[str, torch.Tensor],
     target: torch.Tensor,
-    steps: int,
-    device: torch.device,
-) -> float:
-    """Median seconds of one training step on `rays` over `steps` steps (after one untimed warm-up)."""
-    return time_runs(train_step_fn(model, rays, target), device, steps)
+    micro_batch_rays: int | None,
+    lr: float = 5e-4,
+) -> Callable[[], None]:
+    """One training step on a fixed ray batch, as `NerfTrainer.train_step` does it (`optimizer_step`):
+    the batch's stratified and resampling jitter drawn up front, forward + loss + backward in
+    micro-batches of `micro_batch_rays` rays (None: the whole batch), one Adam step."""
+    model.train()
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
+    batch = {**rays, "rgb": target}
+    return lambda: optimizer_step(model, optimizer, batch, micro_batch_rays, None)
 
 
 def time_rendering(
@@ -120,32 +110,35 @@ def time_rendering(
     return time_runs(lambda: render_rays_chunked(model, rays, chunk), device, 1)
 
 
-def bench_nerf_model(
-    name: str,
-    cfg: Mapping[str, Any],
-    train_rays: Mapping[str, torch.Tensor],
-    target: torch.Tensor,
-    render_rays: Mapping[str, torch.Tensor],
-    args: argparse.Namespace,
-    device: torch.device,
-) -> NerfRow:
-    """Build `name` (seeded), then time its training steps and its rendering."""
-    torch.manual_seed(args.seed)
-    model = build_method(cfg).to(device)
+def model_note(model: NerfModelBase) -> str:
     coarse, fine = model.samples_per_level()
     note = f"{coarse}+{fine} samples"
     if isinstance(model, RefNeRF):
         note += "; FLOPs exclude the normals' density gradient"
-    n_train, n_render = train_rays["origins"].shape[0], render_rays["origins"].shape[0]
-    train_seconds = time_training(model, train_rays, target, args.steps, device)
-    render_seconds = time_rendering(model, render_rays, args.chunk, device)
-    return NerfRow(
-        name,
-        count_parameters(model),
-        nerf_mlp_flops_per_ray(model)["total"],
-        train_seconds,
-        n_train,
-        render_seconds,
-        n_render,
-        note,
-    )
+    return note
+
+
+def model_row(name: str, model: NerfModelBase, train_seconds: float, n_train: int) -> NerfRow:
+    flops = nerf_mlp_flops_per_ray(model)["total"]
+    note = model_note(model)
+    return NerfRow(name, count_parameters(model), flops, train_seconds, n_train, note=note)
+
+
+def matmul_reference(rows: int, width: int, device: torch.device) -> tuple[Callable[[], None], int]:
+    """The machine's achievable matmul throughput, measured like a training step of a `width`-wide linear
+    layer over `rows` samples: y = x W^T, then g W and g^T x (its input and weight gradients), fp32.
+    Returns (the function, its FLOPs: 3 x 2 x rows x width^2)."""
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(rows, width, generator=gen).to(device)
+    g = torch.randn(rows, width, generator=gen).to(device)
+    w = (torch.randn(width, width, generator=gen) / width**0.5).to(device)
+    bias = torch.zeros(width, device=device)
+    y, gx = torch.empty_like(x), torch.empty_like(x)
+    gw = torch.empty_like(w)
+
+    def run() -> None:
+        torch.addmm(bias, x, w.t(), out=y)
+        torch.mm(g, w, out=gx)
+        torch.mm(g.t(), x, out=gw)
+
+    return run, 3 * 2 * rows * width * width

@@ -13,6 +13,7 @@ class Train(Schema):
     max_steps: PositiveInt
     batch_size: PositiveInt
     micro_batch_rays: PositiveInt | None
+    cpu_micro_batch_rays: PositiveInt | None = None
     batching: Literal["all_images", "single_image"]
     lr_init: PositiveFloat
     schedule: Target | None

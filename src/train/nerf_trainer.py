@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +94,17 @@ def check_activation_memory(
         f"{need / 1e9:.1f} GB of activations ({activation_bytes_per_ray(model) / 1e3:.0f} KB per ray) "
         f"but the GPU has {free_bytes / 1e9:.1f} GB free; {advice}"
     )
+
+
+def micro_batch_rays(train_cfg: Mapping[str, Any], device: torch.device) -> int | None:
+    """Rays per forward + backward pass of a training step: `task.train.micro_batch_rays` when set, else
+    on CPU `task.train.cpu_micro_batch_rays` (a few rays' activations fit in the caches, where the
+    elementwise passes run at cache instead of memory speed; the step is the same, `accumulate_gradients`),
+    else None (the whole batch at once)."""
+    micro = train_cfg.get("micro_batch_rays")
+    if micro is None and device.type == "cpu":
+        micro = train_cfg.get("cpu_micro_batch_rays")
+    return None if micro is None else int(micro)
 
 
 def accumulate_gradients(
@@ -198,8 +209,8 @@ class NerfTrainer(TrainingLoop):
         return self.pos.step >= int(self.t.max_steps)
 
     def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
-        micro = self.t.get("micro_batch_rays")
-        values = optimizer_step(self.model, self.optimizer, batch, micro and int(micro), self.t.grad_max_norm)
+        micro = micro_batch_rays(self.t, self.device)
+        values = optimizer_step(self.model, self.optimizer, batch, micro, self.t.grad_max_norm)
         return values, len(batch["rgb"])
 
     @torch.no_grad()

@@ -2,20 +2,22 @@
 FLOPs per ray, and the training step's activation memory (estimated from the architecture).
 
 Activation memory of a training step = rays x sum over levels (samples of the level x bytes per sample),
-with bytes per sample = element size x floats saved for the backward pass per sample:
+with bytes per sample = element size x floats saved for the backward pass per sample. The MLPs never
+form their concatenations (`fields.SkipMLP`), so each tensor is kept once: a SkipMLP keeps its per-sample
+input and every layer's output (the next layer's input, or the heads' shared one):
 
-    floats = sum_l in_features(l)                      over every nn.Linear l of the level's MLP
-           + sum_t in_features(t) + 2 (pos_dim + ide_dim)   Ref-NeRF only; t: the spatial trunk's layers
+    floats = sum_m (per-sample in_dim(m) + width(m) x depth(m))   over the trunk and the view MLP m
+           + width x depth + 4 (pos_dim + ide_dim)                 Ref-NeRF only
 
-Each linear layer keeps its input for the weight gradient (the ReLU outputs are those inputs, and the
-encodings the first layer's). Ref-NeRF differentiates its density w.r.t. the sample positions with
-`create_graph=True` (its normals, Verbin et al. 2022 Sec. 3), which keeps about one more trunk-sized set
-of tensors for the double backward, and its IPE and IDE (Eq. 7-8) keep a few encoding-sized tensors.
-Calibrated on CPU against the bytes of the tensors autograd saves (`saved_tensors_hooks`), the formula is
-within 1 % (NeRF, mip-NeRF) and 4 % (Ref-NeRF) at paper size, 9 % at the cpu profile and 26 % at the tiny
-smoke sizes, where the encodings dominate (tests/test_nerf_fidelity.py measures it). That is about
-11.4 KB per sample for NeRF and mip-NeRF and 33 KB for Ref-NeRF, so Ref-NeRF's paper step (16384 rays
-x 256 samples) needs about 139 GB; `task.train.micro_batch_rays` divides it.
+NeRF's view encoding is one row per ray (not counted). Ref-NeRF differentiates its density w.r.t. the
+sample positions with `create_graph=True` (its normals, Verbin et al. 2022 Sec. 3), which keeps about
+one more trunk-sized set of tensors for the double backward, and its IPE and IDE (Eq. 7-8) keep a few
+encoding-sized tensors. Calibrated on CPU against the bytes of the tensors autograd saves
+(`saved_tensors_hooks`), the formula is within 1 % at paper size, 6 % at the cpu profile and 45 % at the
+tiny smoke sizes, where the encodings and volume rendering (not counted) dominate
+(tests/test_nerf_fidelity.py measures it). That is about 10.0 KB per sample for NeRF and mip-NeRF and
+28.5 KB for Ref-NeRF, so Ref-NeRF's paper step (16384 rays x 256 samples) needs about 119 GB;
+`task.train.micro_batch_rays` divides it.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from torch import nn
 
 from src.models.instantiate import model_dict
 from src.models.nerf.directional import ide_dim
-from src.models.nerf.fields import RefNerfMLP
+from src.models.nerf.fields import NerfMLP, RefNerfMLP, SkipMLP
 from src.models.nerf.models import LEVELS, NerfModelBase, RefNeRF
 from src.models.parameters import count_parameters
 
@@ -49,13 +51,22 @@ def nerf_mlp_flops_per_ray(model: NerfModelBase) -> dict[str, int]:
     return flops
 
 
+def _skip_mlp_floats(mlp: SkipMLP, per_sample_in: int) -> int:
+    return per_sample_in + mlp.width * mlp.depth
+
+
 def activation_floats_per_sample(mlp: nn.Module) -> int:
     """Floats one sample keeps for the backward pass through `mlp` (the module docstring's formula)."""
-    floats = sum(m.in_features for m in mlp.modules() if isinstance(m, nn.Linear))
+    if isinstance(mlp, NerfMLP):  # the view encoding is kept once per ray, not per sample
+        view = mlp.view_mlp
+        return _skip_mlp_floats(mlp.trunk, mlp.trunk.in_dim) + _skip_mlp_floats(
+            view, view.in_dim - mlp.view_dim
+        )
     if isinstance(mlp, RefNerfMLP):  # the density gradient's graph (double backward) and the encodings
-        floats += sum(m.in_features for m in mlp.trunk.layers)
-        floats += 2 * (mlp.trunk.in_dim + ide_dim(mlp.deg_view))
-    return floats
+        trunk, view = mlp.trunk, mlp.view_mlp
+        floats = _skip_mlp_floats(trunk, trunk.in_dim) + _skip_mlp_floats(view, view.in_dim)
+        return floats + trunk.width * trunk.depth + 4 * (trunk.in_dim + ide_dim(mlp.deg_view))
+    return sum(m.in_features for m in mlp.modules() if isinstance(m, nn.Linear))
 
 
 def activation_bytes_per_ray(model: NerfModelBase) -> int:
