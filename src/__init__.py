@@ -1,15 +1,6 @@
 """nrbench: a reproducible experiment and benchmark harness for neural rendering research."""
 
-import os
-
-# Before torch loads its OpenMP runtime (libgomp reads this once): threads waiting at the end of a parallel
-# region sleep instead of spinning. On a 2-core machine shared with other jobs a spinning thread holds the
-# core its descheduled partner needs, so every op waits out a time slice: a NeRF training step in
-# micro-batches of 32 rays ran at 16 rays/s spinning and 84 passively (`python -m src.bench nerf`). A value
-# already in the environment wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-from omegaconf import OmegaConf  # noqa: E402
+from omegaconf import OmegaConf
 
 from src.data.features import feature_count as _feature_count
 from src.data.volume_features import volume_feature_count as _volume_feature_count

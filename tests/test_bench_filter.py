@@ -38,4 +38,3 @@ def test_filter_bench_bad_size_is_one_line_exit_2(capsys):
     assert bench_main([*TINY, "--frame-height", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("bench: ") and "--frame-height must be >= 1" in err and "\n" not in err
-
