@@ -23,13 +23,7 @@ from tests.conftest import compose_config, one_line_error, smoke_config
 NAMES = ("nerf", "mipnerf", "refnerf")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """Tiny tensors: intra-op threads cost more than they gain on a 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread")  # tests/conftest.py
 
 
 def model_cfg(name: str, profile: str = "smoke", *overrides: str) -> dict:

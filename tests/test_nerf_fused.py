@@ -16,12 +16,7 @@ from tests.conftest import compose_config
 NAMES = ("nerf", "mipnerf", "refnerf")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread")  # tests/conftest.py
 
 
 def plain_forward(self: SkipMLP, *pieces: torch.Tensor) -> torch.Tensor:

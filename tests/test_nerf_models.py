@@ -26,14 +26,7 @@ PAPER_COUNTS = {
 }
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """These tests run tiny tensors, where intra-op threads cost more than they gain: on a busy 2-core
-    machine a smoke training step took 0.27 s with 2 threads and 0.018 s with 1. Restored afterwards."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_thread")  # tests/conftest.py
 
 
 def model_cfg(name: str, profile: str = "paper", *overrides: str) -> dict:
