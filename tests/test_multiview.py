@@ -36,7 +36,9 @@ def ds():
     small = OmegaConf.to_container(cfg, resolve=True)
     small.update(width=24, height=24, spp=4, views={"train": 2, "val": 1, "test": 2})
     small["scene_params"]["busy"].update(n_objects=12, texture_res=16)
-    small["scene_params"]["spheres"]["env"]["res"] = 32
+    small["scene_params"]["tabletop"].update(texture_res=16)
+    for scene in ("spheres", "tabletop"):
+        small["scene_params"][scene]["env"]["res"] = 32
     return small
 
 
@@ -109,13 +111,30 @@ def test_config_errors_are_one_line(ds, tmp_path):
     with pytest.raises(ConfigError) as err:
         render_multiview_dataset({**ds, "scenes": ["spheres"], "scene_params": crowded}, tmp_path)
     one_line_error(err, "scene_params.spheres", "bound_radius=1.3")
+    wide = {**ds["scene_params"], "tabletop": {**ds["scene_params"]["tabletop"], "ring_radius": 1.2}}
+    with pytest.raises(ConfigError) as err:
+        render_multiview_dataset({**ds, "scenes": ["tabletop"], "scene_params": wide}, tmp_path)
+    one_line_error(err, "scene_params.tabletop", "bound_radius=1.3")
+
+
+def test_tabletop_has_glossy_spheres_and_textured_objects_on_a_textured_ground(ds):
+    scene = SCENE_BUILDERS["tabletop"](np.random.default_rng(0), ds["scene_params"]["tabletop"], ds)
+    params = ds["scene_params"]["tabletop"]
+    glossy = [scene[f"glossy_{k}"]["bsdf"] for k in range(len(params["glossy"]))]
+    assert [b["type"] for b in glossy] == ["roughconductor", "roughplastic", "roughconductor", "roughplastic"]
+    assert [b["alpha"] for b in glossy] == [g["roughness"] for g in params["glossy"]]
+    textured = [scene[f"textured_{k}"]["bsdf"]["bsdf"]["reflectance"]["type"] for k in range(4)]
+    assert set(textured) <= {"checkerboard", "bitmap"} and "textured_4" not in scene
+    assert scene["ground"]["bsdf"]["reflectance"]["type"] == "checkerboard"
+    assert scene["centre"]["bsdf"]["bsdf"]["reflectance"]["type"] in {"checkerboard", "bitmap"}
+    assert scene["env"]["type"] == "envmap"
 
 
 def test_renders_loadable_blender_scenes_and_caches(mitsuba_variant, ds, tmp_path):
     summary = render_multiview_dataset(ds, tmp_path)
-    assert summary["scenes_rendered"] == 2 and summary["views_rendered"] == 10
-    assert summary["rays"] == 10 * 24 * 24 * 4 and summary["rays_per_second"] > 0
-    for scene in ("spheres", "busy"):
+    assert summary["scenes_rendered"] == 3 and summary["views_rendered"] == 15
+    assert summary["rays"] == 15 * 24 * 24 * 4 and summary["rays_per_second"] > 0
+    for scene in ("spheres", "busy", "tabletop"):
         root = tmp_path / scene
         assert sorted(p.name for p in root.iterdir()) == [
             KEY_FILE,
@@ -145,7 +164,7 @@ def test_renders_loadable_blender_scenes_and_caches(mitsuba_variant, ds, tmp_pat
         np.testing.assert_allclose(test.c2w[:, 2, 3], ds["radius"] * math.sin(math.radians(30)), rtol=1e-5)
 
     again = render_multiview_dataset(ds, tmp_path)
-    assert again["scenes_rendered"] == 0 and again["scenes_cached"] == 2 and again["rays"] == 0
+    assert again["scenes_rendered"] == 0 and again["scenes_cached"] == 3 and again["rays"] == 0
     assert render_multiview_dataset({**ds, "near": 2.5}, tmp_path)["scenes_rendered"] == 0
     before = (tmp_path / "spheres" / "train" / "r_0.png").read_bytes()
     params = {**ds["scene_params"], "busy": {**ds["scene_params"]["busy"], "n_objects": 6}}

@@ -1,5 +1,6 @@
 """The procedural multi-view scenes as Mitsuba scene dicts: ``spheres`` (a grid of spheres, one material
-per row, graded roughness) and ``busy`` (many small textured objects), and the path integrator they use."""
+per row, graded roughness), ``busy`` (many small textured objects) and ``tabletop`` (glossy spheres and
+textured objects on a textured disk), and the path integrator they use."""
 
 from __future__ import annotations
 
@@ -130,11 +131,71 @@ def busy_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
     return scene
 
 
+def tabletop_scene(rng: np.random.Generator, p: Mapping, ds: Mapping) -> dict:
+    """Glossy and textured objects together, the benchmark kind of NeRF scene: a checkerboard ``ground``
+    disk, ``glossy`` spheres (one per entry: material and GGX roughness) on a circle, and
+    ``n_textured`` textured diffuse cubes (checkerboard or value noise, as ``busy``) between them, under
+    the ``spheres`` scene's studio environment, so the reflections move with the view and the textures
+    need detail."""
+    import mitsuba as mi
+
+    ground = p["ground"]
+    z0, disk_radius = float(ground["height"]), float(ground["radius"])
+    _check_inside(ds, "tabletop", math.hypot(z0, disk_radius))
+    scene: dict = {
+        "type": "scene",
+        "env": envmap_emitter(p["env"]),
+        "ground": {
+            "type": "disk",
+            "to_world": mi.ScalarTransform4f().translate([0.0, 0.0, z0]).scale(disk_radius),
+            "bsdf": {
+                "type": "diffuse",
+                "reflectance": {
+                    "type": "checkerboard",
+                    "color0": {"type": "rgb", "value": list(ground["color0"])},
+                    "color1": {"type": "rgb", "value": list(ground["color1"])},
+                    "to_uv": mi.ScalarTransform4f().scale([ground["checks"], ground["checks"], 1.0]),
+                },
+            },
+        },
+    }
+    radius, ring = float(p["sphere_radius"]), float(p["ring_radius"])
+    for k, sphere in enumerate(p["glossy"]):
+        angle = 2 * math.pi * k / len(p["glossy"])
+        centre = [ring * math.cos(angle), ring * math.sin(angle), z0 + radius]
+        _check_inside(ds, "tabletop", float(np.linalg.norm(centre)) + radius)
+        scene[f"glossy_{k}"] = {
+            "type": "sphere",
+            "center": centre,
+            "radius": radius,
+            "bsdf": _material(str(sphere["material"]), float(sphere["roughness"]), p),
+        }
+    half = float(p["cube_half_edge"])
+    for k in range(int(p["n_textured"])):
+        angle = 2 * math.pi * (k + 0.5) / int(p["n_textured"])
+        turn = float(rng.uniform(0.0, 90.0))  # about the up axis: the cube stays on the ground
+        centre = [ring * math.cos(angle), ring * math.sin(angle), z0 + half]
+        _check_inside(ds, "tabletop", float(np.linalg.norm(centre)) + half * BOUNDING_RADIUS["cube"])
+        scene[f"textured_{k}"] = {
+            "type": "cube",
+            "to_world": mi.ScalarTransform4f().translate(centre).rotate([0, 0, 1], turn).scale(half),
+            "bsdf": _textured_diffuse(rng, {**p, "textured_fraction": 1.0}),
+        }
+    scene["centre"] = {
+        "type": "sphere",
+        "center": [0.0, 0.0, z0 + float(p["centre_radius"])],
+        "radius": float(p["centre_radius"]),
+        "bsdf": _textured_diffuse(rng, {**p, "textured_fraction": 1.0}),
+    }
+    return scene
+
+
 #: Procedural multi-view scenes: builder(rng, dataset.scene_params.<name>, dataset) -> Mitsuba scene dict
 #: (no integrator, no sensor). Tests may register extra builders here.
 SCENE_BUILDERS: dict[str, Callable[[np.random.Generator, Mapping, Mapping], dict]] = {
     "spheres": spheres_scene,
     "busy": busy_scene,
+    "tabletop": tabletop_scene,
 }
 
 

@@ -389,11 +389,46 @@ class Busy(Schema):
     sun: DirectionalSun
 
 
+class Ground(Schema):
+    height: float
+    radius: PositiveFloat
+    checks: PositiveFloat
+    color0: Colour
+    color1: Colour
+
+
+class GlossySphere(Schema):
+    material: Literal["conductor", "plastic", "dielectric"]
+    roughness: PositiveFloat
+
+
+class NerfTabletop(Schema):
+    ground: Ground
+    glossy: list[GlossySphere] = Field(min_length=1)
+    sphere_radius: PositiveFloat
+    ring_radius: PositiveFloat
+    n_textured: NonNegativeInt
+    cube_half_edge: PositiveFloat
+    centre_radius: PositiveFloat
+    conductor: str = Field(min_length=1)
+    plastic_color: Colour
+    dielectric_ior: PositiveFloat
+    color: Range
+    checker_probability: Probability
+    checker_scale: Range
+    texture_res: PositiveInt
+    noise_octaves: PositiveInt
+    noise_base_cells: PositiveInt
+    noise_persistence: PositiveFloat
+    env: StudioEnv
+
+
 class SceneParams(Schema):
     """`dataset.scene_params`: each multi-view scene's materials, layout and lights."""
 
     spheres: Spheres
     busy: Busy
+    tabletop: NerfTabletop
 
 
 class NerfProceduralDataset(NearFar):
