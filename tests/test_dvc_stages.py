@@ -27,9 +27,9 @@ SAMPLE = [
     "denoise_baseline@cross_bilateral",
     "denoise_report",
     "nerf_render",
-    "nerf_config@nerf-spheres",
-    "nerf_train@nerf-spheres",
-    "nerf_eval@nerf-spheres",
+    "nerf_config@nerf-tabletop",
+    "nerf_train@nerf-tabletop",
+    "nerf_eval@nerf-tabletop",
     "nerf_report",
 ]
 # The MLflow store is deliberately no DVC out: the report stages read runs, which DVC cannot hash.
