@@ -168,6 +168,12 @@ class FullImageDataset(Dataset):
     def __len__(self) -> int:
         return len(self.images)
 
+    @property
+    def batch_keys(self) -> frozenset[str]:
+        """The tensor keys of every item, from the index (no image read): what `_prepare` returns."""
+        stored = [k for k in SHARD_KEYS if k in self.index["channels"]]
+        return frozenset((*stored, *self.guides, "diffuse_t", "specular_t"))
+
     def __getitem__(self, i: int) -> dict[str, Any]:
         meta = self.images[i]
         data = _prepare(

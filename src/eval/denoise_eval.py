@@ -79,6 +79,14 @@ class OnDevice(Sequence):
         return {"item": item, "batch": batch}
 
 
+def held_out_images(cfg: DictConfig, model: Denoiser) -> FullImageDataset:
+    """The full images of `task.eval.split`, after checking from their index that they hold what `model`
+    reads (`Denoiser.check_batch_keys`: a one-line error before any image is denoised or file written)."""
+    data = FullImageDataset(cfg.paths.prepared, cfg.task.eval.split, features=input_features(cfg))
+    model.check_batch_keys(data.batch_keys)
+    return data
+
+
 class DenoiseEvaluation(Evaluation):
     """Every image of `task.eval.split` (every scene x noisy spp), denoised in tiles."""
 
@@ -92,7 +100,7 @@ class DenoiseEvaluation(Evaluation):
         self.eps = float(cfg.task.preprocess.eps_albedo)
 
     def items(self) -> Sequence[dict[str, Any]]:
-        data = FullImageDataset(self.cfg.paths.prepared, self.cfg.task.eval.split, features=self.features)
+        data = held_out_images(self.cfg, self.model)
         return OnDevice(data, self.device)
 
     def infer(self, item: dict[str, Any]) -> torch.Tensor:

@@ -83,6 +83,20 @@ def _check_model_dataset(stage: str, cfg: DictConfig) -> None:
         )
 
 
+def _check_held_out_inputs(stage: str, cfg: DictConfig) -> None:
+    """At job start of a still-image `stage=eval` whose prepared images exist: the one-line error of a
+    method that needs a buffer they lack (e.g. a GP filter's world position on real KPCN data), before
+    any run is opened or file written. (When an earlier stage of the job makes them, the eval stage checks
+    the same when it opens them.)"""
+    index = Path(cfg.paths.prepared) / "full" / str(cfg.task.eval.split) / "index.json"
+    if stage != "eval" or cfg.dataset.name == "volumetric" or not index.is_file():
+        return
+    from src.eval.denoise_eval import held_out_images
+    from src.models.instantiate import build_method
+
+    held_out_images(cfg, build_method(OmegaConf.to_container(cfg.model, resolve=True)))
+
+
 def _render_volumetric(ds: dict, raw: Path, variant: str, summary_path: Path) -> tuple[dict, Path]:
     """Render the volumetric sequences (or the `render_scenes` / `render_frames` subset a fanned-out job
     was given); returns the summary and where to write it: one file per subset, so jobs keep theirs."""
@@ -160,10 +174,11 @@ class DenoiseTask(Task):
         return Path(cfg.paths.raw)
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
-        """Stages this dataset cannot run fail at job start (`_check_dataset_stage`)."""
+        """Stages this dataset or method cannot run fail at job start (`_check_*`)."""
         for stage in stages:
             _check_model_dataset(stage, cfg)
             _check_dataset_stage(stage, cfg)
+            _check_held_out_inputs(stage, cfg)
 
     def render(self, cfg: DictConfig) -> dict:
         """The denoising EXRs into `paths.raw` (files whose render key is unchanged are kept): the

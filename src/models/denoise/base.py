@@ -35,7 +35,7 @@ its output back itself), so learned models and filters share the sequence traine
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 
 import torch
 from torch import nn
@@ -57,6 +57,10 @@ class Denoiser(nn.Module):
 
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
         raise NotImplementedError
+
+    def check_batch_keys(self, keys: Collection[str]) -> None:
+        """Raise a one-line error naming what `forward` would miss in batches with tensor `keys` (read from
+        the data's index before any image is denoised). Default: nothing beyond the common keys."""
 
 
 def final_color(outputs: Mapping[str, torch.Tensor], batch: Batch, eps: float) -> torch.Tensor:

@@ -9,9 +9,11 @@ run's `task.features`; a variance from the batch key `<buffer>_var` or that `dif
 is computed here (Sobel, `src.gp.features`) from its feature. With `normalize` (the thesis, Sec. 3.3.2)
 every vector feature but the colour and the pixel coordinates is normalised per image (1-D by its maximum,
 3-D by its longest vector) and each variance is scaled with its feature (divided by the square of the same
-factor). A feature the data lack is a one-line ConfigError naming it, its batch key and `model.expression`,
-raised at the first call. World position and secondary texture (batch keys `position`, `secondary_albedo`,
-`position_var`, `secondary_albedo_var`) are rendered by the `kpcn_aov` integrator and stored by preprocessing
+factor). A feature the data lack is a one-line ConfigError naming it, its batch key and `model.expression`:
+`check_batch_keys` raises it from the data's index before any image is filtered (at job start when
+`stage=eval` finds the prepared data; otherwise when the eval stage opens them), and a call does too.
+World position and secondary texture (batch keys `position`, `secondary_albedo`, `position_var`,
+`secondary_albedo_var`) are rendered by the `kpcn_aov` integrator and stored by preprocessing
 when the raw EXRs have them; real KPCN data and older renders lack them, so expressions 2 and 3 (world
 position) then stop with that error. The guide variances and the visibility are batch keys of the denoise
 datasets (`src.data.denoise_dataset.GUIDE_KEYS`), so they need not be in `task.features`.
@@ -22,6 +24,8 @@ own), except that two sample counts of a scene get the maxima of their own (nois
 """
 
 from __future__ import annotations
+
+from collections.abc import Collection
 
 import torch
 
@@ -106,22 +110,41 @@ class GPFilter(Denoiser):
             )
         return ConfigError(f"model.expression needs feature {terminal!r}: {where}")
 
+    def _from_inputs(self, keys: Collection[str], key: str) -> bool:
+        """Whether `key` is read from a `diffuse_in` channel (the batch has no key of that name)."""
+        channels = self.input_channels or ()
+        return key not in keys and key in _INPUT_CHANNELS and key in channels and "diffuse_in" in keys
+
     def _read(self, batch: Batch, terminal: str, key: str) -> torch.Tensor:
         if key in batch:
             return batch[key].float()
-        channels = self.input_channels or ()
-        if key in _INPUT_CHANNELS and key in channels and "diffuse_in" in batch:
-            i = channels.index(key)
+        if self._from_inputs(batch.keys(), key):
+            i = self.input_channels.index(key)
             return batch["diffuse_in"][:, i : i + 1].float()
         raise self._missing(terminal, key)
 
+    def _base_terminals(self) -> list[str]:
+        """The vector terminals read from the batch: the needed ones, the features of needed gradients,
+        and (normalising) the features of needed variances, whose scale divides them."""
+        base = {GRADIENT_OF.get(t, t) for t in self.needed}
+        if self.normalize:
+            base |= {VARIANCE_OF[t] for t in self.needed if t in VARIANCE_OF}
+        return sorted(t for t in base if t in FEATURE_KEYS)
+
+    def _variance_key(self, terminal: str) -> str:
+        return f"{FEATURE_KEYS[VARIANCE_OF[terminal]]}_var"
+
+    def check_batch_keys(self, keys: Collection[str]) -> None:
+        """The one-line ConfigError of the first terminal that batches with tensor `keys` cannot give."""
+        wanted = [(t, FEATURE_KEYS[t]) for t in self._base_terminals()]
+        wanted += [(t, self._variance_key(t)) for t in sorted(self.needed) if t in VARIANCE_OF]
+        for terminal, key in wanted:
+            if key not in keys and not self._from_inputs(keys, key):
+                raise self._missing(terminal, key)
+
     def features(self, batch: Batch) -> dict[str, torch.Tensor]:
         """The terminals the expression reads, from `batch` (module docstring)."""
-        # Gradients need their feature; a variance needs it only for the normalisation factor.
-        base_needed = {GRADIENT_OF.get(t, t) for t in self.needed}
-        if self.normalize:
-            base_needed |= {VARIANCE_OF[t] for t in self.needed if t in VARIANCE_OF}
-        raw = {t: self._read(batch, t, FEATURE_KEYS[t]) for t in sorted(base_needed) if t in FEATURE_KEYS}
+        raw = {t: self._read(batch, t, FEATURE_KEYS[t]) for t in self._base_terminals()}
         scale = {
             t: normalization_scale(x) for t, x in raw.items() if self.normalize and t not in UNNORMALIZED
         }
@@ -134,7 +157,7 @@ class GPFilter(Denoiser):
                 out[t] = grad / normalization_scale(grad) if self.normalize else grad
             else:
                 base = VARIANCE_OF[t]
-                var = self._read(batch, t, f"{FEATURE_KEYS[base]}_var")
+                var = self._read(batch, t, self._variance_key(t))
                 out[t] = var / scale[base].square() if base in scale else var
         return out
 
