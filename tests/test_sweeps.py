@@ -453,3 +453,19 @@ def test_the_gp_expansion_sweep_reports_each_setting(smoke_data, tmp_path):
     assert usage and all(int(u["runs"]) >= 1 and float(u["occurrences"]) >= 1 for u in usage)
     assert (out / "search_curves.png").is_file() and (out / "feature_usage.md").is_file()
     assert "best fitness per generation" in (out / "index.html").read_text()
+
+
+@pytest.mark.slow
+def test_the_gp_population_sweep_reports_fitness_against_population(smoke_data, tmp_path):
+    """`+sweep=gp_population` at the smoke profile, one seed: Figure 4.7 as a table (one row per
+    population, 2-16 per island at smoke), Figure 4.6 as the search curves, Figure 4.8 as the feature
+    usage of the runs' best expressions."""
+    sweep(["+sweep=gp_population", "seed=0"], smoke_data, tmp_path)
+    out = tmp_path / "reports" / "sweeps" / "gp_population"
+    rows = read_csv(out / "comparison.csv")
+    assert sorted(int(float(r["task.search.population"])) for r in rows) == [2, 4, 8, 16]
+    for r in rows:
+        assert 0 < float(r["min fitness"]) <= float(r["best fitness"]), r
+        assert float(r["PSNR"]) > 0 and r["runs"] == "1", r
+    assert "Warning" not in (out / "comparison.md").read_text()
+    assert read_csv(out / "feature_usage.csv") and (out / "search_curves.png").is_file()
