@@ -12,7 +12,6 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.errors import NrbenchError
 from src.multirun import read_parent, resolved_section, sweep_dir
-from src.report.build import build_report, report_line
 
 log = logging.getLogger("nrbench.report")
 
@@ -21,6 +20,10 @@ class SweepReportCallback(Callback):
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         """The report over this sweep's child runs. A report failure is logged; it does not fail the
         finished sweep."""
+        # Imported here, not at the top: Hydra builds this callback in every `python -m src.run`, and the
+        # report's matplotlib and mlflow cost seconds a process.
+        from src.report.build import build_report, report_line
+
         tracking = resolved_section(config, "tracking")
         record = read_parent(sweep_dir(config))
         if not tracking.enabled or record is None:

@@ -10,26 +10,27 @@ from __future__ import annotations
 
 import logging
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import mlflow
-import pandas as pd
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.experimental.callback import Callback
 from hydra.types import RunMode
-from mlflow.tracking import MlflowClient
 from omegaconf import DictConfig, OmegaConf
 
 from src.io.atomic import atomic_write_json
 from src.multirun import PARENT_FILE, read_parent, resolved_section, sweep_dir
 from src.provenance import git_commit
-from src.tracking.comparison import DEFAULT_COLUMNS, comparison_table, format_table
-from src.tracking.experiment import setup_tracking
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+# mlflow, pandas and src.tracking.comparison are imported where a multirun uses them: Hydra builds this
+# callback in every `python -m src.run`, and importing them costs ~2.5 s a process (each DVC stage is one).
 
 log = logging.getLogger("nrbench.tracking")
 
 # The sweep table adds each job's overrides in front, so rows of a sweep over anything are told apart.
-SWEEP_COLUMNS = {"job": "tags.nrbench.hydra_job", **DEFAULT_COLUMNS}
+SWEEP_JOB_COLUMN = {"job": "tags.nrbench.hydra_job"}
 _BAD_CHILD_STATUSES = ("FAILED", "KILLED")
 
 
@@ -63,6 +64,10 @@ class MlflowSweepCallback(Callback):
             # A record left by an earlier sweep in a reused dir would attach jobs to a stale parent.
             (directory / PARENT_FILE).unlink(missing_ok=True)
             return
+        from mlflow.tracking import MlflowClient
+
+        from src.tracking.experiment import setup_tracking
+
         experiment_id = setup_tracking(tracking)
         overrides = " ".join(str(o) for o in config.hydra.overrides.task)
         commit = git_commit()
@@ -92,6 +97,8 @@ class MlflowSweepCallback(Callback):
             return
         record = read_parent(sweep_dir(config))
         if record is not None:
+            from mlflow.tracking import MlflowClient
+
             MlflowClient(tracking_uri=record["tracking_uri"]).set_terminated(record["run_id"], "FAILED")
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
@@ -100,10 +107,15 @@ class MlflowSweepCallback(Callback):
         if record is None:
             return
 
+        import mlflow
+        from mlflow.tracking import MlflowClient
+
+        from src.tracking.comparison import DEFAULT_COLUMNS, comparison_table, format_table
+
         mlflow.set_tracking_uri(record["tracking_uri"])
         client = MlflowClient(tracking_uri=record["tracking_uri"])
         parent_id = record["run_id"]
-        table = comparison_table(parent_id, columns=SWEEP_COLUMNS)
+        table = comparison_table(parent_id, columns=SWEEP_JOB_COLUMN | DEFAULT_COLUMNS)
         if not table.empty:
             table["job"] = varying_overrides(table["job"])
         failed = table["status"].isin(_BAD_CHILD_STATUSES).any() if not table.empty else False
