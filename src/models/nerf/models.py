@@ -121,12 +121,18 @@ class NerfModelBase(nn.Module):
     ) -> dict[str, Tensor]:
         """field(samples, rays) where the occupancy grid is occupied at `points` (N, S, 3), zero elsewhere:
         the occupied samples are gathered into one batch (each with its ray's per-ray inputs), evaluated,
-        and scattered back. Without a grid, or with every sample occupied, field(samples, rays) itself."""
+        and scattered back. Without a grid, or with every sample occupied, field(samples, rays) itself.
+        With none occupied, the field runs on one sample only to give the outputs' shapes (all zero)."""
         if self.occupancy_grid is None:
             return field(samples, rays)
         mask = self.occupancy_grid.occupied_at(points)
         if bool(mask.all()):
             return field(samples, rays)
+        if not bool(mask.any()):
+            probe = torch.zeros_like(mask)
+            probe.view(-1)[0] = True
+            shapes = field(*gather_samples(probe, samples, rays))
+            return {k: v.new_zeros((*mask.shape, *v.shape[2:])) for k, v in shapes.items()}
         return scatter_samples(mask, field(*gather_samples(mask, samples, rays)))
 
     def mlp_for(self, level: int) -> nn.Module:

@@ -94,7 +94,8 @@ class OccupancyGrid(nn.Module):
         threshold: density (per unit length along the ray) above which a cell is occupied, capped by the
             mean (`occupancy_from_ema`).
         warmup_steps: the grid is all occupied, and every update evaluates every cell, before this step
-            (NerfAcc evaluates every cell for its first 256 steps).
+            (NerfAcc evaluates every cell for its first 256 steps); the first update from this step on
+            evaluates every cell too.
         sample_fraction: after the warm-up an update evaluates this share of the cells, drawn uniformly,
             plus as many occupied cells (NerfAcc: 1/4).
         occupied_outside: whether points outside the box count as occupied (evaluated).
@@ -129,10 +130,12 @@ class OccupancyGrid(nn.Module):
         return torch.where(inside, self.occupied[cells], self.occupied_outside)
 
     def cells_to_update(self, step: int, generator: torch.Generator) -> Tensor:
-        """Every cell during the warm-up; then a `sample_fraction` of the cells uniformly at random and
-        as many occupied ones (NerfAcc's choice), without repeats (sorted flat indices, on the CPU)."""
+        """Every cell during the warm-up and at the first update after it (so that the first occupancy
+        bits come from every cell, whatever `warmup_steps` is); then a `sample_fraction` of the cells
+        uniformly at random and as many occupied ones (NerfAcc's choice), without repeats (sorted flat
+        indices, on the CPU)."""
         cells = self.occupied.numel()
-        if step < self.warmup_steps:
+        if step < self.warmup_steps + self.update_every:
             return torch.arange(cells)
         k = max(1, int(cells * self.sample_fraction))
         uniform = torch.randperm(cells, generator=generator)[:k]
