@@ -3,6 +3,8 @@ with a grid equals rendering without it where the grid is exact (the density is 
 cell), the update rule's closed form, cell indexing, that the MLP really sees fewer samples, checkpoints
 keep the grid, a resumed training run updates it as an uninterrupted one, and config errors."""
 
+import subprocess
+
 import pytest
 import torch
 from torch import nn
@@ -21,7 +23,7 @@ from src.stages import render
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, load_weights, save_checkpoint
 from src.train.nerf_trainer import NerfTrainer, train_nerf, update_occupancy
-from tests.conftest import one_line_error, smoke_config, stop_at
+from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config, stop_at
 from tests.test_nerf_models import model_cfg, sphere_scene
 
 NAMES = ("nerf", "mipnerf", "refnerf")
@@ -414,3 +416,11 @@ def test_bad_grid_values_are_one_line_errors_naming_the_key(key, value):
     with pytest.raises(ConfigError) as excinfo:
         build_method(dict(model_cfg("nerf", "smoke"), occupancy_grid=[8]))
     one_line_error(excinfo, "model.occupancy_grid")
+
+
+def test_the_cli_exits_2_naming_the_grid_key(tmp_path):
+    args = ["task=nerf", "model=mipnerf", "profile=smoke", "stage=summary", "+occupancy_grid=on"]
+    bad = ["model.occupancy_grid.resolution=0", f"hydra.run.dir={tmp_path}/run"]
+    cmd, env = cli_job([*args, *bad], tmp_path / "data")
+    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    one_line_cli_error(result, "model.occupancy_grid.resolution", "expected >= 1, got 0")
