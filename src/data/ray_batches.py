@@ -10,9 +10,11 @@ from src.data.rays import as_c2w, rays_for_pixels
 from src.errors import ConfigError
 
 
-def step_seed(seed: int, step: int) -> int:
-    """A 63-bit generator seed unique to (seed, step), the same in every process and on every platform."""
-    return int(np.random.SeedSequence([int(seed), int(step)]).generate_state(1, np.uint64)[0] >> 1)
+def step_seed(seed: int, step: int, stream: int = 0) -> int:
+    """A 63-bit generator seed unique to (seed, step), the same in every process and on every platform;
+    `stream` > 0 gives another independent seed per (seed, step) (e.g. the occupancy grid's jitter)."""
+    entropy = [int(seed), int(step)] + ([int(stream)] if stream else [])
+    return int(np.random.SeedSequence(entropy).generate_state(1, np.uint64)[0] >> 1)
 
 
 #: How a batch's pixels are spread over the training images (`task.train.batching`).

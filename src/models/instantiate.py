@@ -107,7 +107,10 @@ def _arguments(target: Callable[..., Any]) -> tuple[dict[str, Any], set[str], bo
             if typing.get_origin(hint) is typing.Unpack:
                 shared = typing.get_args(hint)[0]
                 accepted |= typing.get_type_hints(shared)
-                required |= set(shared.__required_keys__)
+                # `__required_keys__` misses NotRequired under postponed annotations (Python < 3.14)
+                marked = typing.get_type_hints(shared, include_extras=True)
+                optional = {k for k, h in marked.items() if typing.get_origin(h) is typing.NotRequired}
+                required |= set(shared.__required_keys__) - optional
             else:
                 takes_any = True
             continue

@@ -11,6 +11,11 @@ The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train
 NeRF run is one epoch of `max_steps` batches. The checkpoint holds the step, the model, the optimiser, the
 RNG states (stratified sampling draws from them, on the training device) and the curves, so a resumed run
 ends with the same weights.
+
+A model with an occupancy grid (`model.occupancy_grid`, empty-space skipping) has it updated at the start
+of every step from the model's own density (`OccupancyGrid.update`, which acts every `update_every`
+steps), with jitter from a generator seeded by (seed, step): the grid is model state (buffers) and so
+checkpointed, and a resumed run updates it exactly as an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from src.data.blender import load_blender_split
-from src.data.ray_batches import RayBatcher
+from src.data.ray_batches import RayBatcher, step_seed
 from src.data.rays import rays_for_pixels
 from src.errors import ConfigError
 from src.models.nerf.summary import activation_bytes, activation_bytes_per_ray, fitting_micro_batch
@@ -157,6 +162,20 @@ def optimizer_step(
     return values
 
 
+#: `step_seed` stream of the occupancy grid's jitter (stream 0: the ray batches).
+OCCUPANCY_STREAM = 1
+
+
+def update_occupancy(model, seed: int, step: int) -> bool:
+    """Update the model's occupancy grid, if it has one, before step `step` (0-based) from the model's
+    point density; its jitter depends only on (seed, step). Returns whether the grid changed."""
+    grid = getattr(model, "occupancy_grid", None)
+    if grid is None:
+        return False
+    generator = torch.Generator(device="cpu").manual_seed(step_seed(seed, step, OCCUPANCY_STREAM))
+    return grid.update(model.point_density, step, generator)
+
+
 class NerfTrainer(TrainingLoop):
     """Random ray batches of one scene, validation every `val_every` steps."""
 
@@ -209,6 +228,7 @@ class NerfTrainer(TrainingLoop):
         return self.pos.step >= int(self.t.max_steps)
 
     def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
+        update_occupancy(self.model, int(self.cfg.seed), self.pos.step)
         micro = micro_batch_rays(self.t, self.device)
         values = optimizer_step(self.model, self.optimizer, batch, micro, self.t.grad_max_norm)
         return values, len(batch["rgb"])

@@ -3,13 +3,13 @@
 Each factory's keyword arguments are the group's keys (`src.models.instantiate.build_method` checks them
 against the signature); the options all three share are one `TypedDict`, `FieldArgs`, unpacked into
 `**common`, so that they are declared, typed and documented once. A size out of range is a one-line
-`ConfigError` naming `model.<key>`.
+`ConfigError` naming `model.<key>` (`model.occupancy_grid.<key>` for the grid's options).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Literal, NotRequired, TypedDict, Unpack
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Literal, NotRequired, TypedDict, Unpack
 
 from torch import nn
 
@@ -17,6 +17,7 @@ from src.errors import ConfigError
 from src.models.instantiate import at_least
 from src.models.nerf.fields import ACTIVATIONS, NerfMLP, RefNerfMLP
 from src.models.nerf.models import MipNeRF, NeRF, RefNeRF
+from src.models.nerf.occupancy import OccupancyGrid
 
 #: Ref-NeRF's integrated directional encoding uses degrees l = 1, 2, 4, ..., 2^(deg_view - 1) <= 16.
 MAX_DEG_VIEW = 5
@@ -47,6 +48,9 @@ class FieldArgs(TypedDict):
     # NeRF's released code: the last interval is 1e10 long, so a ray is opaque at the far bound
     # (absent in configs from before the option: False, the real interval of mip-NeRF / multinerf)
     opaque_background: NotRequired[bool]
+    # Empty-space skipping (`occupancy.OccupancyGrid`): None (every sample evaluated) or a mapping of
+    # every argument of OccupancyGrid (absent in configs from before the option: None)
+    occupancy_grid: NotRequired[Mapping[str, Any] | None]
 
 
 def _degrees(prefix: str, lo: int, hi: int) -> tuple[int, int]:
@@ -97,7 +101,64 @@ def _rendering(common: FieldArgs) -> dict:
         **{k: common[k] for k in keys},
         "background": tuple(float(c) for c in background),
         "opaque_background": opaque,
+        "occupancy_grid": occupancy_grid(common.get("occupancy_grid")),
     }
+
+
+#: The keys of `model.occupancy_grid`, and the check of each value (None: any bool).
+GRID_KEYS: dict[str, tuple[type, float | None]] = {
+    "aabb": (list, None),
+    "resolution": (int, 1),
+    "update_every": (int, 1),
+    "decay": (float, 0.0),
+    "threshold": (float, 0.0),
+    "warmup_steps": (int, 0),
+    "sample_fraction": (float, 0.0),
+    "occupied_outside": (bool, None),
+    "chunk": (int, 1),
+}
+
+
+def occupancy_grid(cfg: Mapping[str, Any] | None) -> OccupancyGrid | None:
+    """The `model.occupancy_grid` mapping as an `OccupancyGrid` (None: None), every key given and checked:
+    a missing, unknown or out-of-range value is a one-line ConfigError naming `model.occupancy_grid.<key>`."""
+    if cfg is None:
+        return None
+    if not isinstance(cfg, Mapping):
+        expected = f"expected null or a mapping of {list(GRID_KEYS)}"
+        raise ConfigError(f"model.occupancy_grid: {expected}, got {cfg!r}")
+    for key in cfg:
+        if key not in GRID_KEYS:
+            raise ConfigError(f"model.occupancy_grid.{key}: unknown key; expected one of {list(GRID_KEYS)}")
+    for key, (kind, minimum) in GRID_KEYS.items():
+        name = f"model.occupancy_grid.{key}"
+        if key not in cfg:
+            raise ConfigError(f"{name}: missing")
+        value = cfg[key]
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if kind is bool and not isinstance(value, bool):
+            raise ConfigError(f"{name}: expected true or false, got {value!r}")
+        if kind is int and not (number and value == int(value)):
+            raise ConfigError(f"{name}: expected an integer, got {value!r}")
+        if kind is float and not number:
+            raise ConfigError(f"{name}: expected a number, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise ConfigError(f"{name}: expected >= {minimum}, got {value!r}")
+    if not 0.0 < cfg["decay"] <= 1.0 or not 0.0 < cfg["sample_fraction"] <= 1.0:
+        key = "decay" if not 0.0 < cfg["decay"] <= 1.0 else "sample_fraction"
+        raise ConfigError(f"model.occupancy_grid.{key}: expected a number in (0, 1], got {cfg[key]!r}")
+    aabb = cfg["aabb"]
+    if (
+        not isinstance(aabb, Sequence)
+        or len(aabb) != 6
+        or not all(isinstance(c, int | float) and not isinstance(c, bool) for c in aabb)
+        or not all(aabb[i] < aabb[i + 3] for i in range(3))
+    ):
+        raise ConfigError(
+            f"model.occupancy_grid.aabb: expected [x_min, y_min, z_min, x_max, y_max, z_max] with each "
+            f"min < max, got {aabb!r}"
+        )
+    return OccupancyGrid(**{k: (int(v) if GRID_KEYS[k][0] is int else v) for k, v in cfg.items()})
 
 
 def _levels(single_mlp: bool, make: Callable[[], nn.Module]) -> tuple[nn.Module, nn.Module | None]:

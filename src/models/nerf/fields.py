@@ -146,9 +146,16 @@ class NerfMLP(nn.Module):
         self.view_mlp = SkipMLP(bottleneck_width + view_dim, view_depth, view_width, view_skip_layer)
         self.rgb_head = _init_linear(nn.Linear(self.view_mlp.out_dim, RGB))
 
+    def _density(self, h: Tensor) -> Tensor:
+        return self.density_act(self.density_head(h)[..., 0] + self.density_bias)
+
+    def density(self, x_enc: Tensor) -> Tensor:
+        """The density alone (the trunk and density head; no view MLP), e.g. for an occupancy grid."""
+        return self._density(self.trunk(x_enc))
+
     def forward(self, x_enc: Tensor, view_enc: Tensor) -> dict[str, Tensor]:
         h = self.trunk(x_enc)
-        density = self.density_act(self.density_head(h)[..., 0] + self.density_bias)
+        density = self._density(h)
         bottleneck = self.bottleneck(h)
         h = self.view_mlp(bottleneck, view_enc[..., None, :])  # the view encoding broadcast per ray
         return {"density": density, "rgb": padded_sigmoid(self.rgb_head(h), self.rgb_padding)}
@@ -212,6 +219,10 @@ class RefNerfMLP(nn.Module):
     def _spatial(self, means: Tensor, covs: Tensor) -> tuple[Tensor, Tensor]:
         h = self.trunk(integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point))
         return h, self.density_head(h)[..., 0]
+
+    def density(self, means: Tensor, covs: Tensor) -> Tensor:
+        """The density alone (spatial MLP; no normals, no directional MLP), e.g. for an occupancy grid."""
+        return self.density_act(self._spatial(means, covs)[1] + self.density_bias)
 
     def forward(self, means: Tensor, covs: Tensor, viewdirs: Tensor) -> dict[str, Tensor]:
         if torch.is_inference_mode_enabled():

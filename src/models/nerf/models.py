@@ -13,6 +13,11 @@ Every model renders two levels (coarse, fine) of the same rays:
 - `RefNeRF` (Verbin et al. 2022): mip-NeRF's sampling and IPE with `RefNerfMLP`, plus the orientation
   and predicted-normal regularisers (Ref-NeRF Eq. 11-12).
 
+With an `OccupancyGrid` (`occupancy.py`; None by default) the three models run their MLP only on the
+samples whose position (NeRF: the interval midpoint; mip-NeRF, Ref-NeRF: the frustum Gaussian's mean)
+lies in an occupied cell; the other samples get density 0 and zero colour (normals), and everything
+after the field (weights, resampling, losses) is the same code on the same shapes.
+
 Rays are a dict of (N, k) tensors: origins, directions (camera-space z = -1 directions rotated to world,
 not normalised: t is then the camera depth), viewdirs (unit), radii (cone radius at t = 1), near, far.
 """
@@ -20,7 +25,7 @@ not normalised: t is then the camera depth), viewdirs (unit), radii (cone radius
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 from torch import Tensor, nn
@@ -28,6 +33,7 @@ from torch import Tensor, nn
 from src.models.nerf.directional import l2_normalize
 from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
 from src.models.nerf.fields import NerfMLP, RefNerfMLP
+from src.models.nerf.occupancy import OccupancyGrid, gather_samples, scatter_samples
 from src.models.nerf.sampling import resample_draws, resample_tdist, stratified_samples
 from src.models.nerf.volume import compute_alpha_weights, volumetric_rendering
 
@@ -36,6 +42,12 @@ LEVELS = ("coarse", "fine")
 ORIENTATION_NORMALS = ("pred", "density")
 
 Rays = Mapping[str, Tensor]
+
+
+class SampleField(Protocol):
+    """A field on per-sample inputs (N, S, ...) and per-ray inputs (N, ...) -> per-sample outputs."""
+
+    def __call__(self, samples: dict[str, Tensor], rays: dict[str, Tensor]) -> dict[str, Tensor]: ...
 
 
 class NerfModelBase(nn.Module):
@@ -56,6 +68,8 @@ class NerfModelBase(nn.Module):
         opaque_background: the last interval is 1e10 long (NeRF's released code, Mildenhall et al. 2020:
             any density there makes the ray opaque at the far bound) instead of its real length
             (mip-NeRF, multinerf). See `volume.compute_alpha_weights`.
+        occupancy_grid: empty-space skipping (`occupancy.OccupancyGrid`; None: every sample evaluated).
+            A subclass uses it through `evaluate_occupied` and gives its density through `point_density`.
     """
 
     name = "base"
@@ -74,9 +88,11 @@ class NerfModelBase(nn.Module):
         background: Sequence[float] = (1.0, 1.0, 1.0),
         coarse_loss_mult: float = 1.0,
         opaque_background: bool = False,
+        occupancy_grid: OccupancyGrid | None = None,
     ) -> None:
         super().__init__()
         self.opaque_background = opaque_background
+        self.occupancy_grid = occupancy_grid  # a submodule (its buffers in the state dict) when given
         self.mlps = nn.ModuleList([coarse_mlp] if fine_mlp is None else [coarse_mlp, fine_mlp])
         self.num_coarse_samples, self.num_fine_samples = num_coarse_samples, num_fine_samples
         self.resample_padding, self.lindisp = resample_padding, lindisp
@@ -94,7 +110,31 @@ class NerfModelBase(nn.Module):
     def regularizers(self, outputs: list[dict[str, Tensor]]) -> tuple[Tensor | None, dict[str, float]]:
         return None, {}
 
+    def point_density(self, points: Tensor) -> Tensor:
+        """The field's density at points (P, 3) -> (P,), from the fine level's MLP (what an occupancy
+        grid is updated with)."""
+        raise NotImplementedError(f"{type(self).__name__} has no point density (no occupancy grid)")
+
     # --- shared --------------------------------------------------------------------------------------
+    def evaluate_occupied(
+        self, points: Tensor, samples: dict[str, Tensor], rays: dict[str, Tensor], field: SampleField
+    ) -> dict[str, Tensor]:
+        """field(samples, rays) where the occupancy grid is occupied at `points` (N, S, 3), zero elsewhere:
+        the occupied samples are gathered into one batch (each with its ray's per-ray inputs), evaluated,
+        and scattered back. Without a grid, or with every sample occupied, field(samples, rays) itself.
+        With none occupied, the field runs on one sample only to give the outputs' shapes (all zero)."""
+        if self.occupancy_grid is None:
+            return field(samples, rays)
+        mask = self.occupancy_grid.occupied_at(points)
+        if bool(mask.all()):
+            return field(samples, rays)
+        if not bool(mask.any()):
+            probe = torch.zeros_like(mask)
+            probe.view(-1)[0] = True
+            shapes = field(*gather_samples(probe, samples, rays))
+            return {k: v.new_zeros((*mask.shape, *v.shape[2:])) for k, v in shapes.items()}
+        return scatter_samples(mask, field(*gather_samples(mask, samples, rays)))
+
     def mlp_for(self, level: int) -> nn.Module:
         return self.mlps[min(level, len(self.mlps) - 1)]
 
@@ -205,14 +245,25 @@ class NeRF(NerfModelBase):
         self.pos_deg, self.pos_identity = pos_deg, pos_identity
         self.view_deg, self.view_identity = view_deg, view_identity
 
-    def encode_positions(self, rays: Rays, tdist: Tensor) -> Tensor:
+    def sample_inputs(self, rays: Rays, tdist: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        """(positions (N, S, 3), per-sample inputs of the encoding): the interval midpoints o + t_mid d."""
         t_mid = 0.5 * (tdist[..., 1:] + tdist[..., :-1])
         x = rays["origins"][..., None, :] + t_mid[..., None] * rays["directions"][..., None, :]
-        return pos_enc(x, *self.pos_deg, append_identity=self.pos_identity)
+        return x, {"x": x}
+
+    def encode_positions(self, samples: dict[str, Tensor]) -> Tensor:
+        return pos_enc(samples["x"], *self.pos_deg, append_identity=self.pos_identity)
 
     def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
         view_enc = pos_enc(rays["viewdirs"], *self.view_deg, append_identity=self.view_identity)
-        return self.mlp_for(level)(self.encode_positions(rays, tdist), view_enc)
+        mlp = self.mlp_for(level)
+        points, samples = self.sample_inputs(rays, tdist)
+        return self.evaluate_occupied(
+            points, samples, {"view": view_enc}, lambda s, r: mlp(self.encode_positions(s), r["view"])
+        )
+
+    def point_density(self, points: Tensor) -> Tensor:
+        return self.mlp_for(1).density(self.encode_positions({"x": points}))
 
 
 class MipNeRF(NeRF):
@@ -221,9 +272,18 @@ class MipNeRF(NeRF):
 
     name = "mipnerf"
 
-    def encode_positions(self, rays: Rays, tdist: Tensor) -> Tensor:
+    def sample_inputs(self, rays: Rays, tdist: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        """(the Gaussians' means (N, S, 3), {means, covs (diagonal)})."""
         means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
-        return integrated_pos_enc(means, covs, *self.pos_deg)
+        return means, {"means": means, "covs": covs}
+
+    def encode_positions(self, samples: dict[str, Tensor]) -> Tensor:
+        return integrated_pos_enc(samples["means"], samples["covs"], *self.pos_deg)
+
+    def point_density(self, points: Tensor) -> Tensor:
+        """The density of a point: the IPE of a Gaussian of zero covariance (the plain PE)."""
+        zero = torch.zeros_like(points)
+        return self.mlp_for(1).density(self.encode_positions({"means": points, "covs": zero}))
 
 
 class RefNeRF(NerfModelBase):
@@ -261,8 +321,20 @@ class RefNeRF(NerfModelBase):
         self.orientation_normals, self.orientation_stop_grad = orientation_normals, orientation_stop_grad
 
     def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
+        """The field on the Gaussians; with an occupancy grid, the normals (density gradient w.r.t. the
+        means) are those of the gathered samples, each of which depends on its own mean only."""
         means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
-        return self.mlp_for(level)(means, covs, rays["viewdirs"])
+        mlp = self.mlp_for(level)
+        return self.evaluate_occupied(
+            means,
+            {"means": means, "covs": covs},
+            {"viewdirs": rays["viewdirs"]},
+            lambda s, r: mlp(s["means"], s["covs"], r["viewdirs"]),
+        )
+
+    def point_density(self, points: Tensor) -> Tensor:
+        """The density of a point: the spatial MLP on a Gaussian of zero covariance."""
+        return self.mlp_for(1).density(points, torch.zeros_like(points))
 
     def level_extras(self, fields: dict[str, Tensor], weights: Tensor, rays: Rays) -> dict[str, Tensor]:
         w = weights[..., None]
