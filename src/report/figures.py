@@ -163,25 +163,32 @@ def search_curves(runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] |
         return None
     client = MlflowClient()
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    # 20 distinct colours: a sweep's 12 runs (4 settings x 3 seeds) must not share one.
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = plt.get_cmap("tab20").colors if len(runs) > len(cycle) else cycle
+    plotted: list[float] = []
     for i, (label, run_id) in enumerate(zip(run_labels(runs, axes), runs["run_id"], strict=True)):
         steps, values = _history(client, run_id, SEARCH_METRIC)
         if steps:
             color, marker = colors[i % len(colors)], "." if len(steps) < 30 else None
             ax.plot(steps, np.minimum.accumulate(values), color=color, marker=marker, label=label)
             ax.plot(steps, values, color=color, alpha=0.3)
-    if not ax.get_legend_handles_labels()[0]:
+            plotted += values
+    if not plotted:
         plt.close(fig)
         return None
     ax.set_xlabel("generation")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("relMSE(filtered) / relMSE(noisy)\n(solid: minimum so far, faint: generation's best)")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small", ncol=1 + len(ax.lines) // 24, frameon=False)
-    fig.tight_layout()
+    finite = [v for v in plotted if 0 < v < float("inf")]
+    if finite and max(finite) / min(finite) > 10:  # a seed near 1, searched filters near 0.03: keep both
+        ax.set_yscale("log")
+    ax.grid(True, which="both", alpha=0.3)
+    # Beside the axes, not on them: a sweep's dozen long run labels would hide the curves.
+    ax.legend(fontsize="small", frameon=False, loc="upper left", bbox_to_anchor=(1.02, 1.0))
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return out_png
 
