@@ -267,3 +267,14 @@ def test_nerf_schedules_decay_by_a_tenth_per_500k_steps():
         assert t.schedule.delay_steps == 0
         expected = t.lr_init * 0.1 ** (t.max_steps / 500_000)
         assert t.schedule.lr_final == pytest.approx(expected, rel=1e-12), profile
+
+
+@pytest.mark.parametrize("section", ["train", "eval"])
+def test_render_chunk_is_cpu_chunk_on_a_cpu_and_chunk_elsewhere(section):
+    """Validation and evaluation render `cpu_chunk` rays at a time on a CPU (paper: 64, whose activations
+    stay in cache), `chunk` on a GPU, and `chunk` wherever `cpu_chunk` is null (the cpu profile)."""
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    paper = compose_config(["task=nerf", "profile=paper"]).task[section]
+    assert (nerf_trainer.render_chunk(paper, cpu), nerf_trainer.render_chunk(paper, cuda)) == (64, 8192)
+    small = compose_config(["task=nerf", "profile=cpu"]).task[section]
+    assert small.cpu_chunk is None and nerf_trainer.render_chunk(small, cpu) == small.chunk == 1024

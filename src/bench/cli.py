@@ -33,7 +33,7 @@ def _check_denoise(args: argparse.Namespace) -> str | None:
 
 
 def _check_nerf(args: argparse.Namespace) -> str | None:
-    if min(args.batch, args.steps, args.render_rays, args.chunk) < 1:
+    if min(args.batch, args.steps, args.render_rays, args.chunk or 1) < 1:
         return "--batch, --steps, --render-rays and --chunk must be >= 1"
     if (args.micro_batch is not None and args.micro_batch < 0) or (
         args.threads is not None and args.threads < 1
@@ -92,7 +92,12 @@ def _parser() -> argparse.ArgumentParser:
     n.add_argument(
         "--render-rays", type=int, default=4096, help="rays rendered (1 timed pass after 1 untimed)"
     )
-    n.add_argument("--chunk", type=int, default=4096, help="rays per forward pass when rendering")
+    n.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        help="rays per forward pass when rendering (default: task.eval.chunk, on CPU its cpu_chunk)",
+    )
     n.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda")
     n.add_argument("--seed", type=int, default=0, help="seed of the random weights, rays and samples")
     n.add_argument(

@@ -36,7 +36,7 @@ from src.bench.timing import device_name, time_calls
 from src.errors import ConfigError
 from src.models.instantiate import build_method
 from src.train.device import pick_device, seed_everything
-from src.train.nerf_trainer import micro_batch_rays
+from src.train.nerf_trainer import micro_batch_rays, render_chunk
 
 #: Width of the matmul reference (the NeRF-family MLPs' 256 channels).
 MATMUL_WIDTH = 256
@@ -87,6 +87,13 @@ def bench_micro_batch(args: argparse.Namespace, profile: str, device: torch.devi
     return micro_batch_rays(load_task_config("nerf", profile)["train"], device)
 
 
+def bench_render_chunk(args: argparse.Namespace, profile: str, device: torch.device) -> int:
+    """`--chunk`, else what evaluation uses on `device` (`task.eval.chunk`, on CPU `cpu_chunk`)."""
+    if args.chunk is not None:
+        return args.chunk
+    return render_chunk(load_task_config("nerf", profile)["eval"], device)
+
+
 def run_nerf(args: argparse.Namespace) -> str:
     """All measurements of `nerf`; returns the printed report (progress goes to stderr).
 
@@ -98,6 +105,7 @@ def run_nerf(args: argparse.Namespace) -> str:
     device = pick_device(args.device)
     configs = nerf_model_configs(args.models, args.profile)
     micro = bench_micro_batch(args, args.profile, device)
+    args.chunk = bench_render_chunk(args, args.profile, device)
     dataset = load_dataset_config("nerf", args.profile)
     camera = BenchCamera.from_dataset(dataset)
     peer_module = load_nerf_pytorch(args.peer_nerf_pytorch) if args.peer_nerf_pytorch else None

@@ -25,7 +25,7 @@ from src.io.images import write_png
 from src.metrics.image import image_metrics
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase
-from src.train.nerf_trainer import load_split, scene_dir
+from src.train.nerf_trainer import load_split, render_chunk, scene_dir
 
 
 def render_view(model: NerfModelBase, c2w: np.ndarray, split, cfg: DictConfig) -> dict[str, np.ndarray]:
@@ -33,7 +33,7 @@ def render_view(model: NerfModelBase, c2w: np.ndarray, split, cfg: DictConfig) -
     rays = generate_rays(
         torch.from_numpy(c2w), split.focal, split.width, split.height, cfg.dataset.near, cfg.dataset.far
     )
-    out = render_rays_chunked(model, rays, int(cfg.task.eval.chunk))
+    out = render_rays_chunked(model, rays, render_chunk(cfg.task.eval, next(model.parameters()).device))
     shape = (split.height, split.width)
     return {k: v.reshape(*shape, -1).squeeze(-1).numpy() for k, v in out.items()}
 

@@ -25,6 +25,7 @@ class Train(Schema):
     max_val_images: PositiveInt | None
     val_rays: PositiveInt
     chunk: PositiveInt
+    cpu_chunk: PositiveInt | None = None
     log_every: PositiveInt
     val_every: PositiveInt
     checkpoint_every: PositiveInt
@@ -37,6 +38,7 @@ class Eval(Schema):
     split: Literal["val", "test"]
     max_images: PositiveInt | None
     chunk: PositiveInt
+    cpu_chunk: PositiveInt | None = None
     save_images: bool
     quantize_metrics: bool
     checkpoint: str
