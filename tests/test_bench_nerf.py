@@ -107,6 +107,15 @@ def test_nerf_bench_unknown_model_is_a_one_line_error_before_any_timing(capsys, 
     one_line_error(err, bad, "--models", "mipnerf")
 
 
+@pytest.mark.parametrize("flag", ["--chunk", "--render-rays"])
+def test_nerf_bench_a_zero_size_is_a_one_line_error(capsys, flag):
+    """`--chunk 0` too (its default is evaluation's chunk, so 0 must not pass as 'unset')."""
+    code = bench_main(["nerf", "--models", "nerf", *SMOKE, flag, "0"])
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    assert captured.err.count("\n") == 1 and "--chunk must be >= 1" in captured.err, captured.err
+
+
 def test_benchmark_camera_is_read_from_the_nerf_dataset_config():
     """The rays' camera is the NeRF dataset's first test pose (radius, test circle, field of view, near/far
     from conf/dataset/nerf_procedural.yaml), so a change there moves the benchmark rays."""

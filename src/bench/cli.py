@@ -33,7 +33,7 @@ def _check_denoise(args: argparse.Namespace) -> str | None:
 
 
 def _check_nerf(args: argparse.Namespace) -> str | None:
-    if min(args.batch, args.steps, args.render_rays, args.chunk or 1) < 1:
+    if min(args.batch, args.steps, args.render_rays, 1 if args.chunk is None else args.chunk) < 1:
         return "--batch, --steps, --render-rays and --chunk must be >= 1"
     if (args.micro_batch is not None and args.micro_batch < 0) or (
         args.threads is not None and args.threads < 1
