@@ -88,8 +88,10 @@ def _check_held_out_inputs(stage: str, cfg: DictConfig) -> None:
     method that needs a buffer they lack (e.g. a GP filter's world position on real KPCN data), before
     any run is opened or file written. (When an earlier stage of the job makes them, the eval stage checks
     the same when it opens them.)"""
+    if stage != "eval" or cfg.dataset.name == "volumetric":
+        return
     index = Path(cfg.paths.prepared) / "full" / str(cfg.task.eval.split) / "index.json"
-    if stage != "eval" or cfg.dataset.name == "volumetric" or not index.is_file():
+    if not index.is_file():
         return
     from src.eval.denoise_eval import held_out_images
     from src.models.instantiate import build_method
