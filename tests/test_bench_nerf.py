@@ -200,3 +200,11 @@ def test_nerf_bench_prints_the_refnerf_over_mipnerf_ratio(capsys):
     line = next(x for x in captured.out.splitlines() if x.startswith("refnerf / mipnerf"))
     assert float(line.split(": ")[1].split()[0]) == pytest.approx(expected, abs=0.01)
     assert "(whole batch)" in captured.out
+    # The same Ref-NeRF without its density-gradient normals splits the ratio into their share and the rest.
+    without = _number(rows["refnerf-no-density-normals"]["train ratio"])
+    assert rows["refnerf-no-density-normals"]["note"].endswith("no density-gradient normals")
+    assert rows["refnerf-no-density-normals"]["params"] == rows["refnerf"]["params"]
+    split = next(x for x in captured.out.splitlines() if x.startswith("refnerf's density-gradient normals"))
+    normals_share, rest = (float(x) for x in re.findall(r"(\d+\.\d+)", split)[:2])
+    assert normals_share == pytest.approx(expected - without, abs=0.02)
+    assert rest == pytest.approx(without, abs=0.01)

@@ -232,10 +232,50 @@ def test_refnerf_normal_losses_train_the_density():
         model(rays, randomized=False)
 
 
+def test_refnerf_without_density_normals_renders_the_same_colours():
+    """`density_normals: false` (multinerf's disable_density_normals) drops n and R_p only: with the same
+    weights the colours, densities and predicted normals equal the full model's, and a step trains."""
+    cfg = model_cfg("refnerf", "smoke")
+    torch.manual_seed(0)
+    full = build_method(cfg)
+    torch.manual_seed(0)
+    bare = build_method(dict(cfg, density_normals=False, pred_normal_loss_mult=0.0))
+    rays, target = sphere_scene(n_side=4)
+    with torch.no_grad():
+        a, b = full(rays, randomized=False), bare(rays, randomized=False)
+    for key in ("rgb", "weights", "normals_pred"):
+        assert torch.equal(a[-1][key], b[-1][key]), key
+    assert "normals" not in b[-1] and "sample_normals" not in b[-1]
+    assert "normals" not in bare.render_keys and "normals" in full.render_keys
+    assert set(render_rays_chunked(bare, rays, chunk=5)) == {"rgb", "depth", "acc", "normals_pred"}
+    outputs = bare(rays, randomized=False)
+    reg, stats = bare.regularizers(outputs)
+    assert set(stats) == {"orientation"}
+    loss = ((outputs[-1]["rgb"] - target) ** 2).mean() + reg
+    loss.backward()
+    assert bare.mlp_for(0).trunk.layers[0].weight.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ({}, "model.pred_normal_loss_mult"),
+        ({"pred_normal_loss_mult": 0.0, "orientation_normals": "density"}, "model.orientation_normals"),
+    ],
+)
+def test_refnerf_without_density_normals_needs_their_losses_off(override, key):
+    cfg = dict(model_cfg("refnerf", "smoke"), density_normals=False, **override)
+    with pytest.raises(ConfigError) as excinfo:
+        build_method(cfg)
+    one_line_error(excinfo, key, "density_normals=false")
+
+
 def test_refnerf_regularizers_closed_form():
     """R_o = sum_i w_i max(0, n_i . d)^2, R_p = sum_i w_i ||n_i - n'_i||^2, levels weighted 0.1 / 1."""
+    field = torch.nn.Linear(1, 1)  # a stand-in: the regularisers read only the level outputs
+    field.density_normals = True
     model = RefNeRF(
-        torch.nn.Linear(1, 1),
+        field,
         None,
         num_coarse_samples=2,
         num_fine_samples=2,

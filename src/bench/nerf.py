@@ -22,7 +22,12 @@ from omegaconf import OmegaConf
 
 from src.bench.model_configs import CONF_DIR, load_dataset_config, load_model_config, load_task_config
 from src.bench.nerf_peer import NerfPytorchStep, load_nerf_pytorch
-from src.bench.nerf_table import format_nerf_table, nerf_footnotes, nerf_ratio_lines
+from src.bench.nerf_table import (
+    REFNERF_WITHOUT_NORMALS,
+    format_nerf_table,
+    nerf_footnotes,
+    nerf_ratio_lines,
+)
 from src.bench.nerf_timing import (
     BenchCamera,
     NerfRow,
@@ -64,8 +69,18 @@ def parse_model_names(models: str) -> list[str]:
 
 def nerf_model_configs(models: str, profile: str) -> dict[str, dict[str, Any]]:
     """{name: model config} for the `--models` list, composed as `python -m src.run task=nerf
-    model=<name> profile=<profile>`, all before anything is timed (a bad name or profile fails at once)."""
-    return {name: load_model_config(name, profile, task="nerf") for name in parse_model_names(models)}
+    model=<name> profile=<profile>`, all before anything is timed (a bad name or profile fails at once).
+    With both mipnerf and refnerf listed, Ref-NeRF is timed a second time without its density-gradient
+    normals (`density_normals: false`, so also without R_p), which splits its cost over mip-NeRF's into
+    the normals' share and the rest (its directional MLP)."""
+    configs = {name: load_model_config(name, profile, task="nerf") for name in parse_model_names(models)}
+    if {"mipnerf", "refnerf"} <= configs.keys():
+        configs[REFNERF_WITHOUT_NORMALS] = {
+            **configs["refnerf"],
+            "density_normals": False,
+            "pred_normal_loss_mult": 0.0,
+        }
+    return configs
 
 
 def _nerf_header(args, device: torch.device, micro: int | None) -> str:

@@ -7,6 +7,9 @@ from collections.abc import Sequence
 from src.bench.nerf_timing import NerfRow
 from src.bench.table import format_line
 
+#: The row that splits Ref-NeRF's cost: the same model without its density-gradient normals.
+REFNERF_WITHOUT_NORMALS = "refnerf-no-density-normals"
+
 #: Forward-FLOP multiplier of a training step (forward + backward ~ 2 x forward) and of rendering.
 TRAIN_FLOP_FACTOR, RENDER_FLOP_FACTOR = 3, 1
 
@@ -79,6 +82,14 @@ def nerf_ratio_lines(rows: Sequence[NerfRow]) -> list[str]:
             f"and directional MLP included; MLP forward FLOP ratio {flops['refnerf'] / flops['mipnerf']:.2f} "
             "without the density gradient)"
         )
+        without = _per_ray(rows, REFNERF_WITHOUT_NORMALS)
+        if without is not None:
+            lines.append(
+                f"refnerf's density-gradient normals: {(ref - without) / mip:.2f} mip-NeRF steps per ray "
+                f"(refnerf - {REFNERF_WITHOUT_NORMALS}); the rest, {without / mip:.2f}, is the model "
+                "without them (its directional MLP; forward FLOP ratio "
+                f"{flops[REFNERF_WITHOUT_NORMALS] / flops['mipnerf']:.2f})"
+            )
     return lines
 
 

@@ -114,7 +114,8 @@ def model_note(model: NerfModelBase) -> str:
     coarse, fine = model.samples_per_level()
     note = f"{coarse}+{fine} samples"
     if isinstance(model, RefNeRF):
-        note += "; FLOPs exclude the normals' density gradient"
+        gradient = "FLOPs exclude the normals' density gradient"
+        note += f"; {gradient if model.density_normals else 'no density-gradient normals'}"
     return note
 
 

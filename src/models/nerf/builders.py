@@ -206,6 +206,20 @@ def mipnerf_model(
     return _pe_model(MipNeRF, False, (view_min_deg, view_max_deg, view_identity), common)
 
 
+def _check_without_density_normals(pred_normal_loss_mult: float, orientation_normals: str) -> None:
+    """Without density normals n, R_p (Eq. 12: n against n') and R_o on n do not exist."""
+    if pred_normal_loss_mult != 0:
+        raise ConfigError(
+            "model.pred_normal_loss_mult: R_p compares the density-gradient normals, which "
+            f"model.density_normals=false leaves out; expected 0, got {pred_normal_loss_mult}"
+        )
+    if orientation_normals != "pred":
+        raise ConfigError(
+            "model.orientation_normals: model.density_normals=false leaves out the density-gradient "
+            f"normals; expected 'pred', got {orientation_normals!r}"
+        )
+
+
 def refnerf_model(
     *,
     deg_view: int,
@@ -214,10 +228,13 @@ def refnerf_model(
     pred_normal_loss_mult: float,
     orientation_normals: Literal["pred", "density"],
     orientation_stop_grad: bool,
+    density_normals: bool = True,
     **common: Unpack[FieldArgs],
 ) -> RefNeRF:
     """Ref-NeRF (Verbin et al. 2022): mip-NeRF's sampling and IPE, the integrated directional encoding of
-    the reflected view direction, and the orientation / predicted-normal regularisers."""
+    the reflected view direction, and the orientation / predicted-normal regularisers.
+    `density_normals=False` (multinerf's `disable_density_normals`) leaves out the density-gradient normals
+    and so needs the regularisers that read them off."""
     pos_deg = _degrees("pos", common["pos_min_deg"], common["pos_max_deg"])
     if not 1 <= deg_view <= MAX_DEG_VIEW:
         raise ConfigError(
@@ -225,12 +242,15 @@ def refnerf_model(
         )
     at_least("orientation_loss_mult", orientation_loss_mult, 0.0)
     at_least("pred_normal_loss_mult", pred_normal_loss_mult, 0.0)
+    if not density_normals:
+        _check_without_density_normals(pred_normal_loss_mult, orientation_normals)
     mlp = {
         **_trunk(common),
         "min_deg_point": pos_deg[0],
         "max_deg_point": pos_deg[1],
         "deg_view": deg_view,
         "roughness_bias": roughness_bias,
+        "density_normals": density_normals,
     }
     coarse, fine = _levels(common["single_mlp"], lambda: RefNerfMLP(**mlp))
     return RefNeRF(

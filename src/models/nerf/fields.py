@@ -168,7 +168,8 @@ class RefNerfMLP(nn.Module):
     density = act(raw + density_bias); diffuse colour c_d = sigmoid(raw - log 3) (linear, initialised
     around 0.25); specular tint s = sigmoid(raw); roughness rho = softplus(raw + roughness_bias) (the
     vMF's 1 / kappa); predicted normals n' = -normalize(raw_3); a linear bottleneck b.
-    Normals n = -grad_x(raw density) / ||.|| (Ref-NeRF Sec. 3), by autograd w.r.t. the Gaussian means.
+    Normals n = -grad_x(raw density) / ||.|| (Ref-NeRF Sec. 3), by autograd w.r.t. the Gaussian means;
+    `density_normals=False` skips them (multinerf's `disable_density_normals`: no `normals` output).
 
     Directional MLP on [b, IDE(omega_r, rho), n' . d] with omega_r = reflect(-d, n') and the IDE (Eq. 7-8),
     the reflection of the view direction about the predicted normal: specular colour c_s = sigmoid(raw);
@@ -198,9 +199,11 @@ class RefNerfMLP(nn.Module):
         density_bias: float = 0.5,
         roughness_bias: float = -1.0,
         rgb_padding: float = 0.001,
+        density_normals: bool = True,
     ) -> None:
         super().__init__()
         self.min_deg_point, self.max_deg_point, self.deg_view = min_deg_point, max_deg_point, deg_view
+        self.density_normals = density_normals
         self.density_act = _activation(density_activation)
         self.density_bias, self.roughness_bias, self.rgb_padding = density_bias, roughness_bias, rgb_padding
         pos_dim = 2 * 3 * (max_deg_point - min_deg_point)
@@ -224,7 +227,8 @@ class RefNerfMLP(nn.Module):
         """The density alone (spatial MLP; no normals, no directional MLP), e.g. for an occupancy grid."""
         return self.density_act(self._spatial(means, covs)[1] + self.density_bias)
 
-    def forward(self, means: Tensor, covs: Tensor, viewdirs: Tensor) -> dict[str, Tensor]:
+    def _spatial_with_normals(self, means: Tensor, covs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The trunk features, raw density and density-gradient normals (graph kept iff grad mode is on)."""
         if torch.is_inference_mode_enabled():
             raise RuntimeError(
                 "RefNerfMLP differentiates its density for the normals: run it under torch.no_grad, "
@@ -237,7 +241,14 @@ class RefNerfMLP(nn.Module):
             (grad,) = torch.autograd.grad(raw_density.sum(), x, create_graph=keep_graph)
         if not keep_graph:
             h, raw_density, grad = h.detach(), raw_density.detach(), grad.detach()
-        normals = -l2_normalize(grad)
+        return h, raw_density, -l2_normalize(grad)
+
+    def forward(self, means: Tensor, covs: Tensor, viewdirs: Tensor) -> dict[str, Tensor]:
+        normals: dict[str, Tensor] = {}
+        if self.density_normals:
+            h, raw_density, normals["normals"] = self._spatial_with_normals(means, covs)
+        else:
+            h, raw_density = self._spatial(means, covs)
         normals_pred = -l2_normalize(self.normal_head(h))
         density = self.density_act(raw_density + self.density_bias)
         diffuse = torch.sigmoid(self.diffuse_head(h) - math.log(3.0))
@@ -256,7 +267,7 @@ class RefNerfMLP(nn.Module):
         return {
             "density": density,
             "rgb": rgb,
-            "normals": normals,
+            **normals,
             "normals_pred": normals_pred,
             "diffuse": diffuse,
             "tint": tint,

@@ -298,6 +298,8 @@ class RefNeRF(NerfModelBase):
                                                   'density'; d: the view direction)
         R_p = sum_i w_i ||n_i - n'_i||^2            (Eq. 12),
     each averaged over rays. `orientation_stop_grad` stops the gradient of R_o through the weights.
+    MLPs built with `density_normals=False` (multinerf's `disable_density_normals`) have no n: no rendered
+    or per-sample normals, and R_p and R_o on n are undefined (the builder requires them off).
     """
 
     name = "refnerf"
@@ -319,6 +321,9 @@ class RefNeRF(NerfModelBase):
             raise ValueError(f"orientation_normals: expected one of {list(ORIENTATION_NORMALS)}")
         self.orientation_loss_mult, self.pred_normal_loss_mult = orientation_loss_mult, pred_normal_loss_mult
         self.orientation_normals, self.orientation_stop_grad = orientation_normals, orientation_stop_grad
+        self.density_normals = coarse_mlp.density_normals
+        if not self.density_normals:
+            self.render_keys = tuple(k for k in self.render_keys if k != "normals")
 
     def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
         """The field on the Gaussians; with an occupancy grid, the normals (density gradient w.r.t. the
@@ -338,14 +343,16 @@ class RefNeRF(NerfModelBase):
 
     def level_extras(self, fields: dict[str, Tensor], weights: Tensor, rays: Rays) -> dict[str, Tensor]:
         w = weights[..., None]
-        return {
-            "normals": l2_normalize((w * fields["normals"]).sum(dim=-2)),
+        extras = {
             "normals_pred": l2_normalize((w * fields["normals_pred"]).sum(dim=-2)),
             "roughness": (weights * fields["roughness"]).sum(dim=-1),
-            "sample_normals": fields["normals"],
             "sample_normals_pred": fields["normals_pred"],
             "viewdirs": rays["viewdirs"],
         }
+        if self.density_normals:
+            extras["normals"] = l2_normalize((w * fields["normals"]).sum(dim=-2))
+            extras["sample_normals"] = fields["normals"]
+        return extras
 
     def regularizers(self, outputs: list[dict[str, Tensor]]) -> tuple[Tensor, dict[str, float]]:
         key = "sample_normals_pred" if self.orientation_normals == "pred" else "sample_normals"
@@ -356,7 +363,11 @@ class RefNeRF(NerfModelBase):
             w_o = w.detach() if self.orientation_stop_grad else w
             n_dot_d = (out[key] * out["viewdirs"][..., None, :]).sum(dim=-1)
             orientation = orientation + mult * (w_o * torch.clamp(n_dot_d, min=0.0) ** 2).sum(dim=-1).mean()
-            diff_sq = ((out["sample_normals"] - out["sample_normals_pred"]) ** 2).sum(dim=-1)
-            pred_normal = pred_normal + mult * (w * diff_sq).sum(dim=-1).mean()
+            if self.density_normals:
+                diff_sq = ((out["sample_normals"] - out["sample_normals_pred"]) ** 2).sum(dim=-1)
+                pred_normal = pred_normal + mult * (w * diff_sq).sum(dim=-1).mean()
         total = self.orientation_loss_mult * orientation + self.pred_normal_loss_mult * pred_normal
-        return total, {"orientation": float(orientation.detach()), "pred_normal": float(pred_normal.detach())}
+        logged = {"orientation": float(orientation.detach())}
+        if self.density_normals:
+            logged["pred_normal"] = float(pred_normal.detach())
+        return total, logged
