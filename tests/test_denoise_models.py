@@ -10,7 +10,7 @@ from src.bench.cli import main as bench_main
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
-from src.models.denoise.kernels import apply_kernel
+from src.models.denoise.kernels import apply_kernel, default_order
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
@@ -161,6 +161,16 @@ def test_apply_kernel_under_bf16_autocast_accumulates_in_float32(order):
     assert out.dtype == torch.float32
     expected = naive_apply_kernel(logits.float(), image.float(), 5)
     assert_close(out.double(), expected, rtol=1e-5, atol=1e-6)
+
+
+def test_apply_kernel_default_order_is_row_under_autograd_and_offset_for_cpu_inference():
+    logits = torch.randn(1, 9, 4, 5, requires_grad=True)
+    image = torch.rand(1, 3, 4, 5)
+    assert default_order(logits, image) == "row"
+    with torch.no_grad():
+        assert default_order(logits, image) == "offset"
+    assert default_order(logits.detach(), image) == "offset"
+    assert default_order(logits.detach(), image.requires_grad_()) == "row"
 
 
 def test_apply_kernel_rejects_mismatched_shapes():
