@@ -199,7 +199,7 @@ def test_nerf_bench_prints_the_refnerf_over_mipnerf_ratio(capsys):
     expected = _number(rows["refnerf"]["train ratio"])
     line = next(x for x in captured.out.splitlines() if x.startswith("refnerf / mipnerf"))
     assert float(line.split(": ")[1].split()[0]) == pytest.approx(expected, abs=0.01)
-    assert "(whole batch)" in captured.out
+    assert "(whole batch, autocast none" in captured.out
     # The same Ref-NeRF without its density-gradient normals splits the ratio into their share and the rest.
     without = _number(rows["refnerf-no-density-normals"]["train ratio"])
     assert rows["refnerf-no-density-normals"]["note"].endswith("no density-gradient normals")
@@ -208,3 +208,13 @@ def test_nerf_bench_prints_the_refnerf_over_mipnerf_ratio(capsys):
     normals_share, rest = (float(x) for x in re.findall(r"(\d+\.\d+)", split)[:2])
     assert normals_share == pytest.approx(expected - without, abs=0.02)
     assert rest == pytest.approx(without, abs=0.01)
+
+
+def test_nerf_bench_autocast_times_bf16_steps_against_a_bf16_matmul(capsys):
+    code = bench_main(["nerf", "--models", "mipnerf", *SMOKE, "--autocast", "bf16"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    rows = table_rows(captured.out)
+    assert rows[-1]["model"] == "matmul [1024,256]x[256,256] bf16"  # 64 rays x (8 + 8) samples
+    assert "autocast bf16" in captured.out.splitlines()[0]
+    assert _number(rows[0]["train rays/s"]) > 0

@@ -21,7 +21,7 @@ from hydra.errors import HydraException
 
 from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
 from src.bench.filter import run_filter
-from src.bench.nerf import run_nerf
+from src.bench.nerf import NERF_AUTOCAST_DTYPES, run_nerf
 from src.bench.volpath import run_volpath
 from src.errors import NrbenchError, one_line
 
@@ -108,6 +108,12 @@ def _parser() -> argparse.ArgumentParser:
         "training does: task.train.micro_batch_rays, on CPU task.train.cpu_micro_batch_rays)",
     )
     n.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    n.add_argument(
+        "--autocast",
+        choices=sorted(NERF_AUTOCAST_DTYPES),
+        default="none",
+        help="training steps and the matmul row under bf16 autocast, as task.train.amp=true (default: fp32)",
+    )
     n.add_argument(
         "--peer-nerf-pytorch",
         metavar="DIR",

@@ -45,6 +45,9 @@ from src.train.nerf_trainer import micro_batch_rays, render_chunk
 
 #: Width of the matmul reference (the NeRF-family MLPs' 256 channels).
 MATMUL_WIDTH = 256
+#: `--autocast` of the training steps: fp32 or bf16 autocast as `task.train.amp` (fp16 would need loss
+#: scaling, which training does not do).
+NERF_AUTOCAST_DTYPES = {"none": None, "bf16": torch.bfloat16}
 
 
 def nerf_model_names() -> list[str]:
@@ -89,8 +92,9 @@ def _nerf_header(args, device: torch.device, micro: int | None) -> str:
         f"nerf benchmark: profile {args.profile}, device {device} ({device_name(device)}, OMP_WAIT_POLICY "
         f"{os.environ.get('OMP_WAIT_POLICY', 'unset')}), seed {args.seed}, "
         f"torch {torch.__version__}; train: median of {args.steps} Adam steps of {args.batch} rays "
-        f"({split}) after 1 warm-up, every row timed in turn; render: {args.render_rays} rays in chunks "
-        f"of {args.chunk}, 1 timed pass after 1 warm-up"
+        f"({split}, autocast {args.autocast}: the steps and the matmul row) after 1 warm-up, every row "
+        f"timed in turn; render: {args.render_rays} rays in chunks of {args.chunk}, fp32, 1 timed pass "
+        "after 1 warm-up"
     )
 
 
@@ -129,14 +133,16 @@ def run_nerf(args: argparse.Namespace) -> str:
     train_rays = benchmark_rays(args.batch, generator, device, shuffle=True, camera=camera)
     target = torch.rand(args.batch, 3, generator=generator).to(device)
     render_rays = benchmark_rays(args.render_rays, generator, device, shuffle=False, camera=camera)
+    amp_dtype = NERF_AUTOCAST_DTYPES[args.autocast]
     models, steps = {}, []
     for name, cfg in configs.items():
         torch.manual_seed(args.seed)
         models[name] = build_method(cfg).to(device)
-        steps.append(train_step_fn(models[name], train_rays, target, micro))
+        steps.append(train_step_fn(models[name], train_rays, target, micro, amp_dtype))
     first = next(iter(models.values()))
     rows_per_step = args.batch * sum(first.samples_per_level())
-    matmul, matmul_flops = matmul_reference(rows_per_step, MATMUL_WIDTH, device)
+    matmul_dtype = amp_dtype or torch.float32
+    matmul, matmul_flops = matmul_reference(rows_per_step, MATMUL_WIDTH, device, matmul_dtype)
     peer = None
     if peer_module is not None:
         peer = NerfPytorchStep(peer_module, camera.near, camera.far, args.seed)
@@ -170,6 +176,7 @@ def run_nerf(args: argparse.Namespace) -> str:
             )
         )
     name = f"matmul [{rows_per_step},{MATMUL_WIDTH}]x[{MATMUL_WIDTH},{MATMUL_WIDTH}]"
+    name += "" if amp_dtype is None else " bf16"
     reference = NerfRow(
         name,
         None,

@@ -91,15 +91,17 @@ def train_step_fn(
     rays: Mapping[str, torch.Tensor],
     target: torch.Tensor,
     micro_batch_rays: int | None,
+    amp_dtype: torch.dtype | None = None,
     lr: float = 5e-4,
 ) -> Callable[[], None]:
     """One training step on a fixed ray batch, as `NerfTrainer.train_step` does it (`optimizer_step`):
     the batch's stratified and resampling jitter drawn up front, forward + loss + backward in
-    micro-batches of `micro_batch_rays` rays (None: the whole batch), one Adam step."""
+    micro-batches of `micro_batch_rays` rays (None: the whole batch), under autocast to `amp_dtype`
+    (None: fp32), one Adam step."""
     model.train()
     optimizer = torch.optim.Adam(model.parameters(), lr=lr)
     batch = {**rays, "rgb": target}
-    return lambda: optimizer_step(model, optimizer, batch, micro_batch_rays, None)
+    return lambda: optimizer_step(model, optimizer, batch, micro_batch_rays, None, amp_dtype)
 
 
 def time_rendering(
@@ -125,15 +127,18 @@ def model_row(name: str, model: NerfModelBase, train_seconds: float, n_train: in
     return NerfRow(name, count_parameters(model), flops, train_seconds, n_train, note=note)
 
 
-def matmul_reference(rows: int, width: int, device: torch.device) -> tuple[Callable[[], None], int]:
+def matmul_reference(
+    rows: int, width: int, device: torch.device, dtype: torch.dtype = torch.float32
+) -> tuple[Callable[[], None], int]:
     """The machine's achievable matmul throughput, measured like a training step of a `width`-wide linear
-    layer over `rows` samples: y = x W^T, then g W and g^T x (its input and weight gradients), fp32.
-    Returns (the function, its FLOPs: 3 x 2 x rows x width^2)."""
+    layer over `rows` samples: y = x W^T, then g W and g^T x (its input and weight gradients), in `dtype`
+    (fp32, or bf16 to compare a bf16-autocast step with). Returns (the function, its FLOPs:
+    3 x 2 x rows x width^2)."""
     gen = torch.Generator().manual_seed(0)
-    x = torch.randn(rows, width, generator=gen).to(device)
-    g = torch.randn(rows, width, generator=gen).to(device)
-    w = (torch.randn(width, width, generator=gen) / width**0.5).to(device)
-    bias = torch.zeros(width, device=device)
+    x = torch.randn(rows, width, generator=gen).to(device, dtype)
+    g = torch.randn(rows, width, generator=gen).to(device, dtype)
+    w = (torch.randn(width, width, generator=gen) / width**0.5).to(device, dtype)
+    bias = torch.zeros(width, device=device, dtype=dtype)
     y, gx = torch.empty_like(x), torch.empty_like(x)
     gw = torch.empty_like(w)
 

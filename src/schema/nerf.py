@@ -14,6 +14,7 @@ class Train(Schema):
     batch_size: PositiveInt
     micro_batch_rays: PositiveInt | None
     cpu_micro_batch_rays: PositiveInt | None = None
+    amp: bool = False
     batching: Literal["all_images", "single_image"]
     lr_init: PositiveFloat
     schedule: Target | None

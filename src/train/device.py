@@ -27,6 +27,16 @@ def precision(amp: bool, device: torch.device) -> str:
     return "bf16-autocast" if amp and device.type == "cuda" else "fp32"
 
 
+def autocast_dtype(amp: bool, device: torch.device) -> torch.dtype | None:
+    """The autocast dtype of training (`precision`): bfloat16 (no loss scaling needed) or None (fp32)."""
+    return torch.bfloat16 if precision(amp, device) == "bf16-autocast" else None
+
+
+def autocast(device_type: str, dtype: torch.dtype | None):
+    """`torch.autocast` to `dtype` on `device_type`, or a disabled one (fp32) when `dtype` is None."""
+    return torch.autocast(device_type=device_type, dtype=dtype, enabled=dtype is not None)
+
+
 def seed_everything(seed: int) -> None:
     """Seed Python and torch, and ask cuDNN for deterministic kernels (same config + seed on the same
     machine -> same numbers). numpy randomness in this harness uses explicitly seeded Generators."""

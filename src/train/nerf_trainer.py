@@ -36,6 +36,7 @@ from src.data.rays import rays_for_pixels
 from src.errors import ConfigError
 from src.models.nerf.summary import activation_bytes, activation_bytes_per_ray, fitting_micro_batch
 from src.train.curves import write_curves
+from src.train.device import autocast, autocast_dtype
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 
 log = logging.getLogger(__name__)
@@ -121,7 +122,11 @@ def render_chunk(section: Mapping[str, Any], device: torch.device) -> int:
 
 
 def accumulate_gradients(
-    model, batch: dict[str, torch.Tensor], micro_batch_rays: int | None, noise: dict[str, torch.Tensor]
+    model,
+    batch: dict[str, torch.Tensor],
+    micro_batch_rays: int | None,
+    noise: dict[str, torch.Tensor],
+    amp_dtype: torch.dtype | None = None,
 ) -> dict[str, float]:
     """Backpropagate the loss of `batch` in micro-batches of `micro_batch_rays` rays (None: one pass),
     adding to the parameters' `.grad`; returns the logged values of the whole batch (loss, components,
@@ -134,6 +139,8 @@ def accumulate_gradients(
     the gradient of the unsplit batch (up to float summation order). The stratified and resampling jitter
     is drawn for the whole batch up front (`noise`, `draw_noise`) and sliced, so every ray is sampled as
     in the unsplit step. Activation memory then scales with `micro_batch_rays` instead of the batch size.
+    `amp_dtype` (bfloat16) runs forward and loss under autocast (the MLPs' matmuls in it, compositing in
+    fp32: `NerfModelBase.forward`); the backward pass follows the forward's dtypes.
     """
     n = len(batch["rgb"])
     size = n if micro_batch_rays is None else max(1, min(int(micro_batch_rays), n))
@@ -143,8 +150,9 @@ def accumulate_gradients(
         part = {k: v[start : start + size] for k, v in batch.items()}
         part_noise = {k: v[start : start + size] for k, v in noise.items()}
         share = len(part["rgb"]) / n
-        outputs = model(part, randomized=True, noise=part_noise)
-        loss, components = model.loss(outputs, part["rgb"])
+        with autocast(part["rgb"].device.type, amp_dtype):
+            outputs = model(part, randomized=True, noise=part_noise)
+            loss, components = model.loss(outputs, part["rgb"])
         (loss * share).backward()
         for key, value in {"loss": float(loss.detach()), **components}.items():
             totals[key] = totals.get(key, 0.0) + share * float(value)
@@ -154,16 +162,21 @@ def accumulate_gradients(
 
 
 def optimizer_step(
-    model, optimizer, batch: dict[str, torch.Tensor], micro_batch_rays: int | None, grad_max_norm
+    model,
+    optimizer,
+    batch: dict[str, torch.Tensor],
+    micro_batch_rays: int | None,
+    grad_max_norm,
+    amp_dtype: torch.dtype | None = None,
 ) -> dict[str, float]:
     """One optimiser step on `batch`: the whole batch's stratified jitter drawn up front (from the global
     RNG of the training device, as an unsplit forward draws it), gradients accumulated over micro-batches
     (`accumulate_gradients`), then gradient clipping at `grad_max_norm` (None/0: off) and the optimiser
-    step, once. The same step whatever `micro_batch_rays` is."""
+    step, once. The same step whatever `micro_batch_rays` is; `amp_dtype`: autocast (None: fp32)."""
     model.train()
     noise = model.draw_noise(len(batch["rgb"]), batch["near"])
     optimizer.zero_grad(set_to_none=True)
-    values = accumulate_gradients(model, batch, micro_batch_rays, noise)
+    values = accumulate_gradients(model, batch, micro_batch_rays, noise, amp_dtype)
     if grad_max_norm:
         torch.nn.utils.clip_grad_norm_(model.parameters(), float(grad_max_norm))
     optimizer.step()
@@ -238,7 +251,8 @@ class NerfTrainer(TrainingLoop):
     def train_step(self, batch: dict[str, torch.Tensor]) -> tuple[dict[str, float], int]:
         update_occupancy(self.model, int(self.cfg.seed), self.pos.step)
         micro = micro_batch_rays(self.t, self.device)
-        values = optimizer_step(self.model, self.optimizer, batch, micro, self.t.grad_max_norm)
+        amp_dtype = autocast_dtype(bool(self.t.get("amp", False)), self.device)
+        values = optimizer_step(self.model, self.optimizer, batch, micro, self.t.grad_max_norm, amp_dtype)
         return values, len(batch["rgb"])
 
     @torch.no_grad()

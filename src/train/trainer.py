@@ -32,7 +32,7 @@ from src.data.features import input_features
 from src.errors import DataError
 from src.models.denoise.base import Batch, Denoiser, final_color
 from src.train.curves import write_curves
-from src.train.device import precision
+from src.train.device import autocast, autocast_dtype
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 from src.train.losses import Loss, get_loss
 
@@ -70,8 +70,7 @@ def _to(batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
 
 def _autocast(device: torch.device, amp: bool):
     """bfloat16 autocast on CUDA when `amp` (mixed precision; bf16 needs no loss scaling); else fp32."""
-    enabled = precision(amp, device) == "bf16-autocast"
-    return torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=enabled)
+    return autocast(device.type, autocast_dtype(amp, device))
 
 
 class DenoiserTrainer(TrainingLoop):

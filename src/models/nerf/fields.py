@@ -96,7 +96,10 @@ def fused_linear_relu(layer: nn.Linear, pieces: list[Tensor], lead: torch.Size) 
             per_ray.append((piece, weight))
             continue
         flat = piece.reshape(rows, c)
-        out = torch.addmm(layer.bias, flat, weight.t()) if out is None else out.addmm_(flat, weight.t())
+        if out is None:
+            out = torch.addmm(layer.bias, flat, weight.t())
+        else:  # autocast leaves in-place ops alone: under it, cast to the first addmm's dtype (else no-ops)
+            out.addmm_(flat.to(out.dtype), weight.t().to(out.dtype))
     if col != layer.in_features:
         raise ValueError(f"inputs of {col} features for a layer of {layer.in_features}")
     if out is None:  # no per-sample piece

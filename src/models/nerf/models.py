@@ -198,7 +198,9 @@ class NerfModelBase(nn.Module):
                     generator,
                     jitter=noise.get("fine"),
                 )
-            fields = self.evaluate(level, rays, tdist)
+            # Under bf16 autocast the MLPs' outputs are bf16; compositing (transmittance products over
+            # hundreds of samples) and the losses stay in fp32.
+            fields = {k: v.float() for k, v in self.evaluate(level, rays, tdist).items()}
             weights, _, _ = compute_alpha_weights(
                 fields["density"], tdist, rays["directions"], opaque_last=self.opaque_background
             )
