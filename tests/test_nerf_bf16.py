@@ -72,3 +72,10 @@ def test_refnerf_density_normals_under_bf16_autocast_stay_close():
             bf16 = model(batch, randomized=False)[-1]["sample_normals"]
     angles = torch.rad2deg(torch.acos((fp32 * bf16).sum(dim=-1).clamp(-1.0, 1.0)))
     assert float(angles.median()) < 2.0
+
+
+def test_float64_fields_are_not_narrowed():
+    """The fp32 cast of the fields is for bf16/fp16 only: a float64 model composites in float64."""
+    model, batch = small_paper_layout("mipnerf").double(), rays(n=4, dtype=torch.float64)
+    outputs = model(batch, randomized=False)
+    assert outputs[-1]["weights"].dtype == torch.float64 and outputs[-1]["rgb"].dtype == torch.float64

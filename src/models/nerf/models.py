@@ -50,6 +50,11 @@ class SampleField(Protocol):
     def __call__(self, samples: dict[str, Tensor], rays: dict[str, Tensor]) -> dict[str, Tensor]: ...
 
 
+def at_least_fp32(x: Tensor) -> Tensor:
+    """`x` in float32 if in a lower precision (bf16/fp16 under autocast), else unchanged (fp64 stays)."""
+    return x.float() if x.dtype in (torch.bfloat16, torch.float16) else x
+
+
 class NerfModelBase(nn.Module):
     """Two-level volume rendering shared by the three models.
 
@@ -200,7 +205,7 @@ class NerfModelBase(nn.Module):
                 )
             # Under bf16 autocast the MLPs' outputs are bf16; compositing (transmittance products over
             # hundreds of samples) and the losses stay in fp32.
-            fields = {k: v.float() for k, v in self.evaluate(level, rays, tdist).items()}
+            fields = {k: at_least_fp32(v) for k, v in self.evaluate(level, rays, tdist).items()}
             weights, _, _ = compute_alpha_weights(
                 fields["density"], tdist, rays["directions"], opaque_last=self.opaque_background
             )
