@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from omegaconf import OmegaConf
 
 from tests.conftest import ROOT
 
@@ -51,13 +52,12 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
     params.write_text(params.read_text().replace("profile: cpu", "profile: smoke"))
 
     _dvc(repo, "repro")
+    compare = OmegaConf.load(ROOT / "conf" / "compare.yaml")  # what dvc.yaml's stages loop over
+    nerf_runs = [f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes]
     for task, names in (
-        (
-            "denoise",
-            ["kpcn", "dpcn", "resnet", "cross_bilateral", "oidn", "gp_expr1", "gp_expr2", "gp_expr3"],
-        ),  # noqa: E501
-        ("nerf", [f"{m}-{s}" for m in ("nerf", "mipnerf", "refnerf") for s in ("spheres", "busy")]),
-        ("volumetric", ["unet_kpcn", "kpcn", "resnet", "oidn", "cross_bilateral"]),
+        ("denoise", [*compare.denoise.learned, *compare.denoise.baselines]),
+        ("nerf", nerf_runs),
+        ("volumetric", [*compare.volumetric.learned, *compare.volumetric.baselines]),
     ):
         for name in names:
             metrics = json.loads((repo / "runs" / task / name / "eval" / "metrics.json").read_text())
