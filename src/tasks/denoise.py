@@ -83,6 +83,11 @@ def _check_model_dataset(stage: str, cfg: DictConfig) -> None:
         )
 
 
+def held_out_index(cfg: DictConfig) -> Path:
+    """The index of the prepared full images that `stage=eval` reads (`task.eval.split`)."""
+    return Path(cfg.paths.prepared) / "full" / str(cfg.task.eval.split) / "index.json"
+
+
 def _check_held_out_inputs(stage: str, cfg: DictConfig) -> None:
     """At job start of a still-image `stage=eval` whose prepared images exist: the one-line error of a
     method that needs a buffer they lack (e.g. a GP filter's world position on real KPCN data), before
@@ -90,8 +95,7 @@ def _check_held_out_inputs(stage: str, cfg: DictConfig) -> None:
     the same when it opens them.)"""
     if stage != "eval" or cfg.dataset.name == "volumetric":
         return
-    index = Path(cfg.paths.prepared) / "full" / str(cfg.task.eval.split) / "index.json"
-    if not index.is_file():
+    if not held_out_index(cfg).is_file():
         return
     from src.eval.denoise_eval import held_out_images
     from src.models.instantiate import build_method
@@ -168,7 +172,7 @@ class DenoiseTask(Task):
         if stage in ("train", "select_features"):
             return {prepared / "patches" / "train" / "index.json": preprocessed}
         if stage == "eval":
-            return {prepared / "full" / str(cfg.task.eval.split) / "index.json": preprocessed}
+            return {held_out_index(cfg): preprocessed}
         return {}
 
     def data_dir(self, cfg: DictConfig) -> Path:
