@@ -24,6 +24,7 @@ from src.tracking.tracker import Tracker
 from src.train.checkpoint import load_checkpoint
 from src.train.sequence_trainer import SequenceTrainer
 from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config
+from tests.test_temporal import _np_temporal_loss
 from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
 
 SMALL = ["task.train.epochs=2", "task.train.batch_size=4", "task.eval.save_exr=false"]
@@ -132,6 +133,44 @@ def test_the_temporal_weight_changes_the_objective_only_through_the_temporal_ter
     torch.testing.assert_close(values[0.0]["total"], values[0.0]["color"])
     assert values[2.0]["temporal"] > 0
     torch.testing.assert_close(values[2.0]["total"], values[2.0]["color"] + 2.0 * values[2.0]["temporal"])
+
+
+class _KnownOutput(torch.nn.Module):
+    """A stand-in model whose linear colour output is given (signed, unlike any reference)."""
+
+    def __init__(self, color):
+        super().__init__()
+        self.color = color
+
+    def forward(self, frames):
+        return {"color": self.color}
+
+
+@pytest.mark.parametrize("mode", ["signed", "abs"])
+def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the_transformed_output(
+    vol_data, tmp_path, mode
+):
+    """By value, from a known output: SMAPE against the linear reference, the temporal loss of the
+    log-modulus output against the stored (log-modulus) target, per pair in numpy, weighted 0.7."""
+    trainer = _trainer(vol_data, tmp_path, 0.7, False, f"task.train.volumetric.temporal_mode={mode}")
+    batch = next(iter(torch.utils.data.DataLoader(trainer.train_data, batch_size=2)))
+    n, k, _, h, w = batch["reference"].shape
+    color = torch.randn((n * k, 3, h, w), generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 3
+    trainer.model = _KnownOutput(color)
+    values = trainer.losses(batch)
+    output = color.view(n, k, 3, h, w).numpy()
+    reference, target = batch["reference"].double().numpy(), batch["target"].double().numpy()
+    smape = np.abs(output - reference) / (np.abs(output) + np.abs(reference) + 0.01)
+    temporal = _np_temporal_loss(np.sign(output) * np.log1p(np.abs(output)), target, mode)
+    assert values["color"].item() == pytest.approx(smape.mean(), rel=1e-5)
+    assert values["temporal"].item() == pytest.approx(temporal, rel=1e-5)
+    assert values["total"].item() == pytest.approx(smape.mean() + 0.7 * temporal, rel=1e-5)
+    # The fixture tells the spaces apart: the temporal loss of the linear output, or against the linear
+    # reference, is another number.
+    assert _np_temporal_loss(output, target, mode) != pytest.approx(temporal, rel=1e-2)
+    assert _np_temporal_loss(np.sign(output) * np.log1p(np.abs(output)), reference, mode) != pytest.approx(
+        temporal, rel=1e-2
+    )
 
 
 def _trainer(data, run_dir, weight, probe=False, *overrides):
