@@ -89,6 +89,15 @@ def test_relmse_and_smape_by_hand():
     assert smape(x, y, eps) == pytest.approx((0.5 / 1.51 + 0.0 + 1.0 / 3.01) / 3)
 
 
+def test_smape_of_negative_values_by_hand():
+    # Linear HDR can be negative (a denoiser's undershoot): the denominator is |x| + |y| + eps, never
+    # x + y + eps (which would give 2 / 0.01 for the first channel).
+    x = np.array([[[-1.0, -2.0, 3.0]]])
+    y = np.array([[[1.0, -0.5, -1.0]]])
+    assert smape(x, y, 0.01) == pytest.approx((2.0 / 2.01 + 1.5 / 2.51 + 4.0 / 4.01) / 3)
+    assert smape(y, x, 0.5) == pytest.approx((2.0 / 2.5 + 1.5 / 3.0 + 4.0 / 4.5) / 3)
+
+
 def test_relmse_of_the_gp_thesis_sums_channels_and_scales_by_half_the_spp():
     """Davletaliyev 2016, Eq. 3.5: (1/N) sum_i (m/2) sum_rgb (x - y)^2 / (y^2 + eps): two pixels by hand,
     1.5 m times Bako et al.'s mean-over-channels relMSE, and the factor cancels in the fitness ratio."""

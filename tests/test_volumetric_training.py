@@ -9,12 +9,14 @@ import json
 import subprocess
 
 import mlflow
+import numpy as np
 import pandas as pd
 import pytest
 import torch
 
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.errors import ConfigError
+from src.eval.sequence_eval import SequenceEvaluation
 from src.stages import evaluate, select_features, train
 from src.tasks.denoise import DenoiseTask
 from src.tracking.mlflow_tracking import job_run
@@ -22,7 +24,8 @@ from src.tracking.tracker import Tracker
 from src.train.checkpoint import load_checkpoint
 from src.train.sequence_trainer import SequenceTrainer
 from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config
-from tests.test_volume_shards import _preprocess, _raw
+from tests.test_temporal import _np_temporal_loss
+from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
 
 SMALL = ["task.train.epochs=2", "task.train.batch_size=4", "task.eval.save_exr=false"]
 FAST_METRICS = ["metrics.lpips.enabled=false", "metrics.flip.enabled=false"]
@@ -56,15 +59,73 @@ def test_sequence_training_fits_smape_plus_weighted_temporal_loss_and_logs_each_
     curves = pd.read_csv(tmp_path / "curves.csv")
     expected = curves["val_loss_color"] + 0.5 * curves["val_loss_temporal"]
     pd.testing.assert_series_equal(curves["val_loss_total"], expected, check_names=False, rtol=1e-5)
-    assert (
-        metrics["eval_temporal"] >= 0 and "eval_noisy_temporal" in metrics and "eval_temporal_spp2" in metrics
-    )
     state = load_checkpoint(summary["checkpoint"])
     assert state["features"] is None  # every candidate
     rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
     assert len(rows) == 2 and set(rows["frames"]) == {4}  # the test scene at 2 and 8 spp, 4 frames each
-    assert rows["temporal"].notna().all() and (rows["noisy_temporal"] > 0).all()
+    # The flicker of the output, not of the input (its value: the stub-denoiser test below); logged as the
+    # rows' mean and per spp.
+    assert (rows["temporal"] > 0).all() and (rows["noisy_temporal"] > 0).all()
+    assert (rows["temporal"] != rows["noisy_temporal"]).all()
+    assert metrics["eval_temporal"] == pytest.approx(rows["temporal"].mean(), rel=1e-6)
+    assert metrics["eval_noisy_temporal"] == pytest.approx(rows["noisy_temporal"].mean(), rel=1e-6)
+    spp2 = rows.loc[rows["spp"] == 2, "temporal"].item()
+    assert metrics["eval_temporal_spp2"] == pytest.approx(spp2, rel=1e-6)
     assert len(list((tmp_path / "eval" / "strips").glob("*.png"))) == 2  # the middle frame of each
+
+
+#: The known output of the stub denoiser below: each reference frame scaled by its own factor, so the
+#: output moves, but not as the reference does, and unlike the noisy input.
+_FRAME_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8])
+
+
+def _reinhard(x, gamma=2.2):
+    positive = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+    return (positive / (1.0 + positive)) ** (1.0 / gamma)
+
+
+def _flicker_by_hand(frames, reference):
+    """mean over pairs (t, t+1) of mean |Δ tm(frames) - Δ tm(reference)|, Reinhard + gamma 2.2."""
+    pairs = [
+        (_reinhard(frames[t + 1]) - _reinhard(frames[t]))
+        - (_reinhard(reference[t + 1]) - _reinhard(reference[t]))
+        for t in range(len(frames) - 1)
+    ]
+    return float(np.mean([np.abs(d).mean() for d in pairs]))
+
+
+def test_the_flicker_column_is_the_metric_of_the_denoised_frames(vol_data, tmp_path, monkeypatch):
+    """Sequence evaluation with a stub denoiser of known output (the reference frames scaled per frame):
+    `temporal` is the flicker of that output, `noisy_temporal` the noisy input's, both computed here from
+    the synthetic raw frames; the means and the logged per-spp values are the rows'."""
+    cfg = _cfg(
+        vol_data, tmp_path, "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"
+    )
+    monkeypatch.setattr(
+        SequenceEvaluation,
+        "infer",
+        lambda self, item: item["item"]["reference"] * _FRAME_SCALES.view(4, 1, 1, 1),
+    )
+    evaluation = SequenceEvaluation(cfg, Tracker())
+    summary = evaluation.run(desc="stub")
+    rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
+    assert len(rows) == 2
+    for row in rows.itertuples():
+        frames = range(4)
+        # The raw frames (H, W, 3): the highest sample count is the reference.
+        reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in frames])
+        noisy = np.stack([synthetic_frame(row.scene, f, row.spp)["color"] for f in frames])
+        denoised = reference * _FRAME_SCALES.numpy().reshape(4, 1, 1, 1)
+        expected, expected_noisy = _flicker_by_hand(denoised, reference), _flicker_by_hand(noisy, reference)
+        assert row.temporal == pytest.approx(expected, rel=1e-5), row.spp
+        assert row.noisy_temporal == pytest.approx(expected_noisy, rel=1e-5), row.spp
+        assert abs(expected - expected_noisy) > 0.01  # the fixture tells output and input apart
+    assert summary["mean"]["temporal"] == pytest.approx(rows["temporal"].mean(), rel=1e-12)
+    logged = evaluation.logged_metrics(summary)
+    for row in rows.itertuples():
+        assert logged[f"eval_temporal_spp{row.spp}"] == pytest.approx(row.temporal, rel=1e-12)
+        assert logged[f"eval_noisy_temporal_spp{row.spp}"] == pytest.approx(row.noisy_temporal, rel=1e-12)
+    assert logged["eval_temporal"] == pytest.approx(rows["temporal"].mean(), rel=1e-12)
 
 
 def test_the_temporal_weight_changes_the_objective_only_through_the_temporal_term(vol_data, tmp_path):
@@ -76,6 +137,44 @@ def test_the_temporal_weight_changes_the_objective_only_through_the_temporal_ter
     torch.testing.assert_close(values[0.0]["total"], values[0.0]["color"])
     assert values[2.0]["temporal"] > 0
     torch.testing.assert_close(values[2.0]["total"], values[2.0]["color"] + 2.0 * values[2.0]["temporal"])
+
+
+class _KnownOutput(torch.nn.Module):
+    """A stand-in model whose linear colour output is given (signed, unlike any reference)."""
+
+    def __init__(self, color):
+        super().__init__()
+        self.color = color
+
+    def forward(self, frames):
+        return {"color": self.color}
+
+
+@pytest.mark.parametrize("mode", ["signed", "abs"])
+def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the_transformed_output(
+    vol_data, tmp_path, mode
+):
+    """By value, from a known output: SMAPE against the linear reference, the temporal loss of the
+    log-modulus output against the stored (log-modulus) target, per pair in numpy, weighted 0.7."""
+    trainer = _trainer(vol_data, tmp_path, 0.7, False, f"task.train.volumetric.temporal_mode={mode}")
+    batch = next(iter(torch.utils.data.DataLoader(trainer.train_data, batch_size=2)))
+    n, k, _, h, w = batch["reference"].shape
+    color = torch.randn((n * k, 3, h, w), generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 3
+    trainer.model = _KnownOutput(color)
+    values = trainer.losses(batch)
+    output = color.view(n, k, 3, h, w).numpy()
+    reference, target = batch["reference"].double().numpy(), batch["target"].double().numpy()
+    smape = np.abs(output - reference) / (np.abs(output) + np.abs(reference) + 0.01)
+    temporal = _np_temporal_loss(np.sign(output) * np.log1p(np.abs(output)), target, mode)
+    assert values["color"].item() == pytest.approx(smape.mean(), rel=1e-5)
+    assert values["temporal"].item() == pytest.approx(temporal, rel=1e-5)
+    assert values["total"].item() == pytest.approx(smape.mean() + 0.7 * temporal, rel=1e-5)
+    # The fixture tells the spaces apart: the temporal loss of the linear output, or against the linear
+    # reference, is another number.
+    assert _np_temporal_loss(output, target, mode) != pytest.approx(temporal, rel=1e-2)
+    assert _np_temporal_loss(np.sign(output) * np.log1p(np.abs(output)), reference, mode) != pytest.approx(
+        temporal, rel=1e-2
+    )
 
 
 def _trainer(data, run_dir, weight, probe=False, *overrides):
