@@ -95,24 +95,26 @@ def test_an_all_occupied_grid_gives_the_same_outputs_and_gradients(name):
 REGION = (-1.0, 1.0)
 
 
-def _outside(points: torch.Tensor) -> torch.Tensor:
-    return ((points < REGION[0]) | (points > REGION[1])).any(dim=-1)
+def _outside(points: torch.Tensor, region: tuple[float, float] = REGION) -> torch.Tensor:
+    return ((points < region[0]) | (points > region[1])).any(dim=-1)
 
 
 class RegionMLP(nn.Module):
-    """NeRF's / mip-NeRF's MLP with density exactly 0 outside REGION; its encoded input carries the
-    sample position as its last 3 features (`PositionInInput`), which the wrapped MLP does not see."""
+    """NeRF's / mip-NeRF's MLP with density exactly 0 outside `region` (REGION unless changed); its
+    encoded input carries the sample position as its last 3 features (`PositionInInput`), which the
+    wrapped MLP does not see."""
 
     def __init__(self, inner: nn.Module) -> None:
         super().__init__()
         self.inner = inner
+        self.region = REGION
 
     def forward(self, x_enc, view_enc):
         out = self.inner(x_enc[..., :-3], view_enc)
-        return out | {"density": torch.where(_outside(x_enc[..., -3:]), 0.0, out["density"])}
+        return out | {"density": torch.where(_outside(x_enc[..., -3:], self.region), 0.0, out["density"])}
 
     def density(self, x_enc):
-        return torch.where(_outside(x_enc[..., -3:]), 0.0, self.inner.density(x_enc[..., :-3]))
+        return torch.where(_outside(x_enc[..., -3:], self.region), 0.0, self.inner.density(x_enc[..., :-3]))
 
 
 class PositionInInput:
@@ -168,6 +170,42 @@ def test_rendering_with_an_exact_grid_equals_rendering_without_it(name):
     reference = render_rays_chunked(model, rays, chunk=20)
     for key in model.render_keys:
         torch.testing.assert_close(chunked[key], reference[key], rtol=0, atol=1e-5, msg=key)
+
+
+#: The coarse MLP's region in `test_the_grid_holds_the_fine_density_and_skips_both_levels`: 4 x 4 x 4 cells.
+WIDE = (-2.0, 2.0)
+
+
+def test_the_grid_holds_the_fine_density_and_skips_both_levels():
+    """NeRF's coarse and fine MLPs differ (their own weights; here also their own regions of non-zero
+    density: the coarse one on WIDE, 64 cells, the fine one on REGION, 8 cells). The grid is updated from
+    the fine MLP's density (`point_density`), so it holds exactly REGION's cells, and it skips the samples
+    of both levels: with it, the coarse level renders as the coarse MLP cut to REGION without a grid
+    (its density between REGION and WIDE is dropped), and the fine level, resampled from those coarse
+    weights, as that reference's fine level. Catches a grid built from the coarse MLP, a grid applied to
+    one level only, and a level evaluated with the other level's MLP."""
+    model = region_model("nerf")
+    coarse, fine = model.mlps
+    coarse.region = WIDE
+    assert update_occupancy(model, seed=0, step=0)
+    # Cell (i, j, k) spans [-4 + i, -3 + i] x ... (8 cells of 1 over [-4, 4]); occupied iff inside REGION.
+    inside = [-4 + i >= REGION[0] and -3 + i <= REGION[1] for i in range(8)]
+    expected = [inside[i] and inside[j] and inside[k] for i in range(8) for j in range(8) for k in range(8)]
+    assert model.occupancy_grid.occupied.tolist() == expected and sum(expected) == 8
+    rays, _ = sphere_scene(n_side=6)
+    with torch.no_grad():
+        with_grid, unmasked = render_both(model, rays)
+        model.occupancy_grid, coarse.region = None, REGION
+        reference = model(rays, randomized=True, generator=torch.Generator().manual_seed(1))
+        x_enc = model.encode_positions({"x": torch.tensor([[0.5, -0.5, 0.25]])})
+        densities = float(fine.density(x_enc)), float(coarse.density(x_enc))
+    for level_a, level_b in zip(with_grid, reference, strict=True):
+        for key in (*KEYS, "weights", "tdist"):
+            torch.testing.assert_close(level_a[key], level_b[key], rtol=0, atol=1e-5, msg=key)
+    # The fixture matters: the coarse MLP's density between REGION and WIDE shows without the grid...
+    assert float((unmasked[0]["acc"] - reference[0]["acc"]).abs().max()) > 0.05
+    # ...and the two MLPs differ where both are non-zero (a level on the other's MLP changes the answer).
+    assert abs(densities[0] - densities[1]) > 1e-3
 
 
 def test_refnerf_normals_train_through_the_gathered_samples():
