@@ -8,6 +8,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from src.models.nerf import models
 from src.models.nerf.fields import SkipMLP
 from src.train.device import autocast
 from src.train.nerf_trainer import accumulate_gradients
@@ -53,13 +54,46 @@ def test_bf16_autocast_step_agrees_with_fp32(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_compositing_stays_fp32_under_bf16_autocast(name):
+def test_compositing_stays_fp32_under_bf16_autocast(name, monkeypatch):
+    """The fields reach compositing in fp32 (type promotion against the fp32 tdist alone would already
+    make the outputs fp32, so the compositing functions' inputs are checked, not only the outputs), and
+    the weights and colour equal a float64 composite of those (bf16-rounded) fields to fp32 precision;
+    Ref-NeRF's per-sample outputs (read by its regularisers) are fp32 too."""
+    seen: list[tuple[torch.Tensor, torch.Tensor]] = []
+    weights_fn, render_fn = models.compute_alpha_weights, models.volumetric_rendering
+
+    def spy_weights(density, tdist, dirs, opaque_last=False):
+        seen.append((density, tdist))
+        return weights_fn(density, tdist, dirs, opaque_last=opaque_last)
+
+    def spy_render(rgb, weights, tdist, background):
+        seen.append((rgb, weights))
+        return render_fn(rgb, weights, tdist, background)
+
+    monkeypatch.setattr(models, "compute_alpha_weights", spy_weights)
+    monkeypatch.setattr(models, "volumetric_rendering", spy_render)
     model, batch = small_paper_layout(name), rays(n=8)
-    with autocast("cpu", torch.bfloat16):
+    with torch.no_grad(), autocast("cpu", torch.bfloat16):
         outputs = model(batch, randomized=False)
-    for level in outputs:
+    assert len(seen) == 4  # (weights, render) per level
+    for level, out in enumerate(outputs):
+        (density, tdist), (rgb, _) = seen[2 * level], seen[2 * level + 1]
+        assert density.dtype == rgb.dtype == torch.float32
+        assert torch.equal(density, density.bfloat16().float())  # the MLP did run in bf16
         for key in ("rgb", "weights", "depth", "acc"):
-            assert level[key].dtype == torch.float32, key
+            assert out[key].dtype == torch.float32, key
+        # NeRF Eq. 3 in float64 from the fields as compositing received them.
+        delta = tdist.double().diff(dim=-1) * batch["directions"].double().norm(dim=-1, keepdim=True)
+        if model.opaque_background:
+            delta[:, -1] = 1e10
+        tau = density.double() * delta
+        weights = (1 - torch.exp(-tau)) * torch.exp(-(torch.cumsum(tau, dim=-1) - tau))
+        color = (weights[..., None] * rgb.double()).sum(dim=1) + (1 - weights.sum(dim=1, keepdim=True))
+        torch.testing.assert_close(out["weights"].double(), weights, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(out["rgb"].double(), color, rtol=1e-5, atol=1e-6)
+        for key in ("sample_normals", "sample_normals_pred"):
+            if key in out:
+                assert out[key].dtype == torch.float32, key
 
 
 def test_refnerf_density_normals_under_bf16_autocast_stay_close():
