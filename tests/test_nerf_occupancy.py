@@ -281,6 +281,69 @@ def test_after_the_warm_up_an_update_evaluates_a_subset_of_the_cells():
     assert 128 <= sum(seen) <= 256  # a quarter uniformly plus a quarter of the occupied ones, no repeats
 
 
+def evaluated_points(grid: OccupancyGrid, step: int, seed: int) -> torch.Tensor:
+    """The points one update of `grid` at `step` evaluates, with a generator seeded `seed` (the grid's
+    state restored afterwards)."""
+    state = {k: v.clone() for k, v in grid.state_dict().items()}
+    seen = []
+
+    def density_fn(points):
+        seen.append(points)
+        return torch.zeros(len(points))
+
+    assert grid.update(density_fn, step, torch.Generator().manual_seed(seed))
+    grid.load_state_dict(state)
+    return torch.cat(seen)
+
+
+def test_an_update_after_the_warm_up_draws_its_cells_from_the_generator():
+    """The cells (uniform ones, and the occupied ones when there are more than a share) and the jitter of
+    an update come from the generator it is given, not from the global RNG, so a resumed run updates as
+    an uninterrupted one: the same generator seed gives the same points whatever the global RNG did in
+    between, another seed other points."""
+    grid = OccupancyGrid(**grid_args(resolution=8, warmup_steps=0, update_every=1))
+    grid.occupied[300:] = False  # 300 occupied cells, more than the 128 drawn among them
+    torch.manual_seed(0)
+    first = evaluated_points(grid, 2, seed=7)
+    torch.manual_seed(1)
+    torch.rand(1000)
+    again = evaluated_points(grid, 2, seed=7)
+    other = evaluated_points(grid, 2, seed=8)
+    assert 128 < len(first) <= 256 and torch.equal(first, again)
+    assert len(other) != len(first) or not torch.equal(other, first)
+    cells = cell_indices(first, grid.aabb, 8)[0]
+    assert len(set(cells.tolist())) == len(cells)  # no repeats
+    assert int(grid.occupied[cells].sum()) >= 128  # a quarter (128) drawn among the occupied ones
+
+
+def test_a_share_below_one_cell_still_evaluates_one():
+    """sample_fraction * cells < 1 (here 0.1 of 8): one uniformly drawn cell per update (plus as many
+    occupied ones: none here), not none and not two."""
+    grid = OccupancyGrid(**grid_args(resolution=2, warmup_steps=0, update_every=1, sample_fraction=0.1))
+    grid.occupied.zero_()
+    for seed in range(4):
+        assert len(evaluated_points(grid, 1, seed)) == 1
+    grid.occupied[5] = True
+    points = evaluated_points(grid, 1, seed=0)
+    assert len(points) in (1, 2) and 5 in cell_indices(points, grid.aabb, 2)[0].tolist()
+
+
+def test_the_box_is_config_not_state():
+    """The state dict holds the moving maximum and the occupancy bits only (the box comes from the config,
+    so a checkpoint loads into a grid of the configured box, and keeps loading after a box change); the
+    box is float32 even when the config spells it in integers."""
+    grid = OccupancyGrid(**grid_args(aabb=[0, 0, 0, 2, 1, 4], resolution=4))
+    assert list(grid.state_dict()) == ["ema", "occupied"]
+    assert grid.aabb.dtype == torch.float32 and grid.aabb.tolist() == [0.0, 0.0, 0.0, 2.0, 1.0, 4.0]
+    grid.occupied[10:] = False
+    assert repr(grid) == "OccupancyGrid(resolution=4, aabb=[0.0, 0.0, 0.0, 2.0, 1.0, 4.0], occupied=0.156)"
+    other = OccupancyGrid(**grid_args(aabb=[-1.25, 0, 0, 1, 1, 1.0000004], resolution=4))
+    other.load_state_dict(grid.state_dict())
+    assert other.aabb.tolist() == pytest.approx([-1.25, 0.0, 0.0, 1.0, 1.0, 1.0000004])
+    assert "aabb=[-1.25, 0.0, 0.0, 1.0, 1.0, 1.0]" in repr(other)  # rounded to 6 decimals
+    assert torch.equal(other.occupied, grid.occupied)
+
+
 # --- (d) cells ------------------------------------------------------------------------------------------
 
 
