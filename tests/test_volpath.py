@@ -251,12 +251,18 @@ def compare_with_volpath(mi, case, res, spp, passes, seed):
     return ours_buf["color"].mean() / ref_mean.mean() - 1, z_image, z_blocks
 
 
+#: Samples per pixel of the cheap comparison per case: the relative standard error of the difference of
+#: image means is then 0.4-0.5 % (fog, noisier per sample: 0.5 % at 1024), so a 4 % bias of the colour
+#: is z ~ 7-9 (measured with `color = 1.04 * (...)`: z 6.8, 9.2, 7.8), where 64 spp (1-2 %) let it pass.
+CHEAP_SPP = {"homogeneous": 256, "heterogeneous": 256, "camera_in_fog": 1024}
+
+
 @pytest.mark.parametrize("case", CASES)
 def test_color_matches_mitsuba_volpath_cheap(mi, case):
     """With media our colour and Mitsuba's volpath agree within their measured standard errors
-    (64 spp at 16x16, volpath's from 8 independent passes: image-mean z < 4, every 4x4-block z < 4.5;
-    the image means' relative standard error is 1-2 % here)."""
-    _, z_image, z_blocks = compare_with_volpath(mi, case, RES, 64, 8, seed=1)
+    (`CHEAP_SPP` at 16x16, volpath's from 8 independent passes: image-mean z < 4, every 4x4-block
+    z < 4.5)."""
+    _, z_image, z_blocks = compare_with_volpath(mi, case, RES, CHEAP_SPP[case], 8, seed=1)
     assert abs(z_image) < 4 and np.abs(z_blocks).max() < 4.5, (z_image, z_blocks)
 
 
