@@ -193,6 +193,24 @@ def test_channel_layout_matches_the_film(mi):
     assert ours(mi, features=False).aov_names() == []
 
 
+def test_split_film_reads_each_buffer_and_its_square_by_channel_name(mi):
+    """A synthetic film whose every channel holds its own index: each buffer's mean is read from the
+    channels named ``<buffer>.<i>`` (the film's RGB first for ``color``) and its second moment from
+    ``<buffer>_sq.<i>``, located by name here, not by the offsets ``split_film`` computes."""
+    from src.render.volpath_integrator import CHANNEL_COUNT, split_film, volume_channel_names
+
+    names = ["color.0", "color.1", "color.2", *volume_channel_names()]
+    img = np.broadcast_to(np.arange(len(names), dtype=np.float64), (2, 3, len(names)))
+    out = split_film(img)
+    assert list(out) == list(CHANNEL_COUNT)
+    for buf, n in CHANNEL_COUNT.items():
+        mean, second = out[buf]
+        assert mean[1, 2].tolist() == [names.index(f"{buf}.{i}") for i in range(n)], buf
+        assert second[0, 1].tolist() == [names.index(f"{buf}_sq.{i}") for i in range(n)], buf
+    with pytest.raises(ValueError, match=f"film has {len(names) - 1} channels, the volumetric layout"):
+        split_film(img[..., :-1])
+
+
 def test_radiance_split_sums_per_sample(mi):
     """color == surface + volume and volume == single + multi: exactly at 1 spp (a pixel is one
     sample with the box filter), to float rounding of the film's averages at 16 spp."""
