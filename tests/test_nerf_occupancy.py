@@ -525,3 +525,18 @@ def test_the_cli_exits_2_naming_the_grid_key(tmp_path):
     cmd, env = cli_job([*args, *bad], tmp_path / "data")
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     one_line_cli_error(result, "model.occupancy_grid.resolution", "expected >= 1, got 0")
+
+
+# Surviving mutants of src/models/nerf/occupancy.py (bash scripts/mutation.sh occupancy), all equivalent here:
+# - cell_indices `.clamp_(0, resolution - 1)` -> `.clamp_(None, resolution - 1)`: a negative cell index
+#   only comes from a point below the box, which is outside and gets index 0 from the `where` (a point on
+#   the lower bound gives floor(0) = 0; NaN points are outside too).
+# - cell_points `torch.stack(..., dim=-1)` -> `dim=+1`: the flat cells are 1-D (P,), where 1 is -1.
+# - cell_points `ijk.to(jitter.dtype)` -> `ijk.to(None)`, ema_update `density.to(ema.dtype)` -> `.to(None)`,
+#   occupied_at `self.aabb.to(points.dtype)` -> `.to(None)`: `.to(None)` keeps the dtype, and type
+#   promotion then gives the same values (int64 cells + float jitter; a bf16 density promotes exactly to
+#   the fp32 ema's dtype, and the maximum with an fp64 one, stored back in fp32, is the same number since
+#   rounding is monotonic; an fp32 box converts exactly to fp64 points, and sample positions are never
+#   narrower than fp32).
+# - OccupancyGrid.__init__ `persistent=False` -> `persistent=None` for the box: register_buffer treats a
+#   falsy `persistent` as non-persistent (the box stays out of the state dict, test above).
