@@ -77,6 +77,10 @@ def test_cloud_density_closed_form():
     np.testing.assert_allclose(got, 3 * t**2 - 2 * t**3, rtol=1e-12)
     assert 0 < got[0] < got[1] < 1  # the flattened base is thinner than the same point above the centre
     assert 0 < got[2] < 1 and got[3] == 0.0  # outside the envelope: coverage - 0.5 < 0.25
+    # High coverage: outside the envelope (r^2 > 1) the envelope is 0, not negative, so the field is
+    # coverage - 0.5 = 0.4 there: smoothstep at t = 0.5, density 0.5.
+    outside = np.array([[0.9, -0.9, 0.5], [1.0, 1.0, 1.0]])
+    assert vg.cloud_density(outside, np.ones(2), np.ones(2), 0.9, 0.3).tolist() == pytest.approx([0.5, 0.5])
 
 
 def test_plume_density_closed_form():
@@ -149,3 +153,31 @@ def test_worley_at_hand_placed_feature_points():
     )
     expected = [0.0, 0.4, np.sqrt(3 * 0.25), np.sqrt(3) * 0.45, 0.2]
     np.testing.assert_allclose(vg.worley(points, features), expected, rtol=1e-12)
+
+
+def test_default_time_is_the_zero_slice():
+    """Without `time` the fourth lattice axis is read at 0: octave 0 (random table) at integer points
+    returns the entries with time index 0; octaves 1 and 2 are constant."""
+    lattices = np.random.default_rng(6).random((3, P**4))
+    lattices[1], lattices[2] = 0.5, 0.1
+    k = np.array([[1, 2, 3], [15, 0, 7]])
+    expected = (lattices[0][k @ P ** np.arange(3)] + 0.5 * 0.5 + 0.25 * 0.1) / 1.75
+    np.testing.assert_allclose(vg.fbm(k.astype(float), lattices, 0.5), expected, rtol=1e-12)
+
+
+def test_grid_shaped_points_give_the_values_of_the_flat_points():
+    """The scenes evaluate the noises on (nz, ny, nx, 3) voxel-centre arrays: each function on such an
+    array (unequal axes) equals the same points flattened to (N, 3), reshaped, and has the grid's shape."""
+    rng = np.random.default_rng(8)
+    grid = rng.uniform(0, 20, (2, 4, 5, 3))  # shape[1] != 3, shape[0] != shape[2]
+    flat = grid.reshape(-1, 3)
+    lattice3, lattices4 = rng.random(P**3), rng.random((2, P**4))
+    features = vg.worley_points(rng, 4)
+    for name, fn in [
+        ("value noise", lambda p: vg.value_noise_nd(p, lattice3)),
+        ("fbm", lambda p: vg.fbm(p, lattices4, 0.5, time=0.3)),
+        ("worley", lambda p: vg.worley(p, features)),
+    ]:
+        got = fn(grid)
+        assert got.shape == (2, 4, 5), name
+        np.testing.assert_allclose(got.reshape(-1), fn(flat), rtol=1e-12, err_msg=name)
