@@ -181,3 +181,18 @@ def test_grid_shaped_points_give_the_values_of_the_flat_points():
         got = fn(grid)
         assert got.shape == (2, 4, 5), name
         np.testing.assert_allclose(got.reshape(-1), fn(flat), rtol=1e-12, err_msg=name)
+
+
+# Surviving mutants of src/render/volume_grids.py (bash scripts/mutation.sh moments), all equivalent here:
+# - albedo_grid `np.asarray(low / high, float)` -> dtype None or dropped (4), grid_shape
+#   `np.asarray(box.size, float)` -> dtype None or dropped (2): float lists stay float64, and integer
+#   ones (int64) are multiplied by float noise / divided, giving the same float values.
+# - cloud_density `local[..., 1] < 0` -> `<= 0`: at y = 0 the flattening factor multiplies 0.
+# - cloud_density envelope `np.clip(1 - r2, 0.0, 1.0)` -> upper bound None or 2.0: r2 >= 0, so 1 - r2 <= 1.
+# - plume_density `np.clip(..., 0.0, 1.0)` -> lower bound None, upper None or 2.0: the product of a
+#   Gaussian, two smoothsteps and 1 - detail + detail * noise lies in [0, 1] for detail and noise in
+#   [0, 1] (as the scenes draw them), so the clip never acts.
+# - worley: `features.shape[1]` for `shape[0]` (feature grids are cubic, `worley_points`); the 27 offsets
+#   built with meshgrid's default "xy" indexing, from 4 copies of [-1, 0, 1] (a superset of the same 27
+#   offsets), reshaped with -2 (numpy reads any negative size as "infer"), or subtracted from the base
+#   cell instead of added (the offset set is symmetric): each searches the same neighbouring cells.
