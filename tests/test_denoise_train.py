@@ -331,3 +331,61 @@ def test_precision_is_fp32_unless_amp_on_cuda():
         "bf16-autocast",
     ]
     assert compose_config().task.train.amp is False
+
+
+def test_the_denoiser_trainers_amp_step_runs_the_convolutions_in_bf16_and_the_loss_in_fp32(monkeypatch):
+    """`task.train.amp` as on CUDA, taken on the CPU (`device.precision` patched to answer as for a CUDA
+    device, so the trainer's own `_autocast` picks bfloat16): in `DenoiserTrainer.train_step` every
+    convolution's output is the bf16 convolution of its bf16-rounded input and parameters (by value),
+    the kernels' application and the losses stay fp32 (each logged loss the float64 L1 of the fp32
+    predictions, to fp32 precision); with amp off every convolution runs in fp32."""
+    from functools import partial
+    from types import SimpleNamespace
+
+    from src.models.denoise.summary import random_batch
+    from src.train import device
+    from tests.test_denoise_models import tiny_cfg
+
+    monkeypatch.setattr(device, "precision", lambda amp, _: "bf16-autocast" if amp else "fp32")
+    torch.manual_seed(0)
+    model = build_method(tiny_cfg(whiten=False))
+    batch = random_batch(8, 8, generator=torch.Generator().manual_seed(1))
+    convs: list[tuple[torch.nn.Conv2d, torch.Tensor, torch.Tensor]] = []
+    for m in model.modules():
+        if isinstance(m, torch.nn.Conv2d):
+            m.register_forward_hook(
+                lambda m, args, out: convs.append((m, args[0].detach().clone(), out.detach().clone()))
+            )
+    seen: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+
+    def l1(prediction, target):
+        loss = (prediction - target).abs().mean()
+        seen.append((prediction.detach(), target, loss.detach()))
+        return loss
+
+    def step(amp):
+        convs.clear(), seen.clear()
+        trainer = SimpleNamespace(
+            model=model,
+            optimizer=torch.optim.SGD(model.parameters(), lr=0.0),
+            t=OmegaConf.create({"amp": amp}),
+            device=torch.device("cpu"),
+            loss=l1,
+            eps=0.01,
+        )
+        trainer.losses = partial(DenoiserTrainer.losses, trainer)
+        trainer.objective = partial(DenoiserTrainer.objective, trainer)
+        return DenoiserTrainer.train_step(trainer, batch)
+
+    values, size = step(True)
+    assert size == 1 and list(values) == ["diffuse", "specular", "color"] and len(seen) == 3
+    assert len(convs) == 2 * 2  # per branch: depth 2 (a hidden and the kernel-logit convolution)
+    for conv, x, out in convs:
+        assert out.dtype == torch.bfloat16
+        expected = conv._conv_forward(x.bfloat16(), conv.weight.bfloat16(), conv.bias.bfloat16())
+        assert torch.equal(out, expected)
+    for (prediction, target, loss), logged in zip(seen, values.values(), strict=True):
+        assert prediction.dtype == loss.dtype == torch.float32
+        assert logged == pytest.approx(float((prediction.double() - target.double()).abs().mean()), rel=1e-6)
+    step(False)
+    assert {out.dtype for _, _, out in convs} == {torch.float32}

@@ -95,24 +95,26 @@ def test_an_all_occupied_grid_gives_the_same_outputs_and_gradients(name):
 REGION = (-1.0, 1.0)
 
 
-def _outside(points: torch.Tensor) -> torch.Tensor:
-    return ((points < REGION[0]) | (points > REGION[1])).any(dim=-1)
+def _outside(points: torch.Tensor, region: tuple[float, float] = REGION) -> torch.Tensor:
+    return ((points < region[0]) | (points > region[1])).any(dim=-1)
 
 
 class RegionMLP(nn.Module):
-    """NeRF's / mip-NeRF's MLP with density exactly 0 outside REGION; its encoded input carries the
-    sample position as its last 3 features (`PositionInInput`), which the wrapped MLP does not see."""
+    """NeRF's / mip-NeRF's MLP with density exactly 0 outside `region` (REGION unless changed); its
+    encoded input carries the sample position as its last 3 features (`PositionInInput`), which the
+    wrapped MLP does not see."""
 
     def __init__(self, inner: nn.Module) -> None:
         super().__init__()
         self.inner = inner
+        self.region = REGION
 
     def forward(self, x_enc, view_enc):
         out = self.inner(x_enc[..., :-3], view_enc)
-        return out | {"density": torch.where(_outside(x_enc[..., -3:]), 0.0, out["density"])}
+        return out | {"density": torch.where(_outside(x_enc[..., -3:], self.region), 0.0, out["density"])}
 
     def density(self, x_enc):
-        return torch.where(_outside(x_enc[..., -3:]), 0.0, self.inner.density(x_enc[..., :-3]))
+        return torch.where(_outside(x_enc[..., -3:], self.region), 0.0, self.inner.density(x_enc[..., :-3]))
 
 
 class PositionInInput:
@@ -168,6 +170,42 @@ def test_rendering_with_an_exact_grid_equals_rendering_without_it(name):
     reference = render_rays_chunked(model, rays, chunk=20)
     for key in model.render_keys:
         torch.testing.assert_close(chunked[key], reference[key], rtol=0, atol=1e-5, msg=key)
+
+
+#: The coarse MLP's region in `test_the_grid_holds_the_fine_density_and_skips_both_levels`: 4 x 4 x 4 cells.
+WIDE = (-2.0, 2.0)
+
+
+def test_the_grid_holds_the_fine_density_and_skips_both_levels():
+    """NeRF's coarse and fine MLPs differ (their own weights; here also their own regions of non-zero
+    density: the coarse one on WIDE, 64 cells, the fine one on REGION, 8 cells). The grid is updated from
+    the fine MLP's density (`point_density`), so it holds exactly REGION's cells, and it skips the samples
+    of both levels: with it, the coarse level renders as the coarse MLP cut to REGION without a grid
+    (its density between REGION and WIDE is dropped), and the fine level, resampled from those coarse
+    weights, as that reference's fine level. Catches a grid built from the coarse MLP, a grid applied to
+    one level only, and a level evaluated with the other level's MLP."""
+    model = region_model("nerf")
+    coarse, fine = model.mlps
+    coarse.region = WIDE
+    assert update_occupancy(model, seed=0, step=0)
+    # Cell (i, j, k) spans [-4 + i, -3 + i] x ... (8 cells of 1 over [-4, 4]); occupied iff inside REGION.
+    inside = [-4 + i >= REGION[0] and -3 + i <= REGION[1] for i in range(8)]
+    expected = [inside[i] and inside[j] and inside[k] for i in range(8) for j in range(8) for k in range(8)]
+    assert model.occupancy_grid.occupied.tolist() == expected and sum(expected) == 8
+    rays, _ = sphere_scene(n_side=6)
+    with torch.no_grad():
+        with_grid, unmasked = render_both(model, rays)
+        model.occupancy_grid, coarse.region = None, REGION
+        reference = model(rays, randomized=True, generator=torch.Generator().manual_seed(1))
+        x_enc = model.encode_positions({"x": torch.tensor([[0.5, -0.5, 0.25]])})
+        densities = float(fine.density(x_enc)), float(coarse.density(x_enc))
+    for level_a, level_b in zip(with_grid, reference, strict=True):
+        for key in (*KEYS, "weights", "tdist"):
+            torch.testing.assert_close(level_a[key], level_b[key], rtol=0, atol=1e-5, msg=key)
+    # The fixture matters: the coarse MLP's density between REGION and WIDE shows without the grid...
+    assert float((unmasked[0]["acc"] - reference[0]["acc"]).abs().max()) > 0.05
+    # ...and the two MLPs differ where both are non-zero (a level on the other's MLP changes the answer).
+    assert abs(densities[0] - densities[1]) > 1e-3
 
 
 def test_refnerf_normals_train_through_the_gathered_samples():
@@ -241,6 +279,69 @@ def test_after_the_warm_up_an_update_evaluates_a_subset_of_the_cells():
     seen.clear()
     grid.update(density_fn, 2, torch.Generator().manual_seed(0))
     assert 128 <= sum(seen) <= 256  # a quarter uniformly plus a quarter of the occupied ones, no repeats
+
+
+def evaluated_points(grid: OccupancyGrid, step: int, seed: int) -> torch.Tensor:
+    """The points one update of `grid` at `step` evaluates, with a generator seeded `seed` (the grid's
+    state restored afterwards)."""
+    state = {k: v.clone() for k, v in grid.state_dict().items()}
+    seen = []
+
+    def density_fn(points):
+        seen.append(points)
+        return torch.zeros(len(points))
+
+    assert grid.update(density_fn, step, torch.Generator().manual_seed(seed))
+    grid.load_state_dict(state)
+    return torch.cat(seen)
+
+
+def test_an_update_after_the_warm_up_draws_its_cells_from_the_generator():
+    """The cells (uniform ones, and the occupied ones when there are more than a share) and the jitter of
+    an update come from the generator it is given, not from the global RNG, so a resumed run updates as
+    an uninterrupted one: the same generator seed gives the same points whatever the global RNG did in
+    between, another seed other points."""
+    grid = OccupancyGrid(**grid_args(resolution=8, warmup_steps=0, update_every=1))
+    grid.occupied[300:] = False  # 300 occupied cells, more than the 128 drawn among them
+    torch.manual_seed(0)
+    first = evaluated_points(grid, 2, seed=7)
+    torch.manual_seed(1)
+    torch.rand(1000)
+    again = evaluated_points(grid, 2, seed=7)
+    other = evaluated_points(grid, 2, seed=8)
+    assert 128 < len(first) <= 256 and torch.equal(first, again)
+    assert len(other) != len(first) or not torch.equal(other, first)
+    cells = cell_indices(first, grid.aabb, 8)[0]
+    assert len(set(cells.tolist())) == len(cells)  # no repeats
+    assert int(grid.occupied[cells].sum()) >= 128  # a quarter (128) drawn among the occupied ones
+
+
+def test_a_share_below_one_cell_still_evaluates_one():
+    """sample_fraction * cells < 1 (here 0.1 of 8): one uniformly drawn cell per update (plus as many
+    occupied ones: none here), not none and not two."""
+    grid = OccupancyGrid(**grid_args(resolution=2, warmup_steps=0, update_every=1, sample_fraction=0.1))
+    grid.occupied.zero_()
+    for seed in range(4):
+        assert len(evaluated_points(grid, 1, seed)) == 1
+    grid.occupied[5] = True
+    points = evaluated_points(grid, 1, seed=0)
+    assert len(points) in (1, 2) and 5 in cell_indices(points, grid.aabb, 2)[0].tolist()
+
+
+def test_the_box_is_config_not_state():
+    """The state dict holds the moving maximum and the occupancy bits only (the box comes from the config,
+    so a checkpoint loads into a grid of the configured box, and keeps loading after a box change); the
+    box is float32 even when the config spells it in integers."""
+    grid = OccupancyGrid(**grid_args(aabb=[0, 0, 0, 2, 1, 4], resolution=4))
+    assert list(grid.state_dict()) == ["ema", "occupied"]
+    assert grid.aabb.dtype == torch.float32 and grid.aabb.tolist() == [0.0, 0.0, 0.0, 2.0, 1.0, 4.0]
+    grid.occupied[10:] = False
+    assert repr(grid) == "OccupancyGrid(resolution=4, aabb=[0.0, 0.0, 0.0, 2.0, 1.0, 4.0], occupied=0.156)"
+    other = OccupancyGrid(**grid_args(aabb=[-1.25, 0, 0, 1, 1, 1.0000004], resolution=4))
+    other.load_state_dict(grid.state_dict())
+    assert other.aabb.tolist() == pytest.approx([-1.25, 0.0, 0.0, 1.0, 1.0, 1.0000004])
+    assert "aabb=[-1.25, 0.0, 0.0, 1.0, 1.0, 1.0]" in repr(other)  # rounded to 6 decimals
+    assert torch.equal(other.occupied, grid.occupied)
 
 
 # --- (d) cells ------------------------------------------------------------------------------------------
@@ -424,3 +525,18 @@ def test_the_cli_exits_2_naming_the_grid_key(tmp_path):
     cmd, env = cli_job([*args, *bad], tmp_path / "data")
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     one_line_cli_error(result, "model.occupancy_grid.resolution", "expected >= 1, got 0")
+
+
+# Surviving mutants of src/models/nerf/occupancy.py (bash scripts/mutation.sh occupancy), all equivalent here:
+# - cell_indices `.clamp_(0, resolution - 1)` -> `.clamp_(None, resolution - 1)`: a negative cell index
+#   only comes from a point below the box, which is outside and gets index 0 from the `where` (a point on
+#   the lower bound gives floor(0) = 0; NaN points are outside too).
+# - cell_points `torch.stack(..., dim=-1)` -> `dim=+1`: the flat cells are 1-D (P,), where 1 is -1.
+# - cell_points `ijk.to(jitter.dtype)` -> `ijk.to(None)`, ema_update `density.to(ema.dtype)` -> `.to(None)`,
+#   occupied_at `self.aabb.to(points.dtype)` -> `.to(None)`: `.to(None)` keeps the dtype, and type
+#   promotion then gives the same values (int64 cells + float jitter; a bf16 density promotes exactly to
+#   the fp32 ema's dtype, and the maximum with an fp64 one, stored back in fp32, is the same number since
+#   rounding is monotonic; an fp32 box converts exactly to fp64 points, and sample positions are never
+#   narrower than fp32).
+# - OccupancyGrid.__init__ `persistent=False` -> `persistent=None` for the box: register_buffer treats a
+#   falsy `persistent` as non-persistent (the box stays out of the state dict, test above).
