@@ -101,3 +101,28 @@ def test_channel_positions_in_the_prepared_data_and_the_missing_one_named():
         "shards/train: no channel 'motion_y' for task.volume_features (2 missing); run stage=preprocess "
         "dataset=volumetric again to store every candidate"
     )
+
+
+@pytest.mark.parametrize(
+    ("features", "index", "bad"),
+    [
+        (["color", "colour"], 1, "colour"),
+        (["position"], 0, "position"),  # rendered, never an input
+        (["depth", "motion.var"], 1, "motion.var"),
+        (["color.grad"], 0, "color.grad"),
+        (["depth.var.var"], 0, "depth.var.var"),
+    ],
+)
+def test_an_unknown_feature_is_one_line_naming_its_index(features, index, bad):
+    with pytest.raises(ConfigError) as err:
+        volume_feature_channels(features)
+    assert str(err.value) == (
+        f"task.volume_features[{index}]={bad!r}: expected a buffer of {list(BUFFERS)}, optionally with .var "
+        "(not motion)"
+    )
+
+
+def test_a_repeated_feature_is_one_line():
+    with pytest.raises(ConfigError) as err:
+        volume_feature_channels(["depth", "color", "depth", "motion", "color"])
+    assert str(err.value) == "task.volume_features: ['color', 'depth'] listed more than once"
