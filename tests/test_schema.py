@@ -14,16 +14,17 @@ import math
 import re
 import typing
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Literal
 
 import annotated_types
 import pytest
-from pydantic import AfterValidator, BaseModel, Field, create_model
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model
 from pydantic.fields import FieldInfo
 
 from src.errors import ConfigError
 from src.schema.checks import check
-from src.schema.types import PositiveInt, Schema, passes
+from src.schema.types import PositiveInt, Range, Schema, passes
 
 MODULES = ("types", "run", "denoise", "nerf", "filter_search", "dataset")
 
@@ -322,7 +323,7 @@ def _has_bound(annotation) -> bool:
     if isinstance(annotation, BOUNDS):
         return True
     if isinstance(annotation, AfterValidator):
-        return annotation.func.__qualname__.startswith("_within")
+        return "_within" in annotation.func.__qualname__  # also under mutmut's x__within__mutmut_orig
     if isinstance(annotation, FieldInfo):
         return _has_bound(annotation.annotation) or any(_has_bound(m) for m in annotation.metadata)
     return any(_has_bound(a) for a in typing.get_args(annotation))
@@ -433,9 +434,22 @@ def _no_sevens(value: int) -> None:
 
 class _Inner(Schema):
     depth: PositiveInt
+    tags: list[str] = []
+
+
+class _Opaque:
+    """A type pydantic checks by isinstance only."""
+
+
+class _Lax(BaseModel):
+    """Not strict: a float for an int is its own kind of error (`int_from_float`)."""
+
+    n: int
 
 
 class _Sample(Schema):
+    model_config = ConfigDict(strict=True, extra="forbid", arbitrary_types_allowed=True)
+
     flag: bool
     count: int | None
     ratio: float
@@ -450,6 +464,11 @@ class _Sample(Schema):
     even: int = Field(multiple_of=2)
     aliased: str = Field(alias="_aliased_")
     lucky: Annotated[int, AfterValidator(lambda v: passes(_no_sevens, v))]
+    # unions whose first member names itself in the error's loc: not a key
+    range_or_number: Range | float
+    auto_or_count: Literal["auto"] | PositiveInt
+    path_or_count: Path | int
+    opaque_or_count: _Opaque | int
 
 
 SAMPLE = {
@@ -467,6 +486,10 @@ SAMPLE = {
     "even": 2,
     "_aliased_": "s",
     "lucky": 8,
+    "range_or_number": 1.0,
+    "auto_or_count": "auto",
+    "path_or_count": 3,
+    "opaque_or_count": 3,
 }
 #: (key, value, the one line) for each kind of violation `checks._expectation` words
 VIOLATIONS = [
@@ -484,10 +507,10 @@ VIOLATIONS = [
     ("mode", "d", "x.mode='d': expected one of 'a', 'b' or 'c'"),
     ("inner", 3, "x.inner=3: expected a mapping"),
     ("inner", {"depth": 0}, "x.inner.depth=0: expected a positive integer"),
-    ("inner", {"depth": 1, "extra": 2}, "x.inner.extra: unknown key; expected one of ['depth']"),
+    ("inner", {"depth": 1, "extra": 2}, "x.inner.extra: unknown key; expected one of ['depth', 'tags']"),
     ("inner", {}, "x.inner.depth: missing; expected a value"),
     ("maybe", {"depth": 0}, "x.maybe.depth=0: expected a positive integer"),
-    ("maybe", {"depth": 1, "deep": 1}, "x.maybe.deep: unknown key; expected one of ['depth']"),
+    ("maybe", {"depth": 1, "deep": 1}, "x.maybe.deep: unknown key; expected one of ['depth', 'tags']"),
     ("label", "", "x.label='': expected a non-empty string"),
     ("table", [1], "x.table=[1]: expected a mapping"),
     ("table", {"k": "v"}, "x.table.k='v': expected a number"),
@@ -495,6 +518,11 @@ VIOLATIONS = [
     ("even", 3, "x.even=3: expected input should be a multiple of 2"),
     ("_aliased_", 3, "x._aliased_=3: expected a string"),
     ("lucky", 7, "lucky.number=7: a check's own line, kept whole"),
+    ("inner", {"depth": 1, "tags": ["a", 1]}, "x.inner.tags[1]=1: expected a string"),
+    ("range_or_number", [2.0, 1.0], "x.range_or_number=[2.0, 1.0]: expected [lo, hi] with lo <= hi"),
+    ("auto_or_count", 0, "x.auto_or_count=0: expected one of 'auto'"),
+    ("path_or_count", "p", "x.path_or_count='p': expected input should be an instance of Path"),
+    ("opaque_or_count", "o", "x.opaque_or_count='o': expected input should be an instance of _Opaque"),
 ]
 
 
@@ -505,10 +533,22 @@ def test_each_kind_of_violation_is_one_line_with_the_key_the_value_and_what_is_e
 
 
 def test_a_missing_or_unknown_root_key_is_named_without_a_prefix():
-    assert _line(_Sample, {k: v for k, v in SAMPLE.items() if k != "flag"}, "") == (
-        "flag: missing; expected a value"
-    )
-    known = "['flag', 'count', 'ratio', 'names', 'pair', 'mode', 'inner', 'maybe', 'label', 'table', "
-    assert _line(_Sample, {**SAMPLE, "bogus": 1}, "") == f"bogus: unknown key; expected one of {known}" + (
-        "'above_two', 'even', '_aliased_', 'lucky']"
-    )
+    with pytest.raises(ConfigError, match=r"^flag: missing; expected a value$"):
+        check(_Sample, {k: v for k, v in SAMPLE.items() if k != "flag"})  # no prefix by default
+    assert _line(_Lax, {"n": 2.5}, "x") == "x.n=2.5: expected an integer"
+    known = list(SAMPLE)  # SAMPLE lists every key in declaration order, the alias as written
+    assert _line(_Sample, {**SAMPLE, "bogus": 1}, "") == f"bogus: unknown key; expected one of {known}"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="checks._key keeps the union member pydantic names in a loc (float, str, [key]) as a key part, "
+    "and the first member's error is reported: found by these tests, left for the schema restructuring",
+)
+def test_a_union_field_is_named_by_its_key_alone():
+    camera, _ = _one_field("dataset.CornellCamera.origin_x")  # Jitter: float | Range
+    assert _line(camera, {"origin_x": [2.0, 1.0]}, "x").startswith("x.origin_x=[2.0, 1.0]: ")
+    loss, _ = _one_field("denoise.VolumetricTrain.loss")  # str | Target
+    assert _line(loss, {"loss": 3}, "x").startswith("x.loss=3: ")
+    kinds, _ = _one_field("filter_search.Search.mutation_kinds")  # dict[Literal[...], float]
+    assert _line(kinds, {"mutation_kinds": {"grow": 1.0}}, "x").startswith("x.mutation_kinds.grow=")
