@@ -552,3 +552,21 @@ def test_a_union_field_is_named_by_its_key_alone():
     assert _line(loss, {"loss": 3}, "x").startswith("x.loss=3: ")
     kinds, _ = _one_field("filter_search.Search.mutation_kinds")  # dict[Literal[...], float]
     assert _line(kinds, {"mutation_kinds": {"grow": 1.0}}, "x").startswith("x.mutation_kinds.grow=")
+
+
+# Surviving mutants of src/schema/checks.py, types.py and dataset.py (bash scripts/mutation.sh schema), all
+# equivalent here or out of mutmut's reach. (mutmut mutates function bodies only: the bounds themselves,
+# `Field(gt=0)` and the like, are class and module attributes; the table above checks them, and hand-made
+# mutants (PositiveInt gt -> ge, Probability le -> lt, Percentile 100 -> 101, grid_res ge -> gt, a
+# NonNegativeInt that became a PositiveInt, Colour ge -> gt, the decorated cross-field validators'
+# tolerances and comparisons) each failed rows here.)
+# - _expectation, literal_error `ctx.get("expected", "")` with the default None / 'XXXX' / dropped (3
+#   mutants): pydantic always puts `expected` in a literal_error's ctx.
+# - _field `if loc` -> `if loc or True`: _noun, its only caller, runs for a bound's error only, whose loc
+#   names at least the field.
+# - _plain_types `args and origin is a union` -> `args or ...`: it flattens list[...] / dict[...] too, but
+#   _noun only asks about a bounded number's own field, never a list's or a mapping's (their items come out
+#   "number" either way: the list field is no model, see the rows of shape item/value).
+# - dataset._within (5 mutants): it runs at import, building UnitRange, Medium.g and the rest, before mutmut
+#   switches a mutant on (its workers fork from a process that has imported the schemas), so no test can
+#   see them; the range rows above check what it builds (hand-made `lo <= v` -> `lo < v`: 14 rows fail).
