@@ -12,6 +12,7 @@ from src.data.volume_features import (
     VOLUME_CANDIDATE_CHANNELS,
     VOLUME_CANDIDATE_FEATURES,
     VOLUME_FEATURE_BUFFERS,
+    _suffixes,
     run_volume_features,
     volume_channel_indices,
     volume_feature_channels,
@@ -47,6 +48,9 @@ BUFFERS = {
 def test_the_buffers_and_their_channel_suffixes():
     assert dict(VOLUME_FEATURE_BUFFERS) == BUFFERS
     assert list(VOLUME_FEATURE_BUFFERS) == list(BUFFERS)  # the storage order
+    # the helper that builds them at import, called here so that its mutants can be seen
+    got = {b: _suffixes(b, n) for b, n in [("color", 3), ("normal", 3), ("depth", 1), ("motion", 2)]}
+    assert got == {"color": RGB, "normal": XYZ, "depth": ONE, "motion": ("x", "y")}
 
 
 def test_the_candidates_are_each_buffer_then_its_variance_but_motion_has_none():
