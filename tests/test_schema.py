@@ -21,9 +21,11 @@ import annotated_types
 import pytest
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model
 from pydantic.fields import FieldInfo
+from pydantic_core import PydanticCustomError
 
 from src.errors import ConfigError
 from src.schema.checks import check
+from src.schema.dataset import _within
 from src.schema.types import PositiveInt, Range, Schema, passes
 
 MODULES = ("types", "run", "denoise", "nerf", "filter_search", "dataset")
@@ -540,6 +542,17 @@ def test_a_missing_or_unknown_root_key_is_named_without_a_prefix():
     assert _line(_Sample, {**SAMPLE, "bogus": 1}, "") == f"bogus: unknown key; expected one of {known}"
 
 
+def test_within_checks_every_value_against_both_ends():
+    # The validator factory behind UnitRange, Medium.g and the rest, called here too: it runs at import,
+    # where mutmut's mutants cannot be seen.
+    within = _within(-1.0, 2.0, "things").func
+    assert within([-1.0, 2.0]) == [-1.0, 2.0]
+    for bad in ([-1.0 - 1e-9, 0.0], [0.0, 2.0 + 1e-9]):
+        with pytest.raises(PydanticCustomError) as err:
+            within(bad)
+        assert str(err.value) == "expected things in [-1, 2]"
+
+
 @pytest.mark.xfail(
     strict=True,
     reason="checks._key keeps the union member pydantic names in a loc (float, str, [key]) as a key part, "
@@ -555,7 +568,7 @@ def test_a_union_field_is_named_by_its_key_alone():
 
 
 # Surviving mutants of src/schema/checks.py, types.py and dataset.py (bash scripts/mutation.sh schema), all
-# equivalent here or out of mutmut's reach. (mutmut mutates function bodies only: the bounds themselves,
+# equivalent here. (mutmut mutates function bodies only: the bounds themselves,
 # `Field(gt=0)` and the like, are class and module attributes; the table above checks them, and hand-made
 # mutants (PositiveInt gt -> ge, Probability le -> lt, Percentile 100 -> 101, grid_res ge -> gt, a
 # NonNegativeInt that became a PositiveInt, Colour ge -> gt, the decorated cross-field validators'
@@ -567,6 +580,3 @@ def test_a_union_field_is_named_by_its_key_alone():
 # - _plain_types `args and origin is a union` -> `args or ...`: it flattens list[...] / dict[...] too, but
 #   _noun only asks about a bounded number's own field, never a list's or a mapping's (their items come out
 #   "number" either way: the list field is no model, see the rows of shape item/value).
-# - dataset._within (5 mutants): it runs at import, building UnitRange, Medium.g and the rest, before mutmut
-#   switches a mutant on (its workers fork from a process that has imported the schemas), so no test can
-#   see them; the range rows above check what it builds (hand-made `lo <= v` -> `lo < v`: 14 rows fail).
