@@ -568,11 +568,11 @@ def test_a_union_field_is_named_by_its_key_alone():
 
 
 # Surviving mutants of src/schema/checks.py, types.py and dataset.py (bash scripts/mutation.sh schema), all
-# equivalent here. (mutmut mutates function bodies only: the bounds themselves,
-# `Field(gt=0)` and the like, are class and module attributes; the table above checks them, and hand-made
-# mutants (PositiveInt gt -> ge, Probability le -> lt, Percentile 100 -> 101, grid_res ge -> gt, a
-# NonNegativeInt that became a PositiveInt, Colour ge -> gt, the decorated cross-field validators'
-# tolerances and comparisons) each failed rows here.)
+# equivalent here. (mutmut mutates function bodies only: the bounds themselves, `Field(gt=0)` and the
+# like, are class and module attributes; the table above checks them, and hand-made mutants (PositiveInt
+# gt -> ge, Probability le -> lt, Percentile 100 -> 101, grid_res ge -> gt, a NonNegativeInt that became a
+# PositiveInt, Colour ge -> gt, the decorated cross-field validators' tolerances and comparisons) each
+# failed rows here.)
 # - _expectation, literal_error `ctx.get("expected", "")` with the default None / 'XXXX' / dropped (3
 #   mutants): pydantic always puts `expected` in a literal_error's ctx.
 # - _field `if loc` -> `if loc or True`: _noun, its only caller, runs for a bound's error only, whose loc
