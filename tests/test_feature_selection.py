@@ -354,3 +354,18 @@ def test_a_size_must_be_a_true_integer():
         with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
             random_features(["a", "b"], ["color"], bad, seed=0)
     assert selected_features(rows, 1) == ["color", "a"]
+
+
+# Surviving mutants of src/train/feature_selection.py and src/data/volume_features.py (bash
+# scripts/mutation.sh feature_selection; tests/test_volume_features.py is in the group too), all equivalent
+# here (none of volume_features.py):
+# - drop_features: `owner`'s `dtype=torch.long` None or dropped (2 mutants): torch.full with an int fill is
+#   int64 anyway; the always-kept column's `dtype=torch.bool` None or dropped (2): the column then takes
+#   `keep`'s dtype, and torch.where reads a uint8 condition as a bool one (the uint8 `keep` of the channel
+#   test gives the same tensor); `new_ones((N, 2))`: a second always-kept column that no channel points at;
+#   `owner.to(None)`, `neutral.to(device=None)` / no device (3): every tensor is on the CPU here.
+# - keep_only `dtype=torch.bool` None or dropped (2): a list of Python bools makes a bool tensor anyway.
+# - random_keep_mask `>= p_drop` -> `> p_drop`: they differ only where a uniform draw equals p_drop exactly
+#   (torch.rand draws multiples of 2**-24: at most that probability per draw).
+# - spread_indices `count >= total` -> `count > total`: at count == total the spread branch gives
+#   range(total) too.
