@@ -3,6 +3,8 @@ forward selection on a synthetic problem with a trained probe, and the selected 
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 
@@ -204,3 +206,166 @@ def test_spread_indices_cover_the_whole_validation_set():
     assert spread_indices(12, None) == list(range(12))
     assert spread_indices(3, 5) == [0, 1, 2]
     assert spread_indices(10, 3) == [0, 3, 6]
+
+
+# Set cover with a known answer. The noisy colour is the reference plus noise components on disjoint
+# pixel sets of a 4x4 image (components 1, 2, 3: 4, 2 and 3 pixels of amplitude 1; component 4: 3 pixels
+# of amplitude 0 here); a feature's channels hold its neutral value plus the components it "explains",
+# and a fixed probe removes, per pixel, the largest explained component. The loss is then the energy no
+# kept feature explains, / 16 per pixel. Neutral values are not 0 (a dropped feature filled with 0 would
+# read as -neutral, a phantom component), and the greedy order (transmittance, sigma_t, depth, ...)
+# differs from the one-at-a-time ranking (transmittance, depth, sigma_t, ...): depth explains the
+# largest single component, but only what transmittance explains already.
+COVER_FEATURES = ["color", "transmittance", "depth", "sigma_t", "albedo.var"]
+COVER_NEUTRAL = {"transmittance": -0.5, "sigma_t": -2.0, "albedo.var": 0.75}  # depth: default 0
+COVER_PIXELS = {1: range(0, 4), 2: range(4, 6), 3: range(6, 9), 4: range(9, 12)}
+COVERS = {"transmittance": (1, 2), "depth": (1,), "sigma_t": (3,), "albedo.var": (4,)}
+
+
+def _cover_inputs(n, scales=None, g=None):
+    """(n, 11, 4, 4) inputs of COVER_FEATURES and (n, 3, 4, 4) references; sample i's components scaled
+    by scales[i] (component -> amplitude; default 1 for 1-3, 0 for 4)."""
+    g = g or torch.Generator().manual_seed(5)
+    scales = scales or [{1: 1.0, 2: 1.0, 3: 1.0, 4: 0.0}] * n
+    reference = torch.randint(-8, 8, (n, 3, 4, 4), generator=g) / 8  # dyadic: the losses come out exact
+    parts = {name: torch.full((n, 1, 16), COVER_NEUTRAL.get(name, 0.0)) for name in COVERS}
+    noise = torch.zeros((n, 1, 16))
+    for i, amp in enumerate(scales):
+        for comp, pixels in COVER_PIXELS.items():
+            noise[i, 0, list(pixels)] += amp[comp]
+            for name, comps in COVERS.items():
+                if comp in comps:
+                    parts[name][i, 0, list(pixels)] += amp[comp]
+    channels = {"transmittance": 3, "depth": 1, "sigma_t": 3, "albedo.var": 1}
+    inputs = torch.cat(
+        [reference + noise.view(n, 1, 4, 4)]
+        + [parts[name].view(n, 1, 4, 4).expand(n, channels[name], 4, 4) for name in COVERS],
+        dim=1,
+    )
+    return inputs, reference
+
+
+def _cover_probe_loss(inputs, reference, features, neutral):
+    """The fixed probe: per feature, the mean over its channels of (value - neutral); the colour minus
+    the largest of them (0 when every feature is dropped); MSE against the reference."""
+    estimates = [torch.zeros_like(inputs[:, :1])]
+    for name, s in feature_slices(features)[1:]:
+        estimates.append((inputs[:, s] - neutral.get(name, 0.0)).mean(dim=1, keepdim=True))
+    correction = torch.stack(estimates).amax(dim=0)
+    return torch.mean((inputs[:, 0:3] - correction - reference) ** 2).item()
+
+
+def test_greedy_adds_the_best_marginal_gain_not_the_best_single_feature():
+    inputs, reference = _cover_inputs(2)
+    slices = feature_slices(COVER_FEATURES)
+    neutral = neutral_values(COVER_FEATURES, COVER_NEUTRAL)
+    assert neutral.tolist() == [0, 0, 0, -0.5, -0.5, -0.5, 0, -2, -2, -2, 0.75]
+
+    def loss_of(selected):
+        keep = keep_only(selected, COVER_FEATURES).expand(len(inputs), -1)
+        dropped = drop_features(inputs, keep, slices, neutral)
+        return _cover_probe_loss(dropped, reference, COVER_FEATURES, COVER_NEUTRAL)
+
+    candidates = COVER_FEATURES[1:]
+    solo = {c: loss_of(["color", c]) for c in candidates}
+    assert solo == {"transmittance": 3 / 16, "depth": 5 / 16, "sigma_t": 6 / 16, "albedo.var": 9 / 16}
+    assert sorted(candidates, key=solo.get) == ["transmittance", "depth", "sigma_t", "albedo.var"]
+    rows = greedy_forward_selection(loss_of, candidates, ["color"], progress=False)
+    # depth and albedo.var both add nothing after round 2: the tie goes to the earlier candidate
+    assert [r["added"] for r in rows] == [None, "transmittance", "sigma_t", "depth", "albedo.var"]
+    assert [r["loss"] for r in rows] == [9 / 16, 3 / 16, 0.0, 0.0, 0.0]
+    assert rows[2]["features"] == ["color", "transmittance", "sigma_t"]
+    assert selected_features(rows, 2) == ["color", "transmittance", "sigma_t"]
+    # the selection's own losses are the probe's on the dropped inputs, start set included
+    assert loss_of(["color"]) == 9 / 16 and loss_of(COVER_FEATURES) == 0.0
+
+
+@pytest.mark.parametrize("p", [0.0, 0.5, 1.0])
+def test_random_keep_mask_drops_each_entry_independently_at_p(p):
+    n = 40000
+    keep = random_keep_mask(n, 5, p, torch.Generator().manual_seed(11), always_keep=[3])
+    assert keep.shape == (n, 5) and keep.dtype == torch.bool
+    assert keep[:, 3].all()  # the always-kept column, whatever p
+    dropped = ~keep[:, [0, 1, 2, 4]]
+    if p in (0.0, 1.0):
+        assert torch.equal(dropped, torch.full_like(dropped, p == 1.0))  # exact at the edges
+        return
+    rate = dropped.float().mean(dim=0)
+    assert torch.allclose(rate, torch.full((4,), p), atol=0.01)  # 4 standard deviations
+    # independent across features and across samples: joint rates are products
+    both = (dropped[:, 0] & dropped[:, 1]).float().mean()
+    assert abs(both - p * p) < 0.01
+    consecutive = (dropped[1:, 2] & dropped[:-1, 2]).float().mean()
+    assert abs(consecutive - p * p) < 0.01
+    again = random_keep_mask(n, 5, p, torch.Generator().manual_seed(11), always_keep=[3])
+    other = random_keep_mask(n, 5, p, torch.Generator().manual_seed(12), always_keep=[3])
+    assert torch.equal(again, keep) and not torch.equal(other, keep)  # the generator's draws
+
+
+def test_drop_features_fills_only_the_dropped_slices_with_their_channels_neutral_values():
+    # Six channels, two features with a gap: channels 3 and 5 belong to no feature and are always kept;
+    # a different neutral value per channel, so a shifted or transposed fill changes the answer.
+    inputs = torch.arange(2 * 6 * 2 * 2, dtype=torch.float32).view(2, 6, 2, 2) + 100.0
+    slices = [("color", slice(0, 3)), ("depth", slice(4, 5))]
+    neutral = torch.tensor([-1.0, -2.0, -3.0, -4.0, -5.0, -6.0])
+    keep = torch.tensor([[0, 0], [1, 0]], dtype=torch.uint8)  # not bool: read as keep / drop
+    out = drop_features(inputs, keep, slices, neutral)
+    expected = inputs.clone()
+    expected[0, 0:3] = torch.tensor([-1.0, -2.0, -3.0]).view(3, 1, 1)
+    expected[:, 4] = -5.0
+    assert torch.equal(out, expected)
+    half = drop_features(inputs.to(torch.bfloat16), keep.bool(), slices, neutral)
+    assert half.dtype == torch.bfloat16 and torch.equal(half, expected.to(torch.bfloat16))
+    # (N, k, C, H, W): every frame of a sample alike, the channel axis 2
+    seq = inputs.view(2, 1, 6, 2, 2).expand(2, 3, 6, 2, 2)
+    out_seq = drop_features(seq, keep, slices, neutral, channel_axis=2)
+    assert torch.equal(out_seq, expected.view(2, 1, 6, 2, 2).expand(2, 3, 6, 2, 2))
+
+
+def test_the_progress_bar_counts_every_loss_evaluation_and_shows_the_last_added(capsys):
+    calls = []
+
+    def loss_of(selected):
+        calls.append(list(selected))
+        return 10.0 - sum({"a": 3.0, "b": 2.0, "c": 1.5, "d": 1.0}.get(f, 0.0) for f in selected)
+
+    rows = greedy_forward_selection(loss_of, ["a", "b", "c", "d"], ["color"], max_size=2)  # progress: on
+    assert [r["added"] for r in rows] == [None, "a", "b"]
+    assert len(calls) == 1 + 4 + 3  # the start set, then every remaining candidate per round
+    bar = capsys.readouterr().err.split("\r")[-1]
+    assert bar.startswith("feature selection: 100%") and " 7/7 " in bar, bar
+    assert re.search(r"\d(eval/s|s/eval), added=b, loss=5\]$", bar.rstrip()), bar
+    greedy_forward_selection(loss_of, ["a", "b"], ["color"], progress=False)
+    assert capsys.readouterr().err == ""  # no bar
+
+
+def test_neutral_values_of_no_features_and_the_unknown_keys_named():
+    assert neutral_values([], {"depth": 1.0}).shape == (0,)
+    with pytest.raises(ConfigError) as err:
+        neutral_values(FEATURES, {"transmitance": 1.0, "depth": 2.0, "albedo.vars": 0.0})
+    assert "unknown features ['albedo.vars', 'transmitance']" in str(err.value)
+
+
+def test_a_size_must_be_a_true_integer():
+    rows = greedy_forward_selection(lambda s: -len(s), ["a", "b"], ["color"], progress=False)
+    for bad in (True, 1.0, "1"):
+        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
+            selected_features(rows, bad)
+        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
+            random_features(["a", "b"], ["color"], bad, seed=0)
+    assert selected_features(rows, 1) == ["color", "a"]
+
+
+# Surviving mutants of src/train/feature_selection.py and src/data/volume_features.py (bash
+# scripts/mutation.sh feature_selection; tests/test_volume_features.py is in the group too), all equivalent
+# here (none of volume_features.py):
+# - drop_features: `owner`'s `dtype=torch.long` None or dropped (2 mutants): torch.full with an int fill is
+#   int64 anyway; the always-kept column's `dtype=torch.bool` None or dropped (2): the column then takes
+#   `keep`'s dtype, and torch.where reads a uint8 condition as a bool one (the uint8 `keep` of the channel
+#   test gives the same tensor); `new_ones((N, 2))`: a second always-kept column that no channel points at;
+#   `owner.to(None)`, `neutral.to(device=None)` / no device (3): every tensor is on the CPU here.
+# - keep_only `dtype=torch.bool` None or dropped (2): a list of Python bools makes a bool tensor anyway.
+# - random_keep_mask `>= p_drop` -> `> p_drop`: they differ only where a uniform draw equals p_drop exactly
+#   (torch.rand draws multiples of 2**-24: at most that probability per draw).
+# - spread_indices `count >= total` -> `count > total`: at count == total the spread branch gives
+#   range(total) too.

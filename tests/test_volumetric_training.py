@@ -226,6 +226,124 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     assert json.loads((out / "selection.json").read_text())["provenance"]["git_commit"]
 
 
+def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batches(tmp_path, monkeypatch):
+    """The stage around a fixed probe with a known answer (the set cover of tests/test_feature_selection.py)
+    instead of a trained one: its order, losses, channel counts, table, logged curve and `size` arms."""
+    from omegaconf import OmegaConf
+
+    from src.train import select_features as stage
+    from src.train.select_features import features_for_size
+    from src.train.sequence_trainer import _FeatureDropout
+    from tests.test_feature_selection import COVER_NEUTRAL, _cover_inputs, _cover_probe_loss
+
+    candidates = ["transmittance", "depth", "sigma_t", "albedo.var"]
+    sel_dir = tmp_path / "selection"
+    cfg = OmegaConf.create(
+        {
+            "seed": 3,
+            "model": {"name": "fixed_probe"},
+            "paths": {"raw": str(tmp_path / "raw")},
+            "task": {
+                "volume_features": None,
+                "train": {"resume": None, "batch_size": 2, "checkpoint_dir": "x", "curves_file": "x"},
+                "feature_selection": {
+                    "size": None,
+                    "order": "greedy",
+                    "random_seed": 0,
+                    "start": ["color"],
+                    "candidates": candidates,
+                    "dropout": 0.5,
+                    "neutral": COVER_NEUTRAL,
+                    "max_size": None,
+                    "val_batches": 2,
+                    "dir": str(sel_dir),
+                },
+            },
+        }
+    )
+    # Four validation batches (8 samples / batch_size 2); val_batches=2 scores batches 0 and 2 only, per
+    # sample. Batches 1 and 3 hold only component 4, which albedo.var alone explains: were they scored,
+    # albedo.var would come first.
+    amps = [
+        (3, {1: 1.0, 2: 1.0, 3: 1.0, 4: 0.0}),
+        (1, {1: 0.0, 2: 0.0, 3: 0.0, 4: 8.0}),
+        (1, {1: 2.0, 2: 2.0, 3: 2.0, 4: 0.0}),  # 4x the energy, 1 sample of 4 scored
+        (2, {1: 0.0, 2: 0.0, 3: 0.0, 4: 8.0}),
+    ]
+    batches = []
+    for n, amp in amps:
+        inputs, reference = _cover_inputs(n, [amp] * n)
+        k = 2  # two identical frames per sample
+        batches.append(
+            {
+                "inputs": inputs.unsqueeze(1).expand(n, k, *inputs.shape[1:]),
+                "reference": reference.unsqueeze(1).expand(n, k, *reference.shape[1:]),
+            }
+        )
+    made = []
+
+    class FixedProbe:
+        device = torch.device("cpu")
+        model = torch.nn.Identity()
+        val_data = list(range(8))
+
+        def __init__(self, probe_cfg, tracker, probe=False):
+            made.append((probe_cfg, probe))
+            self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.task.volume_features))
+
+        def fit(self):
+            return {"steps": 0, "train_time_s": 0.0, "param_count": 0}
+
+        def _batches(self, data, epoch):
+            return iter(batches)
+
+        def losses_of_frames(self, frames, batch, n, k):
+            names = [name for name, _ in self.dropout.slices]
+            loss = _cover_probe_loss(frames["inputs"], frames["reference"], names, COVER_NEUTRAL)
+            return {"total": torch.tensor(loss)}
+
+    class Recorder:
+        def __init__(self):
+            self.metrics, self.artifacts = [], []
+
+        def log_metrics(self, metrics, step):
+            self.metrics.append((step, metrics))
+
+        def log_artifact(self, path, artifact_path):
+            self.artifacts.append((path, artifact_path))
+
+    monkeypatch.setattr(stage, "SequenceTrainer", FixedProbe)
+    tracker = Recorder()
+    rows = stage.select_features(cfg, tracker)["rows"]
+    probe_cfg, probe = made[0]
+    assert probe and list(probe_cfg.task.volume_features) == ["color", *candidates]  # all, start first
+    order = ["transmittance", "sigma_t", "depth", "albedo.var"]  # by marginal gain, ties to the earlier
+    assert [r["added"] for r in rows] == [None, *order]
+    losses = [(3 * 9 / 16 + 4 * 9 / 16) / 4, (3 * 3 / 16 + 4 * 3 / 16) / 4, 0.0, 0.0, 0.0]
+    assert [r["loss"] for r in rows] == losses
+    channels = [3, 6, 9, 10, 11]
+    assert [r["channels"] for r in rows] == channels
+    steps = enumerate(zip(losses, channels, strict=True))
+    assert tracker.metrics == [(i, {"select_loss": loss, "select_channels": c}) for i, (loss, c) in steps]
+    table = pd.read_csv(sel_dir / "selection.csv")
+    assert table.to_dict("list") == {
+        "rank": [0, 1, 2, 3, 4],
+        "feature": ["color", *order],
+        "channels": channels,
+        "val_loss": losses,
+    }
+    record = json.loads((sel_dir / "selection.json").read_text())
+    assert record["start"] == ["color"] and record["candidates"] == candidates and record["rows"] == rows
+    assert {a for _, a in tracker.artifacts} == {"feature_selection"} and len(tracker.artifacts) == 3
+    # `size` = k: the start set plus the first k of that order; the random arm k of the candidates
+    sized = OmegaConf.merge(cfg.task.feature_selection, {"size": 2})
+    assert features_for_size(sized) == ["color", "transmittance", "sigma_t"]
+    arm = features_for_size(OmegaConf.merge(sized, {"order": "random", "random_seed": 4}))
+    assert arm[0] == "color" and len(set(arm[1:])) == 2 and set(arm[1:]) <= set(candidates)
+    with pytest.raises(ConfigError, match=r"task\.feature_selection\.start"):
+        features_for_size(OmegaConf.merge(sized, {"start": ["color", "color.var"]}))
+
+
 def test_a_selected_size_without_a_selection_is_one_line_from_the_command_line(tmp_path):
     """The resolver's error reaches the user as one line (exit 2), though OmegaConf wraps it."""
     args = ["dataset=volumetric", "stage=train", "task.feature_selection.size=3", "profile=smoke"]
