@@ -19,12 +19,12 @@ from typing import Annotated, Literal
 
 import annotated_types
 import pytest
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, create_model
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticCustomError
 
 from src.errors import ConfigError
-from src.schema.checks import check
+from src.schema.checks import check, error_line
 from src.schema.dataset import _within
 from src.schema.types import PositiveInt, Range, Schema, passes
 
@@ -271,8 +271,7 @@ def _expectation(bound: Bound, op: str, b: float) -> str:
         return re.escape(f"in [{bound.lo:g}, {hi:g}]") + "$"
     if b == 0 and op in (">", ">="):
         adjective = "positive" if op == ">" else "non-negative"
-        # A list's or mapping's items are "number"s whatever their type (checks._noun sees the list field).
-        noun = ("integer" if bound.kind is int else "number") if bound.shape == "scalar" else "number"
+        noun = "integer" if bound.kind is int else "number"  # a list's or mapping's items by their type
         return f"expected a {adjective} {noun}$"
     number = re.escape(f"{b:g}") + (r"(\.0)?" if float(b).is_integer() else "")
     return f"expected a value {re.escape(op)} {number}$"
@@ -522,9 +521,14 @@ VIOLATIONS = [
     ("lucky", 7, "lucky.number=7: a check's own line, kept whole"),
     ("inner", {"depth": 1, "tags": ["a", 1]}, "x.inner.tags[1]=1: expected a string"),
     ("range_or_number", [2.0, 1.0], "x.range_or_number=[2.0, 1.0]: expected [lo, hi] with lo <= hi"),
-    ("auto_or_count", 0, "x.auto_or_count=0: expected one of 'auto'"),
-    ("path_or_count", "p", "x.path_or_count='p': expected input should be an instance of Path"),
-    ("opaque_or_count", "o", "x.opaque_or_count='o': expected input should be an instance of _Opaque"),
+    ("auto_or_count", 0, "x.auto_or_count=0: expected one of 'auto' or a positive integer"),
+    # a union with no validator of ours: every member's expectation, joined
+    ("path_or_count", "p", "x.path_or_count='p': expected input should be an instance of Path or an integer"),
+    (
+        "opaque_or_count",
+        "o",
+        "x.opaque_or_count='o': expected input should be an instance of _Opaque or an integer",
+    ),
 ]
 
 
@@ -553,11 +557,6 @@ def test_within_checks_every_value_against_both_ends():
         assert str(err.value) == "expected things in [-1, 2]"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="checks._key keeps the union member pydantic names in a loc (float, str, [key]) as a key part, "
-    "and the first member's error is reported: found by these tests, left for the schema restructuring",
-)
 def test_a_union_field_is_named_by_its_key_alone():
     camera, _ = _one_field("dataset.CornellCamera.origin_x")  # Jitter: float | Range
     assert _line(camera, {"origin_x": [2.0, 1.0]}, "x").startswith("x.origin_x=[2.0, 1.0]: ")
@@ -565,6 +564,86 @@ def test_a_union_field_is_named_by_its_key_alone():
     assert _line(loss, {"loss": 3}, "x").startswith("x.loss=3: ")
     kinds, _ = _one_field("filter_search.Search.mutation_kinds")  # dict[Literal[...], float]
     assert _line(kinds, {"mutation_kinds": {"grow": 1.0}}, "x").startswith("x.mutation_kinds.grow=")
+
+
+def test_a_union_reports_its_matching_members_expectation_or_all_of_them():
+    """Pydantic reports one error per union member, in member order: the member whose shape the value has
+    (our own validator's line) wins, else every member's expectation is named."""
+    camera, _ = _one_field("dataset.CornellCamera.origin_x")
+    assert (
+        _line(camera, {"origin_x": [2.0, 1.0]}, "x")
+        == "x.origin_x=[2.0, 1.0]: expected [lo, hi] with lo <= hi"
+    )
+    loss, _ = _one_field("denoise.VolumetricTrain.loss")
+    assert _line(loss, {"loss": 3}, "x") == "x.loss=3: expected a string or a mapping"
+
+
+class _Inner(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    depth: int = 1
+
+
+class _Outer(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    inner: _Inner = _Inner()
+
+
+class _Unions(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    count: PositiveInt | Literal["auto"]
+    ratio: float | Literal["auto"] = 0.5
+    inner_or_count: _Inner | int = 1
+    outers: list[_Outer] = []
+    flag: bool | Literal["x"]
+    maybe: None | Literal["x"] | int
+    spp: list[PositiveInt]
+
+
+@pytest.mark.parametrize(
+    ("value", "line"),
+    [
+        ({"count": 0}, "x.count=0: expected a positive integer or one of 'auto'"),
+        ({"flag": "q"}, "x.flag='q': expected true or false or one of 'x'"),
+        ({"maybe": "q"}, "x.maybe='q': expected one of 'x' or an integer"),
+        ({"spp": [1, 0]}, "x.spp[1]=0: expected a positive integer"),
+        ({"ratio": "q"}, "x.ratio='q': expected a number or one of 'auto'"),
+        # an unknown key inside a union's model member, and in a model inside a list of models
+        ({"inner_or_count": {"bogus": 1}}, "x.inner_or_count.bogus: unknown key; expected one of ['depth']"),
+        (
+            {"outers": [{}, {"inner": {"bogus": 1}}]},
+            "x.outers[1].inner.bogus: unknown key; expected one of ['depth']",
+        ),
+    ],
+)
+def test_union_members_are_labels_not_keys_and_an_items_noun_is_its_type(value, line):
+    """pydantic's member labels (`constrained-int`, `bool`, `literal['x']`, `int`) stay out of the key, the
+    bound's noun is read from the member type (integer), each member's expectation is named."""
+    assert _line(_Unions, {"count": 1, "flag": True, "maybe": None, "spp": [1], **value}, "x") == line
+
+
+@pytest.mark.parametrize(
+    "label",
+    ["float", "int", "str", "bool", "none", "[key]", "constrained-int", "function-after[f(), int]",
+     "lax-or-strict[lax=int,strict=int]", "is-instance[Path]", "literal['a']", "nullable[int]",
+     "list[float]", "dict[str,float]", "tuple[int, int]", "GlossySphere"],
+)  # fmt: skip
+def test_pydantics_labels_are_tags_and_keys_are_not(label):
+    from src.schema.checks import _is_tag
+
+    importlib.import_module("src.schema.dataset")  # GlossySphere: a schema model's class name
+    assert _is_tag(label)
+    assert not any(_is_tag(key) for key in ("spp", "lr", "my-scene", "float_type", "glossy", "_target_"))
+
+
+def test_an_unknown_key_in_a_list_of_models_names_the_items_keys():
+    scene = importlib.import_module("src.schema.dataset").NerfTabletop
+    with pytest.raises(ValidationError) as err:
+        scene.model_validate({"glossy": [{"material": "x", "roughness": 0.1, "bogus": 1}]})
+    (extra,) = [e for e in err.value.errors() if e["type"] == "extra_forbidden"]
+    assert (
+        error_line(extra, scene, "x")
+        == "x.glossy[0].bogus: unknown key; expected one of ['material', 'roughness']"
+    )
 
 
 # Surviving mutants of src/schema/checks.py, types.py and dataset.py (bash scripts/mutation.sh schema), all
@@ -577,6 +656,10 @@ def test_a_union_field_is_named_by_its_key_alone():
 #   mutants): pydantic always puts `expected` in a literal_error's ctx.
 # - _field `if loc` -> `if loc or True`: _noun, its only caller, runs for a bound's error only, whose loc
 #   names at least the field.
-# - _plain_types `args and origin is a union` -> `args or ...`: it flattens list[...] / dict[...] too, but
-#   _noun only asks about a bounded number's own field, never a list's or a mapping's (their items come out
-#   "number" either way: the list field is no model, see the rows of shape item/value).
+# - _noun, the fallback `0` of `end` -> 1 / None / dropped, and `if end` -> `if end or True` (4 mutants): the
+#   fallback is taken only when no prefix of the loc is a schema field, and a model's errors always start
+#   at one of its fields.
+# - _first_violation `at_key[0]` -> `at_key[1]`: the errors at one key are one union's members, all
+#   reporting the same input.
+# - _models_in `found += ...` -> `found = ...`: differs only for a union of a model and a list of models,
+#   which no schema has.

@@ -37,14 +37,61 @@ def _show(value: Any) -> str:
 
 
 def _model_at(model: type[BaseModel] | None, loc: Sequence[Any]) -> type[BaseModel] | None:
-    """The schema model of the mapping at `loc` (None when loc leaves the schema models)."""
+    """The schema model of the mapping at `loc` (None when loc leaves the schema models); list indices and
+    union members' tags in loc are steps inside one field, not keys."""
     for part in loc:
+        if isinstance(part, int) or _is_tag(part):
+            continue
         field = model.model_fields.get(str(part)) if model is not None else None
         if field is None:
             return None
-        candidates = _plain_types(field.annotation)
-        model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+        model = next(iter(_models_in(field.annotation)), None)
     return model
+
+
+def _models_in(annotation: Any) -> list[type[BaseModel]]:
+    """The schema models an annotation holds: itself, a union's members, a list's or a mapping's items."""
+    found = []
+    for plain in _plain_types(annotation):
+        if isinstance(plain, type) and issubclass(plain, BaseModel):
+            found.append(plain)
+        elif typing.get_origin(plain) in (list, dict):
+            found += _models_in(typing.get_args(plain)[-1])
+    return found
+
+
+def _is_tag(part: Any) -> bool:
+    """Whether a loc part is one of pydantic's labels rather than a key: a union member (`float`,
+    `constrained-int`, `literal['a']`, `list[float]`, `function-after[...]`, a model's class name) or a
+    mapping's `[key]` marker."""
+    text = str(part)
+    return text in _TYPE_TAGS or text.startswith(_TAG_PREFIXES) or text in _model_names()
+
+
+#: pydantic-core's labels of union members and validators in an error's loc (keys never look like these).
+_TYPE_TAGS = ("float", "int", "str", "bool", "none", "[key]")
+_TAG_PREFIXES = (
+    "constrained-",
+    "function-",
+    "lax-or-strict[",
+    "is-instance[",
+    "literal[",
+    "nullable[",
+    "list[",
+    "dict[",
+    "tuple[",
+)
+
+
+def _model_names() -> set[str]:
+    """The class names of every schema model: pydantic tags a union member that is a model by its name."""
+    names, todo = set(), [BaseModel]
+    while todo:
+        cls = todo.pop()
+        for sub in cls.__subclasses__():
+            names.add(sub.__name__)
+            todo.append(sub)
+    return names
 
 
 def _field(model: type[BaseModel], loc: Sequence[Any]):
@@ -54,9 +101,13 @@ def _field(model: type[BaseModel], loc: Sequence[Any]):
 
 
 def _noun(model: type[BaseModel], loc: Sequence[Any]) -> str:
-    """ "integer" for an int field, else "number" (the field's type, not the value's: lr=0 is a number)."""
-    field = _field(model, loc)
-    kinds = _plain_types(field.annotation) if field is not None else set()
+    """ "integer" for an int field, else "number" (the field's type, not the value's: lr=0 is a number); an
+    item of a list or mapping field (`spp[0]`, `table.k`) by the field's item type."""
+    loc = [part for part in loc if not _is_tag(part)]
+    end = next((end for end in range(len(loc), 0, -1) if _field(model, loc[:end]) is not None), 0)
+    kinds = _plain_types(_field(model, loc[:end]).annotation) if end else set()
+    if end and end < len(loc):
+        kinds = {t for k in kinds for t in _plain_types((typing.get_args(k) or (None,))[-1])}
     return "integer" if int in kinds and float not in kinds else "number"
 
 
@@ -86,6 +137,9 @@ def _expectation(error: ErrorDetails, model: type[BaseModel]) -> str:
         "less_than": f"expected a value < {bound}",
         "less_than_equal": f"expected a value <= {bound}",
         "int_type": "expected an integer",
+        "int_parsing": "expected an integer",
+        "float_parsing": "expected a number",
+        "bool_parsing": "expected true or false",
         "int_from_float": "expected an integer",
         "float_type": "expected a number",
         "bool_type": "expected true or false",
@@ -118,8 +172,8 @@ def _key(prefix: str, loc: Sequence[Any]) -> str:
     for part in loc:
         if isinstance(part, int):
             parts[-1] = f"{parts[-1]}[{part}]"
-        elif not str(part).startswith(("function-", "literal[", "lax-or-strict", "is-instance")):
-            parts.append(str(part))  # union / validator branches name themselves in loc: not keys
+        elif not _is_tag(part):  # union members and validators name themselves in loc: not keys
+            parts.append(str(part))
     return ".".join(parts)
 
 
@@ -138,4 +192,16 @@ def check(model: type[BaseModel], values: Mapping[str, Any], prefix: str = "") -
     try:
         return model.model_validate(dict(values))
     except ValidationError as err:
-        raise ConfigError(error_line(err.errors()[0], model, prefix)) from None
+        raise ConfigError(_first_violation(err.errors(), model, prefix)) from None
+
+
+def _first_violation(errors: Sequence[ErrorDetails], model: type[BaseModel], prefix: str) -> str:
+    """The line of the first key in error. A union reports one error per member: our own validator's
+    (the member whose shape the value has) wins, else the members' expectations are joined with "or"."""
+    key = _key(prefix, errors[0]["loc"])
+    at_key = [e for e in errors if _key(prefix, e["loc"]) == key]
+    own = [e for e in at_key if e["type"] in (OWN_ERROR, EXPECTED)]
+    if own or len(at_key) == 1:
+        return error_line((own or at_key)[0], model, prefix)
+    wanted = dict.fromkeys(_expectation(e, model).removeprefix("expected ") for e in at_key)
+    return f"{key}={_show(at_key[0].get('input'))}: expected {' or '.join(wanted)}"
