@@ -2,7 +2,7 @@
 # Mutation testing of the pure numeric modules (mutmut 3): does the test suite notice a wrong number?
 #
 #   bash scripts/mutation.sh                  # every group in [tool.nrbench.mutation] (pyproject.toml)
-#   bash scripts/mutation.sh kpcn nerf        # only these groups (kpcn, kernels, metrics, nerf)
+#   bash scripts/mutation.sh kpcn nerf        # only these groups ([tool.nrbench.mutation.*] in pyproject.toml)
 #
 # Each group's modules are mutated and every mutant is run against that group's own test files only
 # (mutmut runs, per mutant, just the tests that call the mutated function). Results: one JSON per group in
