@@ -204,3 +204,148 @@ def test_whitening_a_frame_model_and_training_unet_kpcn_on_still_images_are_one_
     with pytest.raises(ConfigError) as excinfo:
         DenoiseTask().check_stages(["train"], cfg)
     one_line_error(excinfo, "model=unet_kpcn", "dataset=volumetric", "dataset=procedural")
+
+
+# --- the whole forward pass against an independent reference -------------------------------------------
+
+
+def _lm(x):
+    """sign(x) log(1 + |x|), written out."""
+    return torch.sign(x) * torch.log1p(x.abs())
+
+
+def _inverse_lm(y):
+    return torch.sign(y) * torch.expm1(y.abs())
+
+
+def _down(x):
+    """2x2 block mean by reshaping."""
+    n, c, h, w = x.shape
+    return x.reshape(n, c, h // 2, 2, w // 2, 2).mean(dim=(3, 5))
+
+
+def _up(x):
+    """Each pixel repeated 2x2."""
+    return x.repeat_interleave(2, dim=2).repeat_interleave(2, dim=3)
+
+
+def _pad_replicate(x, multiple):
+    """Bottom/right replicate padding by clamped indices."""
+    h, w = x.shape[-2:]
+    rows = torch.arange(-(-h // multiple) * multiple).clamp(max=h - 1)
+    cols = torch.arange(-(-w // multiple) * multiple).clamp(max=w - 1)
+    return x[..., rows, :][..., cols]
+
+
+def _softmax_filter(scores, image, k):
+    """sum_ij softmax(scores)[i*k+j] * image[y+i-r, x+j-r] with clamped (replicate) borders."""
+    h, w = image.shape[-2:]
+    r = k // 2
+    weights = torch.softmax(scores, dim=1)
+    rows = lambda i: (torch.arange(h) + i - r).clamp(0, h - 1)  # noqa: E731
+    cols = lambda j: (torch.arange(w) + j - r).clamp(0, w - 1)  # noqa: E731
+    return sum(
+        weights[:, i * k + j, None] * image[..., rows(i), :][..., cols(j)] for i in range(k) for j in range(k)
+    )
+
+
+def reference_forward(model, batch, *, kernel_of=None, compositor_of=None, pyramid_of_filtered=False):
+    """The U-Net KPCN's output from its sub-networks (encoder/decoder blocks, heads, compositor nets) and
+    the module docstring's definitions, in plain torch. The keyword arguments build plausible wrong
+    variants: `kernel_of[c]` the kernel head serving component c, `compositor_of[c][s]` the (component,
+    scale) compositor serving scale s of component c, `pyramid_of_filtered` r_{s+1} = D(f_s)."""
+    keys = {"color": ("color_t",), "surface_volume": ("surface_t", "volume_t")}[model.components]
+    scales, k = len(model.widths), model.kernel_size
+    multiple = 2 ** (scales - 1)
+    height, width = batch["inputs"].shape[-2:]
+    skips, h = [], _pad_replicate(batch["inputs"], multiple)
+    for s in range(scales):
+        h = model.encoder[s](h if s == 0 else _down(h))
+        skips.append(h)
+    features = [None] * (scales - 1) + [h]
+    for s in range(scales - 2, -1, -1):
+        h = model.decoder[s](torch.cat([_up(h), skips[s]], dim=1))
+        features[s] = h
+    scores = [model.heads[s](features[s]) for s in range(scales)]
+    log = model.transform == "log_modulus"
+    linear = model.filter_space == "linear"
+    out = 0
+    for c, key in enumerate(keys):
+        kc = c if kernel_of is None else kernel_of[c]
+        r = _pad_replicate(batch[key], multiple)
+        r = _inverse_lm(r) if linear and log else r
+        filtered = []
+        for s in range(scales):
+            f = _softmax_filter(scores[s][:, kc * k * k : (kc + 1) * k * k], r, k)
+            filtered.append(f)
+            if s < scales - 1:
+                r = _down(f if pyramid_of_filtered else r)
+        to_net = _lm if linear and log else (lambda t: t)
+        composed = filtered[-1]
+        for s in range(scales - 2, -1, -1):
+            cc, cs = (c, s) if compositor_of is None else compositor_of[c][s]
+            net = model.compositors[cc][cs].net
+            a = torch.sigmoid(net(torch.cat([to_net(_up(composed)), to_net(filtered[s])], dim=1)))
+            composed = filtered[s] - a * _up(_down(filtered[s])) + a * _up(composed)
+        out = out + (_inverse_lm(composed) if not linear and log else composed)
+    return out[..., :height, :width]
+
+
+def varied_frame_batch(height, width, seed=0):
+    """Two frames of unequal, non-constant radiance per component (ramps of different directions plus
+    noise, some negative transformed values in the volume) and random inputs."""
+    g = torch.Generator().manual_seed(seed)
+    rows = torch.linspace(0, 1, height)[:, None].expand(height, width)
+    cols = torch.linspace(0, 1, width)[None, :].expand(height, width)
+    noise = lambda: torch.rand(2, 3, height, width, generator=g, dtype=torch.float64)  # noqa: E731
+    surface = 2.5 * rows + 0.5 * cols + 0.8 * noise()
+    volume = 1.5 * cols * (1 - rows) + 0.6 * noise() - 0.2
+    inputs = 2 * torch.rand(2, IN, height, width, generator=g, dtype=torch.float64) - 1
+    return {"inputs": inputs, "surface_t": surface, "volume_t": volume, "color_t": surface + 0.3 * volume}
+
+
+def sharpened(model):
+    """The model in float64 with its kernel heads and compositor outputs scaled up, so that kernels are
+    far from uniform and the blend weights a spread over (0, 1)."""
+    model = model.double()
+    with torch.no_grad():
+        for head in model.heads:
+            head.weight.mul_(6.0)
+        for per_component in model.compositors:
+            for comp in per_component:
+                comp.net[-1].weight.mul_(8.0)
+    return model
+
+
+@pytest.mark.parametrize(
+    ("components", "filter_space", "transform"),
+    [
+        ("surface_volume", "linear", "log_modulus"),
+        ("surface_volume", "transformed", "log_modulus"),
+        ("color", "linear", "none"),
+        ("color", "transformed", "log_modulus"),
+    ],
+)
+def test_the_forward_pass_equals_an_independent_multiscale_reference(components, filter_space, transform):
+    """Every scale's kernel on its pyramid level, each scale's compositor, the per-component heads, the
+    padding and crop (14 x 10 is padded to 16 x 12): the model's output equals the reference, and the
+    references with two compositors, the component kernels, or the pyramid swapped differ from it."""
+    model = sharpened(tiny(components=components, filter_space=filter_space, transform=transform))
+    batch = varied_frame_batch(14, 10)
+    with torch.no_grad():
+        out = model(batch)["color"]
+        expected = reference_forward(model, batch)
+        by_scale = [[(c, 1), (c, 0)] for c in range(len(model.compositors))]
+        variants = {
+            "scale compositors swapped": reference_forward(model, batch, compositor_of=by_scale),
+            "pyramid of filtered levels": reference_forward(model, batch, pyramid_of_filtered=True),
+        }
+        if components == "surface_volume":
+            variants["component kernels swapped"] = reference_forward(model, batch, kernel_of=[1, 0])
+            variants["component compositors swapped"] = reference_forward(
+                model, batch, compositor_of=[[(1, 0), (1, 1)], [(0, 0), (0, 1)]]
+            )
+    assert out.shape == (2, 3, 14, 10) and out.dtype == torch.float64
+    torch.testing.assert_close(out, expected, atol=1e-9, rtol=1e-9)
+    for name, variant in variants.items():
+        assert (variant - expected).abs().max() > 1e-3, name
