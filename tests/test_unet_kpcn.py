@@ -4,13 +4,22 @@ al.'s scale composition, tiled inference, configs and `stage=summary`. Tiny size
 
 import pytest
 import torch
+import torch.nn.functional as F
 from omegaconf import OmegaConf
 
 from src.data.volume_shards import volume_transform
 from src.errors import ConfigError
 from src.models.denoise.models import infer_tiled
-from src.models.denoise.summary import flops_per_pixel, model_summary, random_frame_batch
+from src.models.denoise.summary import (
+    SOFTMAX_FLOPS_PER_TAP,
+    flops_per_pixel,
+    model_summary,
+    random_frame_batch,
+)
 from src.models.denoise.unet_kpcn import (
+    COMPOSE_FLOPS,
+    PYRAMID_FLOPS,
+    ScaleCompositor,
     UNetKPCN,
     compose_scales,
     downsample,
@@ -249,6 +258,13 @@ def _softmax_filter(scores, image, k):
     )
 
 
+def _compositor(module, coarse_up, fine):
+    """a = sigmoid(conv1x1(relu(conv_kxk([U(c), f])))) from the module's two convolutions' weights."""
+    first, last = module.net[0], module.net[-1]
+    hidden = F.conv2d(torch.cat([coarse_up, fine], dim=1), first.weight, first.bias, padding="same")
+    return torch.sigmoid(F.conv2d(hidden.clamp(min=0), last.weight, last.bias))
+
+
 def reference_forward(model, batch, *, kernel_of=None, compositor_of=None, pyramid_of_filtered=False):
     """The U-Net KPCN's output from its sub-networks (encoder/decoder blocks, heads, compositor nets) and
     the module docstring's definitions, in plain torch. The keyword arguments build plausible wrong
@@ -284,8 +300,7 @@ def reference_forward(model, batch, *, kernel_of=None, compositor_of=None, pyram
         composed = filtered[-1]
         for s in range(scales - 2, -1, -1):
             cc, cs = (c, s) if compositor_of is None else compositor_of[c][s]
-            net = model.compositors[cc][cs].net
-            a = torch.sigmoid(net(torch.cat([to_net(_up(composed)), to_net(filtered[s])], dim=1)))
+            a = _compositor(model.compositors[cc][cs], to_net(_up(composed)), to_net(filtered[s]))
             composed = filtered[s] - a * _up(_down(filtered[s])) + a * _up(composed)
         out = out + (_inverse_lm(composed) if not linear and log else composed)
     return out[..., :height, :width]
@@ -318,19 +333,19 @@ def sharpened(model):
 
 
 @pytest.mark.parametrize(
-    ("components", "filter_space", "transform"),
+    "config",
     [
-        ("surface_volume", "linear", "log_modulus"),
-        ("surface_volume", "transformed", "log_modulus"),
-        ("color", "linear", "none"),
-        ("color", "transformed", "log_modulus"),
+        dict(components="surface_volume", filter_space="linear", transform="log_modulus"),
+        dict(components="surface_volume", filter_space="transformed", conv_kernel=5, kernel_size=5),
+        dict(components="color", filter_space="linear", transform="none"),
+        dict(components="color", filter_space="transformed", transform="log_modulus"),
     ],
 )
-def test_the_forward_pass_equals_an_independent_multiscale_reference(components, filter_space, transform):
+def test_the_forward_pass_equals_an_independent_multiscale_reference(config):
     """Every scale's kernel on its pyramid level, each scale's compositor, the per-component heads, the
     padding and crop (14 x 10 is padded to 16 x 12): the model's output equals the reference, and the
     references with two compositors, the component kernels, or the pyramid swapped differ from it."""
-    model = sharpened(tiny(components=components, filter_space=filter_space, transform=transform))
+    model = sharpened(tiny(**config))
     batch = varied_frame_batch(14, 10)
     with torch.no_grad():
         out = model(batch)["color"]
@@ -340,7 +355,7 @@ def test_the_forward_pass_equals_an_independent_multiscale_reference(components,
             "scale compositors swapped": reference_forward(model, batch, compositor_of=by_scale),
             "pyramid of filtered levels": reference_forward(model, batch, pyramid_of_filtered=True),
         }
-        if components == "surface_volume":
+        if model.components == "surface_volume":
             variants["component kernels swapped"] = reference_forward(model, batch, kernel_of=[1, 0])
             variants["component compositors swapped"] = reference_forward(
                 model, batch, compositor_of=[[(1, 0), (1, 1)], [(0, 0), (0, 1)]]
@@ -349,3 +364,122 @@ def test_the_forward_pass_equals_an_independent_multiscale_reference(components,
     torch.testing.assert_close(out, expected, atol=1e-9, rtol=1e-9)
     for name, variant in variants.items():
         assert (variant - expected).abs().max() > 1e-3, name
+
+
+def test_one_scale_of_width_one_is_one_softmax_kernel_on_the_linear_colour():
+    """widths=[1]: no pooling, no compositor; the output is the kernel-filtered inverse-transformed colour."""
+    model = sharpened(tiny(widths=[1]))
+    batch = varied_frame_batch(5, 7)
+    assert [len(c) for c in model.compositors] == [0]
+    with torch.no_grad():
+        out = model(batch)["color"]
+        scores = model.heads[0](model.encoder[0](batch["inputs"]))
+    expected = _softmax_filter(scores, _inverse_lm(batch["color_t"]), 3)
+    torch.testing.assert_close(out, expected, atol=1e-9, rtol=1e-9)
+    torch.testing.assert_close(out, reference_forward(model, batch), atol=1e-9, rtol=1e-9)
+
+
+def test_there_is_one_compositor_per_component_and_scale_but_the_coarsest():
+    """S - 1 compositors per component (an extra one would be an unused parameter set in checkpoints)."""
+    for components, n in (("color", 1), ("surface_volume", 2)):
+        model = tiny(components=components)
+        assert [len(c) for c in model.compositors] == [2] * n
+        compositor = sum(p.numel() for p in model.compositors[0][0].parameters())
+        assert compositor == (6 * 9 + 1) * 4 + (4 + 1)  # 3x3 conv 6 -> 4 channels, 1x1 conv 4 -> 1
+        others = sum(p.numel() for m in (model.encoder, model.decoder, model.heads) for p in m.parameters())
+        assert sum(p.numel() for p in model.parameters()) == others + 2 * n * compositor
+
+
+def test_a_compositor_with_a_5x5_conv_is_a_same_size_sigmoid_of_two_convolutions():
+    torch.manual_seed(3)
+    compositor = ScaleCompositor(4, conv_kernel=5, channels=2).double()
+    g = torch.Generator().manual_seed(4)
+    coarse_up, fine = (torch.randn(1, 2, 6, 5, generator=g, dtype=torch.float64) for _ in range(2))
+    with torch.no_grad():
+        a = compositor(coarse_up, fine)
+        assert a.shape == (1, 1, 6, 5) and compositor.radius == 2
+        torch.testing.assert_close(a, _compositor(compositor, coarse_up, fine), atol=1e-12, rtol=1e-12)
+        swapped = _compositor(compositor, fine, coarse_up)  # [f, U(c)] instead of [U(c), f]
+    assert (swapped - a).abs().max() > 1e-3
+
+
+def test_the_kernel_and_composition_flops_are_summed_over_scales_by_pixel_fraction():
+    """Closed form for k = 3 over three scales: kernels at 1, 1/4, 1/16 of the pixels, pyramid levels
+    built from 1 and 1/4, compositions at 1 and 1/4; per component. One scale: one kernel application."""
+    kernel = 2 * 9 * 3 + SOFTMAX_FLOPS_PER_TAP * 9
+    per_component = kernel * (1 + 1 / 4 + 1 / 16) + PYRAMID_FLOPS * (1 + 1 / 4) + COMPOSE_FLOPS * (1 + 1 / 4)
+    assert tiny().kernel_flops_per_pixel() == pytest.approx(per_component, rel=1e-12)
+    assert tiny(components="surface_volume").kernel_flops_per_pixel() == pytest.approx(2 * per_component)
+    assert tiny(widths=[4]).kernel_flops_per_pixel() == pytest.approx(kernel, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "needles"),
+    [
+        ("in_channels", 0, ["model.in_channels", ">= 1"]),
+        ("convs_per_level", 0, ["model.convs_per_level", ">= 1"]),
+        ("conv_kernel", 4, ["model.conv_kernel", "odd"]),
+        ("compositor_width", 0, ["model.compositor_width", ">= 1"]),
+        ("components", "diffuse", ["model.components", "surface_volume"]),
+        ("filter_space", "log", ["model.filter_space", "transformed"]),
+    ],
+)
+def test_a_bad_value_passed_to_the_constructor_is_a_one_line_config_error(key, value, needles):
+    """The constructor's own checks (build_method's type checks already refuse a bad Literal)."""
+    with pytest.raises(ConfigError) as excinfo:
+        tiny(**{key: value})
+    one_line_error(excinfo, *needles)
+
+
+# --- the one-branch frame models (frame_models.py) ------------------------------------------------------
+
+
+def _frame_model(output, transform="log_modulus"):
+    from src.models.denoise.frame_models import frame_conv_stack_denoiser
+
+    torch.manual_seed(5)
+    model = frame_conv_stack_denoiser(
+        in_channels=IN, width=4, depth=2, conv_kernel=3, transform=transform, output=output,
+        kernel_size=3, shared=False, whiten=False,
+    )  # fmt: skip
+    return model.double().eval()
+
+
+@pytest.mark.parametrize("transform", ["log_modulus", "none"])
+def test_the_frame_kpcn_filters_the_transformed_colour_and_the_dpcn_outputs_it_both_inverted(transform):
+    """KPCN: inverse(softmax kernel * color_t); DPCN: inverse(network output). The surface/volume parts
+    of the batch must not matter."""
+    batch = varied_frame_batch(6, 5)
+    inverse = _inverse_lm if transform == "log_modulus" else (lambda t: t)
+    kpcn, dpcn = _frame_model("kernel", transform), _frame_model("direct", transform)
+    with torch.no_grad():
+        scores, direct = kpcn.net(batch["inputs"]), dpcn.net(batch["inputs"])
+        expected = inverse(_softmax_filter(scores, batch["color_t"], 3))
+        torch.testing.assert_close(kpcn(batch)["color"], expected, atol=1e-12, rtol=1e-12)
+        torch.testing.assert_close(dpcn(batch)["color"], inverse(direct), atol=1e-12, rtol=1e-12)
+    assert (expected - inverse(batch["color_t"])).abs().max() > 1e-2  # the kernel does filter
+
+
+def test_the_frame_models_halo_and_kernel_cost_count_the_kernel_only_for_kernel_output():
+    from src.models.denoise.frame_models import frame_conv_stack_denoiser, frame_residual_denoiser
+
+    kpcn, dpcn = _frame_model("kernel"), _frame_model("direct")
+    assert dpcn.halo == 2 and kpcn.halo == 2 + 1  # two 3x3 convs; + the 3x3 kernel's radius
+    assert dpcn.kernel_size is None and dpcn.kernel_flops_per_pixel() == 0
+    assert kpcn.kernel_flops_per_pixel() == 2 * 9 * 3 + SOFTMAX_FLOPS_PER_TAP * 9
+    # The builders are marked, so that a job refuses them on a still-image dataset.
+    assert frame_conv_stack_denoiser.frame_batch is True and frame_residual_denoiser.frame_batch is True
+
+
+def test_a_frame_batch_of_the_wrong_shape_is_a_one_line_data_error():
+    from src.errors import DataError
+
+    kpcn = _frame_model("kernel")
+    batch = varied_frame_batch(6, 5)
+    for bad in (batch["inputs"][:, :4], batch["inputs"][0]):  # 4 of 5 channels; no batch axis
+        with pytest.raises(DataError) as excinfo:
+            kpcn(batch | {"inputs": bad})
+        one_line_error(excinfo, "batch['inputs'] is", f"expected (N, {IN}, H, W)")
+    with pytest.raises(DataError) as excinfo:
+        tiny()({"color_t": batch["color_t"]})
+    one_line_error(excinfo, "batch has no 'inputs'", "dataset=volumetric")
