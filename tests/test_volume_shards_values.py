@@ -6,6 +6,7 @@ Tiny sequences (four scenes of three 8 x 8 frames at 2, 8 and 64 spp), well unde
 from __future__ import annotations
 
 import json
+import time
 import zlib
 
 import numpy as np
@@ -49,7 +50,9 @@ def _preprocess(raw, out, **kw):
 def prepared(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("volvalues")
     raw = _raw(tmp / "raw", frames=FRAMES, spps=SPPS)
-    return raw, tmp / "out", _preprocess(raw, tmp / "out")
+    start = time.perf_counter()
+    summary = _preprocess(raw, tmp / "out")
+    return raw, tmp / "out", summary | {"elapsed": time.perf_counter() - start}
 
 
 def _lm(x):
@@ -211,14 +214,38 @@ def test_the_indices_and_the_summary_name_every_shard_by_value(prepared):
         "min_keep_prob": 0.1, "min_distance": None, "importance": "thesis", "importance_window": 1.0,
         "importance_percentile": 99.0, "whiten_eps": 1e-6,
     }  # fmt: skip
-    assert summary.pop("seconds") >= 0
+    summary = dict(summary)
+    assert 0 < summary.pop("seconds") <= summary.pop("elapsed") + 1e-3  # the run's duration, rounded
     assert summary == {
         "raw_dir": str(raw), "splits": {"train": 2, "val": 1, "test": 1}, "noisy_sequences": 8,
         "samples": {"train": 4 * N, "val": 2 * N}, "full_sequences": {"val": 2, "test": 2},
         "input_channels": 62, "settings": settings,
     }  # fmt: skip
     written = json.loads((out / "summary.json").read_text())
-    assert written.pop("seconds") >= 0 and written == summary
+    assert written.pop("seconds") > 0 and written == summary
+
+
+def test_exr_files_are_read_by_the_default_loader(tmp_path):
+    """Real `write_volume_exr` files (4 x 4, two frames, three scenes) and no `load_fn`: the stored noisy and
+    reference colours are the files'."""
+    from src.data.volume_buffers import volume_exr_name, write_volume_exr
+
+    frames = {}
+    for s in ("a-0000", "b-0000", "c-0000"):
+        for f in range(2):
+            for spp in (2, 16):
+                frames[s, f, spp] = synthetic_frame(s, f, spp, 4, 4)
+                write_volume_exr(tmp_path / "raw" / volume_exr_name(s, f, spp), frames[s, f, spp])
+    _preprocess(tmp_path / "raw", tmp_path / "out", patch_size=2, sequence_frames=2, load_fn=None)
+    entry = _index(tmp_path / "out", "full", "test")["shards"][0]
+    seq = torch.load(tmp_path / "out" / "full" / "test" / entry["file"], weights_only=True)
+
+    def chw(key, spp):
+        return np.stack([frames[entry["scene"], f, spp][key].transpose(2, 0, 1) for f in range(2)])
+
+    np.testing.assert_array_equal(seq["color"].numpy(), chw("color", 2))
+    np.testing.assert_array_equal(seq["reference"].numpy(), chw("color", 16))
+    np.testing.assert_allclose(seq["target_volume"].numpy(), _lm(chw("volume", 16)), rtol=2e-6)
 
 
 def test_samples_and_whole_sequences_hold_the_recomputed_arrays(prepared):
