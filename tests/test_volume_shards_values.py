@@ -126,6 +126,9 @@ def test_transform_pair_by_kind_with_negative_values_and_a_zero_distance_scale()
     np.testing.assert_allclose(v, value / 4.0, rtol=1e-15)
     np.testing.assert_allclose(s, var / 16.0, rtol=1e-15)
     assert transform_pair("distance", value, None, "none", 4.0)[1] is None
+    v, s = transform_pair("distance", value, var, "none", 0.5)  # a scale below 1 still divides
+    np.testing.assert_allclose(v, 2 * value, rtol=1e-15)
+    np.testing.assert_allclose(s, 4 * var, rtol=1e-15)
     v, s = transform_pair("distance", value, var, "none", 0.0)  # nothing hit: zeros, no division
     assert np.array_equal(v, np.zeros_like(value)) and np.array_equal(s, np.zeros_like(var))
     assert transform_pair("distance", value, None, "none", 0.0)[1] is None
@@ -163,8 +166,12 @@ def test_malformed_sequences_are_one_line_data_errors():
         with pytest.raises(DataError) as err:
             sequence_arrays(n, r, "log_modulus", "seq x")
         one_line_error(err, *needles)
-    with pytest.raises(ConfigError):
+    with pytest.raises(DataError) as err:
+        sequence_arrays(noisy, ref[:1], "none")
+    one_line_error(err, "sequence: 2 noisy frames, 1 reference frames")  # the default `what`
+    with pytest.raises(ConfigError) as err:
         sequence_arrays(noisy, ref, "log")
+    one_line_error(err, "task.preprocess.volume_transform='log'")
 
 
 def test_frame_importance_is_the_thesis_map_or_the_monte_carlo_variance_map():
@@ -318,7 +325,24 @@ def test_the_whitening_statistics_are_the_train_samples_mean_and_std_per_channel
     assert np.abs(train[: N * K * P * P].std(axis=0) - std).max() > 1e-2
 
 
-def test_whiten_eps_floors_the_stored_std_and_other_settings_reach_the_sampler(tmp_path):
+def test_bad_preprocess_settings_are_one_line_config_errors(tmp_path):
+    raw = _raw(tmp_path / "raw", frames=FRAMES, spps=(2, 64))
+    cases = [
+        (
+            dict(sequence_frames=4),
+            ["task.preprocess.sequence_frames=4 is more than the 3 frame(s)", "'a-0000'"],
+        ),
+        (dict(importance="random"), ["task.preprocess.importance='random'", "'thesis'", "'mc_variance'"]),
+        (dict(volume_transform="log"), ["task.preprocess.volume_transform='log'"]),
+    ]
+    for kw, needles in cases:
+        with pytest.raises(ConfigError) as err:
+            _preprocess(raw, tmp_path / "out", **kw)
+        one_line_error(err, *needles)
+    assert not (tmp_path / "out").exists()
+
+
+def test_whiten_eps_floors_the_stored_std_and_other_settings_reach_the_sampler(tmp_path, capsys):
     """`whiten_eps` 50 is above every channel's spread here: every std is 50. `importance`,
     `importance_percentile`, `candidates_factor`, `min_keep_prob`, `min_distance` and the seeds are passed
     on: the positions are those of `sample_sequence_patches` on the Monte Carlo variance map."""
@@ -329,6 +353,7 @@ def test_whiten_eps_floors_the_stored_std_and_other_settings_reach_the_sampler(t
     kw = dict(whiten_eps=50.0, importance="mc_variance", importance_percentile=90.0, candidates_factor=2.0)
     kw |= dict(min_keep_prob=0.5, min_distance=1.0, sample_seed=7)
     _preprocess(raw, tmp_path / "out", **kw)
+    assert capsys.readouterr().err == ""  # progress=False: no bar
     assert json.loads((tmp_path / "out" / "whitening.json").read_text())["inputs"]["std"] == [50.0] * 62
     assert _shard_inputs(tmp_path / "out", "train").std(axis=0).max() < 50.0
     for split in ("train", "val"):
