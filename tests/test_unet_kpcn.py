@@ -483,3 +483,19 @@ def test_a_frame_batch_of_the_wrong_shape_is_a_one_line_data_error():
     with pytest.raises(DataError) as excinfo:
         tiny()({"color_t": batch["color_t"]})
     one_line_error(excinfo, "batch has no 'inputs'", "dataset=volumetric")
+
+
+# Surviving mutants of src/models/denoise/unet_kpcn.py and frame_models.py (bash scripts/mutation.sh
+# unet_kpcn), all equivalent here:
+# - _conv_block and ScaleCompositor `nn.ReLU(inplace=True)` -> inplace None / False: the same values (in
+#   place only saves the copy).
+# - pad_to_multiple `if dy or dx` -> `... or True`: F.pad by zero pixels returns the input unchanged.
+# - pad_to_multiple and forward `x.shape[-2:]` -> `x.shape[+2:]`: the frames are (N, C, H, W)
+#   (check_frame_input refuses any other rank), so both are (H, W).
+# - upsample `mode="nearest"` dropped: nearest is F.interpolate's default mode.
+# - filter_scales and kernel_logits `zip(..., strict=True)` -> strict None / False / dropped: both lists
+#   have one entry per scale by construction (heads and features, logits and the pyramid).
+# - frame_batch_builder `builder.frame_batch = True` -> None / False: the decorator runs when the module is
+#   imported, before mutmut switches a mutant in, so no test can see it under mutmut;
+#   test_the_frame_models_halo_and_kernel_cost_count_the_kernel_only_for_kernel_output fails on it (tried
+#   by hand: `frame_batch = False`).
