@@ -46,9 +46,11 @@ def _preprocess(raw, out, **kw):
     return preprocess_volume_dataset(raw, out, **(args | kw))
 
 
-@pytest.fixture(scope="module")
-def prepared(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("volvalues")
+@pytest.fixture
+def prepared(tmp_path):
+    """Function-scoped (~0.2 s): under mutmut, a module fixture's calls count as hits of the first test
+    only, and a mutant would run only that test."""
+    tmp = tmp_path
     raw = _raw(tmp / "raw", frames=FRAMES, spps=SPPS)
     start = time.perf_counter()
     summary = _preprocess(raw, tmp / "out")
@@ -148,6 +150,28 @@ def test_sequence_arrays_by_value_under_both_transforms():
         for key, value in want.items():
             assert got[key].dtype == np.float32 and got[key].shape == value.shape, key
             np.testing.assert_allclose(got[key], value, rtol=2e-6, atol=1e-6, err_msg=key)
+
+
+def test_half_precision_frames_are_stored_as_float32_computed_in_float32():
+    """A loader's float16 buffers are cast to float32 before any transform: in half precision
+    log1p and the variance quotient would be off by ~1e-3."""
+    noisy = [
+        {k: v.astype(np.float16) for k, v in synthetic_frame("c-0000", f, 2, H, W).items()} for f in range(2)
+    ]
+    ref = [
+        {k: v.astype(np.float16) for k, v in synthetic_frame("c-0000", f, 64, H, W).items()} for f in range(2)
+    ]
+    got = sequence_arrays(noisy, ref, "log_modulus")
+    assert all(v.dtype == np.float32 for v in got.values())
+    color = np.stack([n["color"] for n in noisy]).astype(np.float64)
+    var = np.stack([n["colorVariance"] for n in noisy]).astype(np.float64)
+    np.testing.assert_allclose(got["inputs"][..., :3], _lm(color), rtol=2e-6)
+    np.testing.assert_allclose(
+        got["inputs"][..., 3:4], var / (1 + color.mean(-1, keepdims=True)) ** 2, rtol=2e-6
+    )
+    np.testing.assert_allclose(
+        got["target"], _lm(np.stack([r["color"] for r in ref]).astype(np.float64)), rtol=2e-6
+    )
 
 
 def test_malformed_sequences_are_one_line_data_errors():
@@ -341,29 +365,59 @@ def test_bad_preprocess_settings_are_one_line_config_errors(tmp_path):
         one_line_error(err, *needles)
     assert not (tmp_path / "out").exists()
 
+    def without_depth(path, buffers):  # one noisy file lacks a buffer: named with its folder, scene, spp
+        frame = _load(path, buffers)
+        return (
+            {k: v for k, v in frame.items() if k != "depth"} if "b-0000-f0001-00002" in path.name else frame
+        )
+
+    with pytest.raises(DataError) as err:
+        _preprocess(raw, tmp_path / "out", load_fn=without_depth)
+    one_line_error(err, f"{raw}: b-0000 2 spp: buffer 'depth' is missing")
+
 
 def test_whiten_eps_floors_the_stored_std_and_other_settings_reach_the_sampler(tmp_path, capsys):
-    """`whiten_eps` 50 is above every channel's spread here: every std is 50. `importance`,
-    `importance_percentile`, `candidates_factor`, `min_keep_prob`, `min_distance` and the seeds are passed
-    on: the positions are those of `sample_sequence_patches` on the Monte Carlo variance map."""
+    """`whiten_eps` 50 is above every channel's spread here: every std is 50. `split_seed`, `importance`,
+    `importance_percentile`, `candidates_factor`, `min_keep_prob`, `min_distance` and `sample_seed` are
+    passed on: the splits are `split_scenes`' and the positions those of `sample_sequence_patches` on the
+    Monte Carlo variance map (six scenes: a split by another seed matches by chance ~1 in 60)."""
     from src.data.patch_sampling import importance_map
     from src.data.sequence_patches import sample_sequence_patches
+    from src.data.splits import split_scenes
 
-    raw = _raw(tmp_path / "raw", frames=FRAMES, spps=(2, 64))
+    scenes = [f"{c}-0000" for c in "abcdef"]
+    raw = _raw(tmp_path / "raw", scenes=scenes, frames=FRAMES, spps=(2, 64))
     kw = dict(whiten_eps=50.0, importance="mc_variance", importance_percentile=90.0, candidates_factor=2.0)
-    kw |= dict(min_keep_prob=0.5, min_distance=1.0, sample_seed=7)
+    kw |= dict(min_keep_prob=1.0, min_distance=1.0, sample_seed=7, split_seed=5)
     _preprocess(raw, tmp_path / "out", **kw)
     assert capsys.readouterr().err == ""  # progress=False: no bar
+    assert json.loads((tmp_path / "out" / "splits.json").read_text()) == split_scenes(scenes, FRACTIONS, 5)
     assert json.loads((tmp_path / "out" / "whitening.json").read_text())["inputs"]["std"] == [50.0] * 62
     assert _shard_inputs(tmp_path / "out", "train").std(axis=0).max() < 50.0
+    differs = []  # the fixture can tell min_keep_prob 1 from the default 0.1
     for split in ("train", "val"):
         for entry in _index(tmp_path / "out", "patches", split)["shards"]:
             noisy = [synthetic_frame(entry["scene"], f, 2, H, W) for f in range(FRAMES)]
-            imp = np.stack(
-                [importance_map(n["colorVariance"], n["normalVariance"], percentile=90.0) for n in noisy]
+            maps = [importance_map(n["colorVariance"], n["normalVariance"], percentile=90.0) for n in noisy]
+            seed = [7, zlib.crc32(entry["scene"].encode()), 2]
+            starts, corners = sample_sequence_patches(
+                np.stack(maps), P, N, K, np.random.default_rng(seed), 2.0, 1.0, 1.0
             )
-            rng = np.random.default_rng([7, zlib.crc32(entry["scene"].encode()), 2])
-            starts, corners = sample_sequence_patches(imp, P, N, K, rng, 2.0, 0.5, 1.0)
             shard = torch.load(tmp_path / "out" / "patches" / split / entry["file"], weights_only=True)
             assert torch.equal(shard["starts"], torch.from_numpy(starts))
             assert torch.equal(shard["corners"], torch.from_numpy(corners))
+            _, default_corners = sample_sequence_patches(
+                np.stack(maps), P, N, K, np.random.default_rng(seed), 2.0, 0.1, 1.0
+            )
+            differs.append(not np.array_equal(corners, default_corners))
+    assert any(differs)
+
+
+def test_the_default_progress_bar_counts_the_noisy_sequences(tmp_path, capsys):
+    raw = _raw(tmp_path / "raw", frames=FRAMES, spps=(2, 64))
+    preprocess_volume_dataset(
+        raw, tmp_path / "out", patch_size=P, patches_per_sequence=N, sequence_frames=K,
+        split_fractions=FRACTIONS, split_seed=0, sample_seed=1, load_fn=_load,
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert "preprocess volumetric: 100%" in err and " 4/4 " in err and "seq/s]" in err, err
