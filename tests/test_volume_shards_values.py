@@ -413,6 +413,17 @@ def test_whiten_eps_floors_the_stored_std_and_other_settings_reach_the_sampler(t
     assert any(differs)
 
 
+def test_one_frame_sequences_are_preprocessed(tmp_path):
+    """dataset.frames = 1 (still frames as sequences of one): the sample counts come from the only frame."""
+    raw = _raw(tmp_path / "raw", frames=1, spps=(2, 8, 64))
+    summary = _preprocess(raw, tmp_path / "out", sequence_frames=1)
+    assert summary["noisy_sequences"] == 8 and summary["full_sequences"] == {"val": 2, "test": 2}
+    entries = _index(tmp_path / "out", "patches", "train")["shards"]
+    assert [(e["spp"], e["reference_spp"], e["frames"]) for e in entries] == [(2, 64, 1), (8, 64, 1)] * 2
+    shard = torch.load(tmp_path / "out" / "patches" / "train" / entries[0]["file"], weights_only=True)
+    assert shard["inputs"].shape == (N, 1, 62, P, P) and not shard["starts"].any()
+
+
 def test_the_default_progress_bar_counts_the_noisy_sequences(tmp_path, capsys):
     raw = _raw(tmp_path / "raw", frames=FRAMES, spps=(2, 64))
     preprocess_volume_dataset(
@@ -421,3 +432,14 @@ def test_the_default_progress_bar_counts_the_noisy_sequences(tmp_path, capsys):
     )  # fmt: skip
     err = capsys.readouterr().err
     assert "preprocess volumetric: 100%" in err and " 4/4 " in err and "seq/s]" in err, err
+
+
+# Surviving mutants of src/data/volume_shards.py (bash scripts/mutation.sh volume_shards), all equivalent
+# here:
+# - _default_load_fn `buffers=buffers` -> None / dropped: load_volume_exr then reads every buffer of the
+#   file, and only the named ones are ever looked up: the same arrays, read more slowly.
+# - sequence_arrays' final `np.asarray(v, dtype=np.float32)` -> dtype None / dropped: every array is
+#   float32 already (_stack casts each buffer; the transforms and the division by a Python-float distance
+#   scale keep float32; test_half_precision_frames_are_stored_as_float32_computed_in_float32).
+# - _SequenceWriter.finish `round(seconds, 3)` -> `round(seconds, 4)`: the reported run time to 0.1 ms
+#   instead of 1 ms; no test can pin a duration beyond its bounds (0 < seconds <= the caller's clock).
