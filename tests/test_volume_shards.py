@@ -201,8 +201,15 @@ def test_features_are_selected_by_name_and_whitened(prepared):
     assert torch.equal(some["inputs"][:, 0], all_ch["inputs"][:, i["depth"]])
     assert torch.equal(some["inputs"][:, 1], all_ch["inputs"][:, i["color_var"]])
     white = next(iter(SequencePatchDataset(out, "val", shuffle=False, whitening=out / "whitening.json")))
-    assert not torch.equal(white["inputs"], all_ch["inputs"]) and torch.equal(
-        white["color_t"], all_ch["color_t"]
+    stats = json.loads((out / "whitening.json").read_text())["inputs"]
+    mean, std = (torch.tensor(stats[k], dtype=torch.float32)[:, None, None] for k in ("mean", "std"))
+    torch.testing.assert_close(white["inputs"], (all_ch["inputs"] - mean) / std)
+    assert torch.equal(white["color_t"], all_ch["color_t"])
+    some_white = SequencePatchDataset(
+        out, "val", shuffle=False, features=["depth", "color.var"], whitening=out / "whitening.json"
+    )
+    torch.testing.assert_close(
+        next(iter(some_white))["inputs"], white["inputs"][:, [i["depth"], i["color_var"]]]
     )
     with pytest.raises(ConfigError) as err:
         SequenceDataset(out, "test", features=["colour"])
