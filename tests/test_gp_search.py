@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from src.gp.grammar import GRAMMAR_VECTORS, Vector
+from src.gp.grammar import GRAMMAR_VECTORS
 from src.gp.published import bilateral_expression
 from src.gp.search import (
     WORST,
@@ -114,10 +114,17 @@ def test_each_mutation_keeps_types_and_the_length_limit(kind):
 def test_delete_at_a_vector_replaces_its_vector_operator():
     pset, _ = _pset_book()
     random.seed(0)
-    for _ in range(30):
+    # exp(neg(distance2(normal, normal))): a point on exp, on neg, or on distance2 or one of its two vector
+    # terminals (which deletes distance2's whole subtree): 1/5, 1/5, 3/5.
+    expected = {"1.0": 1 / 5, "exp(1.0)": 1 / 5, "exp(neg(1.0))": 3 / 5}
+    seen = {text: 0 for text in expected}
+    draws = 300
+    for _ in range(draws):
         (out,) = mut_delete(Individual(parse("exp(-distance2(normal, normal))", pset)), pset)
-        assert all(node.ret is not Vector for node in out) or "distance2" in str(out)
-        assert _typed_ok(out)
+        assert str(out) in expected and _typed_ok(out)
+        seen[str(out)] += 1
+    for text, p in expected.items():
+        assert abs(seen[text] - draws * p) <= 4 * (draws * p * (1 - p)) ** 0.5, seen
 
 
 def test_crossover_exchanges_only_subtrees_of_one_type():
@@ -140,13 +147,15 @@ def test_migration_moves_each_islands_best_to_the_next_island():
             ind.fitness.values = (float(10 * k + j + 1),)
             island.append(ind)
         islands.append(island)
+    before = [list(island) for island in islands]
     search.migrate(islands)
     for k in range(3):
+        # the previous island's best (fitness 10 (k - 1) + 1) took the place of this island's worst (last)
         best_before = float(10 * ((k - 1) % 3) + 1)
-        values = sorted(ind.fitness.values[0] for ind in islands[k])
-        assert best_before in values  # the previous island's best arrived
-        assert float(10 * k + 1) in values  # its own best stayed
-        assert float(10 * k + 4) not in values or k == 0 and best_before == 21.0  # the worst left
+        values = [ind.fitness.values[0] for ind in islands[k]]
+        assert values == [10 * k + 1, 10 * k + 2, 10 * k + 3, best_before]
+        assert str(islands[k][3]) == str(before[(k - 1) % 3][0])
+        assert all(a is b for a, b in zip(islands[k][:3], before[k][:3], strict=True))  # the rest stayed
     assert len({id(ind) for island in islands for ind in island}) == 12  # copies, not shared objects
 
 
