@@ -6,11 +6,14 @@ import os
 import random
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
+from src.errors import DataError
 from src.gp.grammar import GRAMMAR_VECTORS
 from src.gp.published import bilateral_expression
 from src.gp.search import (
@@ -31,6 +34,7 @@ from src.gp.search import (
     search_pset,
 )
 from src.gp.text import parse
+from src.metrics.image import relmse_spp
 from tests.conftest import ROOT
 
 AVAILABLE = ["color", "normal", "texture", "depth", "nGradient"]
@@ -172,10 +176,6 @@ def test_fitness_orders_identity_below_bilateral_and_undefined_is_worst():
 
 
 def test_fitness_is_the_ratio_of_eq_3_5():
-    import numpy as np
-
-    from src.metrics.image import relmse_spp
-
     feats, color, ref = _images(n=1)
     tree = parse(SEED)
     value = Fitness(feats, color, ref, radius=2)([tree])[0]
@@ -317,3 +317,344 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
         [*overrides, "task.search.generations=4", f"task.search.resume={out / 'state.json'}"],
     )
     assert stages.search(more, Tracker(None))["generations"] == 4
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Operators, migration and fitness observed by value (issue 30): a stand-in fitness of the text keeps these
+# tests free of image filtering; the fitness itself is checked on images of unequal noise below.
+
+
+def _text_fitness(text: str) -> float:
+    """A deterministic stand-in fitness of an expression's text, in [0, 1): distinct texts get distinct
+    values (crc32), so a fitness left over from another expression shows."""
+    return zlib.crc32(text.encode()) / 2**32
+
+
+class _TextFitness:
+    """`_text_fitness` of each tree, recording the texts of every call."""
+
+    def __init__(self):
+        self.calls: list[list[str]] = []
+
+    def __call__(self, trees):
+        texts = [str(tree) for tree in trees]
+        self.calls.append(texts)
+        return [_text_fitness(text) for text in texts]
+
+
+def _ranked_island(n):
+    """n small distinct individuals with the fitness values 1, 2, ..., n (rank = value), shuffled."""
+    island = []
+    for j in range(n):
+        ind = Individual(parse(f"{float(j + 1)!r} * 1.0"))
+        ind.fitness.values = (float(j + 1),)
+        island.append(ind)
+    random.Random(n).shuffle(island)
+    return island
+
+
+def _within(count, n, p, sigmas=4.0):
+    """count is within `sigmas` binomial standard deviations of n * p."""
+    return abs(count - n * p) <= sigmas * (n * p * (1 - p)) ** 0.5
+
+
+def test_offspring_operator_mix_is_the_current_per_draw_rule(monkeypatch):
+    """The CURRENT rule of `GPSearch.offspring` (a later issue changes it to the thesis's): per draw of
+    r = random.random(), r < replication (0.10) adds one replica (a tournament winner, unchanged, fitness
+    kept), r < replication + crossover (0.55) one crossover adding BOTH its children, each then mutated with
+    probability crossover_mutation (0.85), else one mutant of a winner; the shares are per draw, not per
+    individual (a crossover adds two), and the island is cut to its size. Measured over ~1400 draws."""
+    search = GPSearch(_TextFitness(), SEED, SearchParams(islands=1, population=50), *_pset_book())
+    mates, cx_mutations = [], []
+
+    def mate(a, b):
+        mates.append(1)
+        a.origin = b.origin = "crossover"
+        return a, b
+
+    def mutate(ind):
+        if getattr(ind, "origin", None) == "crossover":
+            cx_mutations.append(1)
+        ind.origin = "mutation" if getattr(ind, "origin", None) is None else ind.origin
+        return (ind,)
+
+    monkeypatch.setattr(search.variation, "mate", mate)
+    monkeypatch.setattr(search.variation, "mutate", mutate)
+    random.seed(11)
+    island = _ranked_island(50)
+    by_text = {str(ind): ind for ind in island}
+    replicas = mutants = crossover_children = 0
+    for _ in range(40):
+        new = search.offspring(island)
+        assert len(new) == 50
+        for ind in new:
+            origin = getattr(ind, "origin", None)
+            if origin is None:  # a replica: a copy of an island member, its fitness kept
+                replicas += 1
+                parent = by_text[str(ind)]
+                assert ind is not parent and ind.fitness.valid and ind.fitness.values == parent.fitness.values
+            else:  # every varied child is evaluated again, whether or not its expression changed
+                assert not ind.fitness.valid
+                mutants += origin == "mutation"
+                crossover_children += origin == "crossover"
+    draws = replicas + len(mates) + mutants
+    assert 40 * 50 / 1.45 * 0.95 < draws < 40 * 50 / 1.45 * 1.05  # E[individuals per draw] = 1.45
+    assert (
+        _within(replicas, draws, 0.10) and _within(len(mates), draws, 0.45) and _within(mutants, draws, 0.45)
+    )
+    # both children of every crossover are kept (but the last one of an island, cut at its size)
+    assert 2 * len(mates) - 40 <= crossover_children <= 2 * len(mates)
+    assert _within(len(cx_mutations), 2 * len(mates), 0.85)
+
+
+def test_tournament_of_8_picks_the_lowest_fitness_of_its_draws():
+    """`select`: the lowest fitness of 8 draws with replacement (`tools.selTournament`, tournament_size 8):
+    P(rank <= j) = 1 - (1 - j / n)^8 over n ranked individuals; 3000 tournaments on 40 individuals."""
+    search = GPSearch(_TextFitness(), SEED, SearchParams(), *_pset_book())
+    island, n, k, draws = _ranked_island(40), 40, 8, 3000
+    random.seed(5)
+    ranks = []
+    for _ in range(draws):
+        winner = search.select(island)
+        assert all(winner is not ind for ind in island)  # a copy
+        ranks.append(int(winner.fitness.values[0]))
+    p_rank = [((n - j + 1) / n) ** k - ((n - j) / n) ** k for j in range(1, n + 1)]  # P(rank = j)
+    mean = sum(j * p for j, p in enumerate(p_rank, 1))
+    sd = (sum(j * j * p for j, p in enumerate(p_rank, 1)) - mean**2) ** 0.5
+    assert abs(sum(ranks) / draws - mean) < 4 * sd / draws**0.5
+    for j in (1, 3, 8):
+        assert _within(sum(r <= j for r in ranks), draws, 1 - (1 - j / n) ** k)
+
+
+@pytest.mark.parametrize(
+    "kinds",
+    [
+        {"insert": 0.3, "replace": 0.3, "swap": 0.3, "delete": 0.1},  # the default (the thesis's)
+        {"insert": 1.0, "swap": 0.0, "delete": 3.0},  # a zero weight and an absent kind: never drawn
+    ],
+)
+def test_mutation_kinds_are_drawn_with_their_weights(monkeypatch, kinds):
+    """`Variation.mutate` draws one kind per call with `random.choices` weighted by `mutation_kinds` (the
+    CURRENT rule), and runs that kind's operator; 3000 draws."""
+    import src.gp.search as search_module
+
+    counts = dict.fromkeys(("insert", "replace", "swap", "delete"), 0)
+
+    def operator(kind):
+        def run(individual, *args):
+            counts[kind] += 1
+            return (individual,)
+
+        return run
+
+    for kind in counts:
+        monkeypatch.setattr(search_module, f"mut_{kind}", operator(kind))
+    search = GPSearch(_TextFitness(), SEED, SearchParams(mutation_kinds=kinds), *_pset_book())
+    random.seed(2)
+    ind, draws = Individual(parse("1.0 * 2.0")), 3000
+    for _ in range(draws):
+        (out,) = search.variation.mutate(ind)
+        assert str(out) == "mul(1.0, 2.0)"
+    total = sum(kinds.values())
+    assert sum(counts.values()) == draws
+    for kind, count in counts.items():
+        p = kinds.get(kind, 0.0) / total
+        assert count == 0 if p == 0 else _within(count, draws, p), counts
+
+
+def test_seeded_island_is_the_seed_copies_then_one_mutation_each(monkeypatch):
+    """`seeded_island`: max(1, round(0.1 n)) copies of the seed first, then n - copies calls of `mutate`,
+    each on a fresh copy of the seed."""
+    search = GPSearch(_TextFitness(), SEED, SearchParams(), *_pset_book())
+    calls = []
+
+    def mutate(ind):
+        calls.append(str(ind))
+        child = Individual(parse(f"{float(len(calls))!r}"))
+        return (child,)
+
+    monkeypatch.setattr(search.variation, "mutate", mutate)
+    for n, copies in ((20, 2), (5, 1), (30, 3)):
+        calls.clear()
+        search.params = SearchParams(population=n)
+        island = search.seeded_island()
+        assert [str(ind) for ind in island[:copies]] == [str(search.seed)] * copies
+        assert all(ind is not search.seed for ind in island)
+        assert calls == [str(search.seed)] * (n - copies)
+        assert [str(ind) for ind in island[copies:]] == [repr(float(j)) for j in range(1, n - copies + 1)]
+
+
+def test_evaluate_gives_every_unevaluated_tree_its_fitness_once():
+    fit = _TextFitness()
+    search = GPSearch(fit, SEED, SearchParams(), *_pset_book())
+    a, b, c, d = (Individual(parse(x)) for x in ("1.0 * 2.0", "1.0 * 2.0", "3.0", "5.0"))
+    d.fitness.values = (7.0,)  # already evaluated: kept, not asked again
+    search.evaluate([a, b, c, d])
+    assert fit.calls == [["mul(1.0, 2.0)", "3.0"]]
+    assert [x.fitness.values[0] for x in (a, b, c, d)] == [_text_fitness("mul(1.0, 2.0)")] * 2 + [
+        _text_fitness("3.0"),
+        7.0,
+    ]
+    search.evaluate([a, d])
+    assert len(fit.calls) == 1  # nothing left to evaluate: no call
+
+
+def test_fitness_is_recomputed_after_variation():
+    """A child whose expression changed never keeps its parent's fitness: after every generation each
+    individual's fitness is the fitness of its own text; the only trees evaluated are the varied children
+    (distinct texts once each), replicas keep theirs."""
+    fit = _TextFitness()
+    search = GPSearch(fit, SEED, SearchParams(islands=2, population=12, seed=5), *_pset_book())
+    fresh: list[list[str]] = []
+    offspring = search.offspring
+
+    def recording_offspring(island):
+        out = offspring(island)
+        fresh.append([str(ind) for ind in out if not ind.fitness.valid])
+        return out
+
+    search.offspring = recording_offspring
+    state = search.start()
+    changed = 0
+    for generation in range(1, 5):
+        fresh.clear()
+        parents = {str(ind) for island in state.islands for ind in island}
+        calls = len(fit.calls)
+        state = search.step(state)
+        for island in state.islands:
+            for ind in island:
+                assert ind.fitness.values == (_text_fitness(str(ind)),), str(ind)
+                changed += str(ind) not in parents
+        texts = list(dict.fromkeys(t for island in fresh for t in island))
+        assert fit.calls[calls:] == ([texts] if texts else [])
+        assert state.history[-1]["generation"] == generation and state.history[-1]["evaluations"] == len(
+            texts
+        )
+    assert changed > 20  # the variation did change expressions
+
+
+def test_migration_is_on_schedule_and_moves_each_best_to_the_next_islands_worst():
+    """Migration after generations 3 and 6 of 7 (migration_interval 3), never otherwise: a copy of island
+    i's best takes the place of island (i + 1) mod 3's worst (the first of equal worst), computed here from
+    the islands before migration."""
+    fit = _TextFitness()
+    search = GPSearch(
+        fit, SEED, SearchParams(islands=3, population=6, migration_interval=3, seed=2), *_pset_book()
+    )
+    migrations = []
+    migrate = search.migrate
+
+    def recording_migrate(islands):
+        before = [[(str(ind), ind.fitness.values[0]) for ind in island] for island in islands]
+        migrate(islands)
+        migrations.append(
+            (before, [[(str(ind), ind.fitness.values[0]) for ind in island] for island in islands])
+        )
+
+    search.migrate = recording_migrate
+    state = search.start()
+    assert migrations == []
+    for generation in range(1, 8):
+        n = len(migrations)
+        state = search.step(state)
+        assert len(migrations) - n == (1 if generation in (3, 6) else 0), generation
+        if generation not in (3, 6):
+            continue
+        before, after = migrations[-1]
+        expected = [list(island) for island in before]
+        for i in range(3):
+            source, target = before[(i - 1) % 3], before[i]
+            best = min(range(len(source)), key=lambda j: source[j][1])
+            worst = max(range(len(target)), key=lambda j: target[j][1])
+            assert source[best][1] < target[worst][1]  # a real exchange
+            expected[i][worst] = source[best]
+        assert after == expected
+        assert [[(str(ind), ind.fitness.values[0]) for ind in island] for island in state.islands] == after
+
+
+def test_migration_of_two_replaces_the_two_worst_in_place_and_two_islands_exchange():
+    """migrants=2: island i's best and second best replace island (i + 1)'s worst and second worst, at their
+    positions; with two islands each sends to the other."""
+    search = GPSearch(_TextFitness(), SEED, SearchParams(islands=2, migrants=2), *_pset_book())
+    islands = [_ranked_island(6), _ranked_island(6)]
+    for ind in islands[1]:
+        ind.fitness.values = (ind.fitness.values[0] + 0.5,)
+    before = [[(str(ind), ind.fitness.values[0]) for ind in island] for island in islands]
+    search.migrate(islands)
+    for i in range(2):
+        source, target = before[1 - i], before[i]
+        expected = list(target)
+        order = sorted(range(6), key=lambda j: source[j][1])
+        worst = sorted(range(6), key=lambda j: -target[j][1])
+        expected[worst[0]], expected[worst[1]] = source[order[0]], source[order[1]]
+        assert [(str(ind), ind.fitness.values[0]) for ind in islands[i]] == expected
+
+
+def _relmse_np(x, y, eps=0.01):
+    """Per image: mean over pixels of the sum over channels of (x - y)^2 / (y^2 + eps) (Eq. 3.5 without
+    its m/2 factor), numpy."""
+    return ((x - y) ** 2 / (y**2 + eps)).sum(axis=1).reshape(len(x), -1).mean(axis=1)
+
+
+def _box_np(x, r):
+    """Box filter of radius r with replicate borders, numpy: what the constant weight computes."""
+    _, _, h, w = x.shape
+    p = np.pad(x, ((0, 0), (0, 0), (r, r), (r, r)), mode="edge")
+    shifts = [
+        p[:, :, r + dy : r + dy + h, r + dx : r + dx + w]
+        for dy in range(-r, r + 1)
+        for dx in range(-r, r + 1)
+    ]
+    return sum(shifts) / len(shifts)
+
+
+def _unequal_noise_images():
+    """Two 12x12 images of vertical stripes (0.2 / 0.8, per channel scaled), noise sigma 0.02 on the first
+    and 0.5 on the second (negative colours included): a box filter worsens the first (it blurs the
+    stripes more than there is noise) and improves the second, so the mean of the per-image ratios and the
+    ratio of the means differ clearly."""
+    g = torch.Generator().manual_seed(4)
+    cols = torch.arange(12, dtype=torch.float64)
+    stripes = torch.where((cols // 3) % 2 == 0, 0.2, 0.8).view(1, 1, 1, 12).expand(2, 3, 12, 12)
+    ref = stripes * torch.tensor([1.0, 0.7, 1.3], dtype=torch.float64).view(1, 3, 1, 1)
+    sigma = torch.tensor([0.02, 0.5], dtype=torch.float64).view(2, 1, 1, 1)
+    color = ref + sigma * torch.randn(2, 3, 12, 12, generator=g, dtype=torch.float64)
+    depth = torch.rand(2, 1, 12, 12, generator=g, dtype=torch.float64)
+    depth[0] = 0.5  # constant on the first image: distance2(depth, depth) has a zero weight sum there
+    return {"color": color, "depth": depth}, color, ref.contiguous()
+
+
+def test_fitness_is_the_mean_of_per_image_ratios_on_images_of_unequal_noise():
+    feats, color, ref = _unequal_noise_images()
+    c, y = color.numpy(), ref.numpy()
+    box = _box_np(c, 1)
+    ratios = _relmse_np(box, y) / _relmse_np(c, y)
+    expected = float(ratios.mean())
+    ratio_of_means = float(_relmse_np(box, y).mean() / _relmse_np(c, y).mean())
+    assert ratios[0] > 1.5 and ratios[1] < 0.5 and abs(expected - ratio_of_means) > 0.5  # the fixture bites
+    trees = [
+        parse("2.0"),  # the box filter
+        parse("biweight(distance1(pixel, pixel))"),  # weight only at q = p: the noisy image, ratio 1
+        parse("sqrt(neg(2.0))"),  # undefined everywhere
+        parse("1.0"),  # the box filter again
+        parse("distance2(depth, depth)"),  # undefined (zero weight sum) on the first image only
+    ]
+    fitness = Fitness(feats, color, ref, radius=1, tree_batch=2)
+    values = fitness(trees)
+    assert values[0] == pytest.approx(expected, rel=1e-12) and values[3] == values[0]
+    assert values[1] == pytest.approx(1.0, rel=1e-12)
+    assert values[2] == WORST and values[4] == WORST
+    assert fitness.evaluations == 5
+    assert fitness(trees[:1]) == values[:1] and fitness.evaluations == 6
+    # a wider window: radius 2 (5x5 box)
+    box2 = _box_np(c, 2)
+    value2 = Fitness(feats, color, ref, radius=2)([parse("2.0")])[0]
+    assert value2 == pytest.approx(float((_relmse_np(box2, y) / _relmse_np(c, y)).mean()), rel=1e-12)
+
+
+def test_fitness_refuses_a_training_image_without_noise():
+    feats, color, ref = _unequal_noise_images()
+    color = color.clone()
+    color[1] = ref[1]  # the second image is its reference: relMSE(noisy) = 0, every ratio undefined
+    with pytest.raises(DataError, match="equals its reference"):
+        Fitness(feats, color, ref, radius=1)
