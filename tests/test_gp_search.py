@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from src.errors import DataError
-from src.gp.grammar import GRAMMAR_VECTORS
+from src.gp.grammar import GRAMMAR_VECTORS, Vector
 from src.gp.published import bilateral_expression
 from src.gp.search import (
     WORST,
@@ -658,3 +658,176 @@ def test_fitness_refuses_a_training_image_without_noise():
     color[1] = ref[1]  # the second image is its reference: relMSE(noisy) = 0, every ratio undefined
     with pytest.raises(DataError, match="equals its reference"):
         Fitness(feats, color, ref, radius=1)
+
+
+def test_crossover_exchanges_the_one_common_type_point_exactly():
+    """cx_one_point on a 2-node tree and a tree whose only float point below the root is distance2: the
+    exchange is forced (the float points are 1.0 and distance2's subtree), in either argument order."""
+    pset, _ = _pset_book()
+    random.seed(0)
+    for _ in range(5):
+        a, b = cx_one_point(Individual(parse("neg(1.0)", pset)), Individual(parse(SHORT_VECTOR, pset)))
+        assert (str(a), str(b)) == ("neg(distance2(normal, normal))", "exp(1.0)")
+        b, a = cx_one_point(Individual(parse(SHORT_VECTOR, pset)), Individual(parse("neg(1.0)", pset)))
+        assert (str(a), str(b)) == ("neg(distance2(normal, normal))", "exp(1.0)")
+    # a single node has no point below its root: nothing is exchanged
+    a, b = cx_one_point(Individual(parse("1.0", pset)), Individual(parse(SHORT_VECTOR, pset)))
+    assert (str(a), str(b)) == ("1.0", SHORT_VECTOR)
+
+
+SHORT_VECTOR = "exp(distance2(normal, normal))"
+
+
+def test_crossover_draws_the_common_type_then_a_point_of_it_in_each():
+    """Both types common: float (the distance subtrees, one point each) or Vector (two terminal points
+    each), 1/2 each; a Vector exchange swaps one terminal of each; 2000 draws."""
+    pset, _ = _pset_book()
+    random.seed(3)
+    float_swaps, vector_swaps, draws = 0, {}, 2000
+    for _ in range(draws):
+        a, b = cx_one_point(
+            Individual(parse(SHORT_VECTOR, pset)), Individual(parse("exp(distance1(depth, texture))", pset))
+        )
+        if str(a) == "exp(distance1(depth, texture))":
+            assert str(b) == SHORT_VECTOR
+            float_swaps += 1
+        else:
+            vector_swaps[str(a), str(b)] = vector_swaps.get((str(a), str(b)), 0) + 1
+    assert _within(float_swaps, draws, 0.5)
+    pairs = {
+        (f"exp(distance2({x}, {y}))", f"exp(distance1({u}, {v}))")
+        for k, z in enumerate(("depth", "texture"))
+        for j in range(2)
+        for x, y, u, v in [
+            (
+                z if j == 0 else "normal",
+                z if j == 1 else "normal",
+                "normal" if k == 0 else "depth",
+                "normal" if k == 1 else "texture",
+            )
+        ]
+    }
+    assert set(vector_swaps) == pairs  # each of the 2 x 2 terminal pairs
+    for count in vector_swaps.values():
+        assert _within(count, draws, 1 / 8)
+
+
+def test_parent_is_the_nearest_node_above_whose_subtree_holds_the_index():
+    from src.gp.search import _parent
+
+    for text in (SEED, "exp(-distance2(normal, normal))", "mitchell(distance1(depth, texture)) * 0.3"):
+        tree = parse(text)
+        for i in range(1, len(tree)):
+            expected = max(j for j in range(i) if tree.searchSubtree(j).stop > i)
+            assert _parent(tree, i) == expected, (text, i)
+    with pytest.raises(IndexError):
+        _parent(parse("1.0 + 2.0"), 3)
+
+
+def test_swap_exchanges_two_disjoint_subtrees_adjacent_ones_included():
+    """mut_swap with one try on add(1.0, 2.0): of the 9 equally likely point pairs only (1, 2) and (2, 1)
+    are type-compatible and disjoint (the adjacent leaves; the root overlaps both): a swap 2/9 of the time;
+    with the default 20 tries, all but (7/9)^20 of the time."""
+    random.seed(4)
+    draws = 1800
+    one_try = [str(mut_swap(Individual(parse("1.0 + 2.0")), tries=1)[0]) for _ in range(draws)]
+    assert set(one_try) == {"add(1.0, 2.0)", "add(2.0, 1.0)"}
+    assert _within(one_try.count("add(2.0, 1.0)"), draws, 2 / 9)
+    default = [str(mut_swap(Individual(parse("1.0 + 2.0")))[0]) for _ in range(200)]
+    assert default.count("add(2.0, 1.0)") >= 195
+
+
+def test_island_stats_by_value():
+    from src.gp.search import island_stats
+    from src.gp.text import to_infix
+
+    island = []
+    for text, value in (
+        ("1.0", WORST),
+        ("neg(2.0)", 0.5),
+        ("2.0 * 3.0", 0.25),
+        ("5.0", WORST),
+        ("7.0", 0.75),
+    ):
+        ind = Individual(parse(text))
+        ind.fitness.values = (value,)
+        island.append(ind)
+    assert island_stats(island) == {"best": 0.25, "mean": 0.5, "invalid": 2, "best_expression": "2.0 * 3.0"}
+    for ind in island:
+        ind.fitness.values = (WORST,)
+    stats = island_stats(island)
+    assert stats == {"best": WORST, "mean": WORST, "invalid": 5, "best_expression": to_infix(island[0])}
+
+
+def test_a_fitness_that_drops_a_tree_is_an_error():
+    search = GPSearch(lambda trees: [0.5] * (len(trees) - 1), SEED, SearchParams(), *_pset_book())
+    with pytest.raises(ValueError):
+        search.evaluate([Individual(parse("1.0")), Individual(parse("2.0"))])
+
+
+def test_run_reports_every_generation_and_records_its_history():
+    fit = _TextFitness()
+    params = SearchParams(islands=2, population=5, generations=3, seed=1)
+    seen = []
+    state = GPSearch(fit, SEED, params, *_pset_book()).run(on_generation=lambda s: seen.append(s.generation))
+    assert seen == [0, 1, 2, 3] and state.generation == 3
+    from src.gp.search import island_stats
+
+    assert [h["generation"] for h in state.history] == [0, 1, 2, 3]
+    assert state.history[0]["evaluations"] == 10  # generation 0: every individual of both islands
+    assert set(state.history[-1]) == {"generation", "evaluations", "islands"}
+    assert state.history[-1]["islands"] == [island_stats(island) for island in state.islands]
+    more = GPSearch(fit, SEED, SearchParams(**{**params.__dict__, "generations": 5}), *_pset_book())
+    seen.clear()
+    more.run(state=state, on_generation=lambda s: seen.append(s.generation))
+    assert seen == [4, 5]
+
+
+def test_load_state_refuses_other_files_and_names_only_the_differing_parameters(tmp_path):
+    params = SearchParams(islands=1, population=3, generations=0, seed=1)
+    state = GPSearch(_TextFitness(), SEED, params, *_pset_book()).run()
+    save_state(tmp_path / "s.json", state, params)
+    (tmp_path / "other.json").write_text(json.dumps({"format": "something else"}))
+    with pytest.raises(DataError, match="not a search checkpoint"):
+        load_state(tmp_path / "other.json", params)
+    other = SearchParams(**{**params.__dict__, "tournament_size": 3, "seed": 2, "generations": 9})
+    with pytest.raises(DataError, match=r"other parameters \(seed, tournament_size\)$"):
+        load_state(tmp_path / "s.json", other)
+
+
+def test_search_grammar_keeps_only_the_available_terminals_and_pixel():
+    from src.gp.grammar import PSET, VECTORS
+
+    pset = search_pset(["normal", "nVariance"])
+    assert {t.name for t in pset.terminals[Vector]} == {"normal", "pixel"}
+    constants = {"0.1", "0.2", "0.3", "0.3333", "1.0", "2.0", "3.0", "pi", "5.0", "7.0", "11.0", "13.0"}
+    assert {t.name for t in pset.terminals[float]} == constants | {"nVariance"}
+    assert pset.terms_count == 2 + 13
+    assert (
+        len(PSET.terminals[Vector]) == len(VECTORS) and PSET.terms_count == len(VECTORS) + 6 + 12
+    )  # untouched
+
+
+def test_kernel_expressions_are_every_kernel_of_every_feature_and_the_gaussian():
+    kernels = ("mitchell", "sinc", "epanechnikov", "biweight", "tricube")
+    expected = []
+    for f in ("normal", "depth"):
+        expected += [f"{k}(distance2({f}, {f}))" for k in kernels]
+        expected.append(f"exp(-(distance2({f}, {f}) ** 2.0 / (2.0 * 0.1 ** 2.0)))")
+    assert kernel_expressions(["normal", "depth"]) == expected
+
+
+def test_search_parameters_are_checked():
+    for bad in (
+        {"replication": 0.5},  # shares sum to 1.4
+        {"mutation": 0.44},  # 0.99
+        {"mutation_kinds": {"hoist": 1.0}},
+        {"mutation_kinds": {"insert": 0.0, "swap": 0.0}},
+    ):
+        with pytest.raises(ValueError):
+            SearchParams(**bad)
+    SearchParams(replication=0.2, crossover=0.4, mutation=0.4, mutation_kinds={"swap": 1.0, "delete": 0.0})
+    seed_length = len(parse(SEED))
+    GPSearch(_TextFitness(), SEED, SearchParams(max_length=seed_length), *_pset_book())  # at the limit: fine
+    with pytest.raises(ValueError, match="over max_length"):
+        GPSearch(_TextFitness(), SEED, SearchParams(max_length=seed_length - 1), *_pset_book())
