@@ -363,48 +363,73 @@ def test_offspring_operator_mix_is_the_current_per_draw_rule(monkeypatch):
     r = random.random(), r < replication (0.10) adds one replica (a tournament winner, unchanged, fitness
     kept), r < replication + crossover (0.55) one crossover adding BOTH its children, each then mutated with
     probability crossover_mutation (0.85), else one mutant of a winner; the shares are per draw, not per
-    individual (a crossover adds two), and the island is cut to its size. Measured over ~1400 draws."""
+    individual (a crossover adds two), draws stop once the island is full, and a second crossover child
+    beyond its size is cut. Every call to select / mate / mutate is logged; ~1400 draws over 40 islands."""
     search = GPSearch(_TextFitness(), SEED, SearchParams(islands=1, population=50), *_pset_book())
-    mates, cx_mutations = [], []
+    events: list[str] = []
+    select = search.select
+
+    def logged_select(island):
+        events.append("select")
+        return select(island)
 
     def mate(a, b):
-        mates.append(1)
+        events.append("mate")
         a.origin = b.origin = "crossover"
         return a, b
 
     def mutate(ind):
-        if getattr(ind, "origin", None) == "crossover":
-            cx_mutations.append(1)
-        ind.origin = "mutation" if getattr(ind, "origin", None) is None else ind.origin
+        events.append("cx-mutate" if getattr(ind, "origin", None) == "crossover" else "mutate")
+        ind.origin = getattr(ind, "origin", None) or "mutation"
         return (ind,)
 
+    monkeypatch.setattr(search, "select", logged_select)
     monkeypatch.setattr(search.variation, "mate", mate)
     monkeypatch.setattr(search.variation, "mutate", mutate)
     random.seed(11)
     island = _ranked_island(50)
     by_text = {str(ind): ind for ind in island}
-    replicas = mutants = crossover_children = 0
+    draws = {"replication": 0, "crossover": 0, "mutation": 0}
+    cx_children = cx_mutations = 0
     for _ in range(40):
+        events.clear()
         new = search.offspring(island)
-        assert len(new) == 50
+        # parse the log into draws: select (replica) | select mutate | select select mate [cx-mutate]*
+        kinds, i = [], 0
+        while i < len(events):
+            assert events[i] == "select", events
+            if events[i + 1 : i + 3] == ["select", "mate"]:
+                kinds.append("crossover")
+                i += 3
+                while i < len(events) and events[i] == "cx-mutate":
+                    cx_mutations += 1
+                    i += 1
+            elif events[i + 1 : i + 2] == ["mutate"]:
+                kinds.append("mutation")
+                i += 2
+            else:
+                kinds.append("replication")
+                i += 1
+        sizes = [2 if kind == "crossover" else 1 for kind in kinds]
+        assert sum(sizes[:-1]) < 50 <= sum(sizes) and len(new) == 50  # no draw once the island is full
+        for kind in kinds:
+            draws[kind] += 1
+        cx_children += 2 * kinds.count("crossover")
+        origins = [getattr(ind, "origin", None) for ind in new]
+        assert origins.count(None) == kinds.count("replication")
+        assert origins.count("mutation") == kinds.count("mutation")
+        assert origins.count("crossover") == 2 * kinds.count("crossover") - (sum(sizes) - 50)
         for ind in new:
-            origin = getattr(ind, "origin", None)
-            if origin is None:  # a replica: a copy of an island member, its fitness kept
-                replicas += 1
+            if getattr(ind, "origin", None) is None:  # a replica: a copy of an island member, fitness kept
                 parent = by_text[str(ind)]
                 assert ind is not parent and ind.fitness.valid and ind.fitness.values == parent.fitness.values
             else:  # every varied child is evaluated again, whether or not its expression changed
                 assert not ind.fitness.valid
-                mutants += origin == "mutation"
-                crossover_children += origin == "crossover"
-    draws = replicas + len(mates) + mutants
-    assert 40 * 50 / 1.45 * 0.95 < draws < 40 * 50 / 1.45 * 1.05  # E[individuals per draw] = 1.45
-    assert (
-        _within(replicas, draws, 0.10) and _within(len(mates), draws, 0.45) and _within(mutants, draws, 0.45)
-    )
-    # both children of every crossover are kept (but the last one of an island, cut at its size)
-    assert 2 * len(mates) - 40 <= crossover_children <= 2 * len(mates)
-    assert _within(len(cx_mutations), 2 * len(mates), 0.85)
+    total = sum(draws.values())
+    assert 40 * 50 / 1.45 * 0.95 < total < 40 * 50 / 1.45 * 1.05  # E[individuals per draw] = 1.45
+    for kind, p in (("replication", 0.10), ("crossover", 0.45), ("mutation", 0.45)):
+        assert _within(draws[kind], total, p), draws
+    assert _within(cx_mutations, cx_children, 0.85)
 
 
 def test_tournament_of_8_picks_the_lowest_fitness_of_its_draws():
@@ -831,3 +856,18 @@ def test_search_parameters_are_checked():
     GPSearch(_TextFitness(), SEED, SearchParams(max_length=seed_length), *_pset_book())  # at the limit: fine
     with pytest.raises(ValueError, match="over max_length"):
         GPSearch(_TextFitness(), SEED, SearchParams(max_length=seed_length - 1), *_pset_book())
+
+
+def test_best_per_island_is_the_lowest_fitness_first_of_equals():
+    from src.gp.search import SearchState, best_per_island
+
+    islands = []
+    for values in ((3.0, 1.0, 2.0, 1.0), (WORST, 0.5, 0.25)):
+        island = []
+        for j, value in enumerate(values):
+            ind = Individual(parse(f"{float(j + 1)!r}"))
+            ind.fitness.values = (value,)
+            island.append(ind)
+        islands.append(island)
+    best = best_per_island(SearchState(islands, 0, random.getstate(), []))
+    assert best[0] is islands[0][1] and best[1] is islands[1][2]
