@@ -459,6 +459,28 @@ def test_a_feature_of_the_wrong_shape_is_named(shape):
         filter_images([parse("exp(-distance2(normal, normal))")], feats, feats["color"], 1)
 
 
+def test_pi_is_the_constant_pi():
+    """`pi` is a named terminal (its DEAP value is the string "pi"): a constant, not a feature to read."""
+    like = torch.zeros(1, 3, 4, 5, dtype=torch.float64)
+    weights = window_weights(parse("pi * distance1(pixel, pixel) + pi"), {}, like, radius=1)[0]
+    expected = [math.pi * (abs(dy) + abs(dx)) + math.pi for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    np.testing.assert_allclose(weights[:, 2, 3].numpy(), expected, rtol=1e-15)
+    assert required_terminals([parse("pi * 2.0")]) == set()
+
+
+def test_ill_typed_trees_are_refused():
+    """Trees built by hand past the typed grammar: a vector operator on a scalar, a vector terminal as a
+    scalar."""
+    feats = random_features(1, 3, 3)
+    m = PSET.mapping
+    on_scalar = gp.PrimitiveTree([m["distance2"], m["1.0"], m["normal"]])
+    with pytest.raises(ExpressionError, match="distance2 takes two vector terminals"):
+        filter_images([on_scalar], feats, feats["color"], 1)
+    vector_as_scalar = gp.PrimitiveTree([m["mul"], m["normal"], m["1.0"]])
+    with pytest.raises(ExpressionError, match="a vector terminal outside a vector operator"):
+        filter_images([vector_as_scalar], feats, feats["color"], 1)
+
+
 def test_missing_feature_is_named():
     feats = random_features(1, 3, 3)
     del feats["depth"]
