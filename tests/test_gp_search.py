@@ -871,3 +871,19 @@ def test_best_per_island_is_the_lowest_fitness_first_of_equals():
         islands.append(island)
     best = best_per_island(SearchState(islands, 0, random.getstate(), []))
     assert best[0] is islands[0][1] and best[1] is islands[1][2]
+
+
+def test_a_defined_expression_whose_error_overflows_gets_the_worst_fitness():
+    """Negative lobes amplify: weight 1 at the centre and -0.124 at the 8 neighbours sum to 0.008, so a
+    float32 spike of 1e18 filters to 1.25e20, finite (the expression is defined on the image), but its
+    squared error overflows to inf: the fitness is WORST, not inf."""
+    from src.gp.evaluate import filter_images
+
+    ref = torch.full((1, 3, 5, 5), 0.5)
+    color = ref.clone()
+    color[0, 0, 2, 2] = 1e18
+    tree = parse("1.0 - 1.124 * distanceMax(pixel, pixel)")
+    result = filter_images([tree], {}, color, 1)
+    assert bool(result.valid[0].all())
+    assert float(result.color[0][0, 0, 2, 2]) == pytest.approx(1.25e20, rel=1e-3)
+    assert Fitness({}, color, ref, radius=1)([tree]) == [WORST]
