@@ -728,3 +728,25 @@ def test_cuda_evaluation_equals_cpu():
     for a, b in zip(cpu.color, gpu.color, strict=True):
         assert b.device.type == "cuda"
         torch.testing.assert_close(b.cpu(), a, rtol=1e-4, atol=1e-5)
+
+
+# Surviving mutants of src/gp/evaluate.py (bash scripts/mutation.sh gp_eval), all equivalent here:
+# - `device=` dropped or None (_pixel_grid, _Inputs.neighbour, _static_values, _vector_value; 10 mutants):
+#   the same on the CPU these tests run on (the CUDA test above is skipped without a GPU).
+# - _pixel_grid `view(1, 1, h, 1)` -> `view(1, h, 1)` (and `view(1, 1, w)` for the columns): expand
+#   broadcasts both to the same (n, 1, h, w); `dtype=` dropped or None for the rows or the columns: the
+#   int64 one is promoted to the other's float dtype by `torch.cat`. _Inputs.neighbour's offset
+#   `dtype=` dropped or None: int64 (dy, dx, 0) promotes with the float coordinates; `offset.view(3, 1, 1)`
+#   broadcasts as (1, 3, 1, 1).
+# - _vector_value's pixel fast path misspelt (`a == b == "XXpixelXX"`, "PIXEL"): the general path computes
+#   the same distance between p and p + offset (the fast path only saves the work; pixel against another
+#   feature is pinned above).
+# - _Inputs `if name != "pixel"` misspelt: the pixel grid is padded too, and never read padded.
+# - _offset_values `if node.kind != "vector"` -> `or True` or the kind misspelt: a vector node's children
+#   are feature names, never keys of `last_use`, so nothing more is freed; `key not in pending and key not
+#   in plan.last_use` -> `key in pending and ...`: the original branch never runs (every varying node but a
+#   root is read by a later one, so it is in last_use), and the mutant frees a root after it was yielded
+#   and used.
+# - Plan._add: a `_Node`'s `key` None (the dict key is used, the field never read), a variable's or a
+#   constant's `children` None or a constant's `name` None (static nodes: neither is read), `"binary"`
+#   misspelt (`_apply` only tests `kind == "unary"`).
