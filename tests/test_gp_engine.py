@@ -331,6 +331,8 @@ MIXED = [
     "epanechnikov(distanceMax(depth, texture) / 3.0) + tricube(distance2(wpGradient, wpGradient)) + 0.2",
     "exp(mitchell(distance2(secondaryTexture, secondaryTexture) * 3.0) - dot(pixel, pixel) / 100.0)",
     "pow(1.0 + atan(distance1(dovGradient, diGradient)), cos(diVariance)) + 0.0 * secTexVariance",
+    # pixel against another feature: its coordinates (row, column, 0) at p, or the virtual ones at q
+    "exp(-distance2(texture, pixel) / 4.0) + distance1(pixel, depth) * 0.1 + dot(normal, pixel) ** 2.0",
 ]
 
 
@@ -416,6 +418,67 @@ def test_undefined_expressions_are_flagged_invalid():
     for text, expected in cases.items():
         result = filter_images([parse(text)], flat, flat["color"], radius=1)
         assert result.valid[0].tolist() == expected, text
+
+
+def test_intermediate_values_are_freed_after_their_last_use():
+    """Per offset, a varying value is freed once the last node reading it has run: twelve nested sines
+    above a distance hold no more memory at their peak than two (without the freeing, ten more planes)."""
+    feats = random_features(1, 16, 16, seed=6, dtype=torch.float32)
+    plane = 16 * 16 * 4  # bytes of one (1, 1, 16, 16) float32 value
+    peaks = {}
+    for depth in (2, 12):
+        text = "sin(" * depth + "distance2(normal, normal)" + ")" * depth
+        with _Allocations() as mode:
+            filter_images([parse(text)], feats, feats["color"], radius=1)
+        peaks[depth] = mode.peak
+    assert peaks[12] - peaks[2] < 2 * plane, (peaks, plane)
+
+
+def test_features_are_computed_in_the_colours_dtype():
+    """Features and variables are converted to the colour's dtype: float32 buffers under a float64 colour
+    give exactly the float64 result (computed in float32, the weights would differ at ~1e-7)."""
+    feats = random_features(1, 6, 7, seed=8, dtype=torch.float32)
+    tree = parse("exp(-distance2(normal, normal) / 0.3 - nVariance / 0.7) + 0.1")
+    color = feats["color"].double()
+    f64 = {k: v.double() for k, v in feats.items()}
+    got = filter_images([tree], feats, color, radius=1).color[0]
+    want = filter_images([tree], f64, color, radius=1).color[0]
+    assert got.dtype == torch.float64
+    torch.testing.assert_close(got, want, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize(
+    "shape",
+    [(1, 3, 5, 6), (2, 3, 6, 6), (2, 3, 5, 7), (2, 2, 5, 6), (3, 5, 6)],
+    ids=["batch", "height", "width", "channels", "ndim"],
+)
+def test_a_feature_of_the_wrong_shape_is_named(shape):
+    feats = random_features(2, 5, 6)
+    feats["normal"] = torch.rand(shape, dtype=torch.float64)
+    with pytest.raises(ExpressionError, match=r"feature 'normal': shape"):
+        filter_images([parse("exp(-distance2(normal, normal))")], feats, feats["color"], 1)
+
+
+def test_pi_is_the_constant_pi():
+    """`pi` is a named terminal (its DEAP value is the string "pi"): a constant, not a feature to read."""
+    like = torch.zeros(1, 3, 4, 5, dtype=torch.float64)
+    weights = window_weights(parse("pi * distance1(pixel, pixel) + pi"), {}, like, radius=1)[0]
+    expected = [math.pi * (abs(dy) + abs(dx)) + math.pi for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    np.testing.assert_allclose(weights[:, 2, 3].numpy(), expected, rtol=1e-15)
+    assert required_terminals([parse("pi * 2.0")]) == set()
+
+
+def test_ill_typed_trees_are_refused():
+    """Trees built by hand past the typed grammar: a vector operator on a scalar, a vector terminal as a
+    scalar."""
+    feats = random_features(1, 3, 3)
+    m = PSET.mapping
+    on_scalar = gp.PrimitiveTree([m["distance2"], m["1.0"], m["normal"]])
+    with pytest.raises(ExpressionError, match="distance2 takes two vector terminals"):
+        filter_images([on_scalar], feats, feats["color"], 1)
+    vector_as_scalar = gp.PrimitiveTree([m["mul"], m["normal"], m["1.0"]])
+    with pytest.raises(ExpressionError, match="a vector terminal outside a vector operator"):
+        filter_images([vector_as_scalar], feats, feats["color"], 1)
 
 
 def test_missing_feature_is_named():
@@ -665,3 +728,25 @@ def test_cuda_evaluation_equals_cpu():
     for a, b in zip(cpu.color, gpu.color, strict=True):
         assert b.device.type == "cuda"
         torch.testing.assert_close(b.cpu(), a, rtol=1e-4, atol=1e-5)
+
+
+# Surviving mutants of src/gp/evaluate.py (bash scripts/mutation.sh gp_eval), all equivalent here:
+# - `device=` dropped or None (_pixel_grid, _Inputs.neighbour, _static_values, _vector_value; 10 mutants):
+#   the same on the CPU these tests run on (the CUDA test above is skipped without a GPU).
+# - _pixel_grid `view(1, 1, h, 1)` -> `view(1, h, 1)` (and `view(1, 1, w)` for the columns): expand
+#   broadcasts both to the same (n, 1, h, w); `dtype=` dropped or None for the rows or the columns: the
+#   int64 one is promoted to the other's float dtype by `torch.cat`. _Inputs.neighbour's offset
+#   `dtype=` dropped or None: int64 (dy, dx, 0) promotes with the float coordinates; `offset.view(3, 1, 1)`
+#   broadcasts as (1, 3, 1, 1).
+# - _vector_value's pixel fast path misspelt (`a == b == "XXpixelXX"`, "PIXEL"): the general path computes
+#   the same distance between p and p + offset (the fast path only saves the work; pixel against another
+#   feature is pinned above).
+# - _Inputs `if name != "pixel"` misspelt: the pixel grid is padded too, and never read padded.
+# - _offset_values `if node.kind != "vector"` -> `or True` or the kind misspelt: a vector node's children
+#   are feature names, never keys of `last_use`, so nothing more is freed; `key not in pending and key not
+#   in plan.last_use` -> `key in pending and ...`: the original branch never runs (every varying node but a
+#   root is read by a later one, so it is in last_use), and the mutant frees a root after it was yielded
+#   and used.
+# - Plan._add: a `_Node`'s `key` None (the dict key is used, the field never read), a variable's or a
+#   constant's `children` None or a constant's `name` None (static nodes: neither is read), `"binary"`
+#   misspelt (`_apply` only tests `kind == "unary"`).
