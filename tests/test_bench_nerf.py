@@ -179,7 +179,10 @@ def test_nerf_bench_times_nerf_pytorch_from_a_directory(capsys, tmp_path):
     assert [r["model"] for r in rows][:2] == ["nerf", "nerf-pytorch"]
     peer = rows[1]
     assert peer["params"] == "42" and peer["render rays/s"] == "-"
-    assert _number(peer["train ratio"]) > 0
+    # time per ray over ours: the stand-in is a single Linear layer, far faster than ours, so its ratio can
+    # print as 0.00 on a busy machine; checked against the two rows' rays/s (integers) instead of > 0.
+    expected = _number(rows[0]["train rays/s"]) / _number(peer["train rays/s"])
+    assert abs(_number(peer["train ratio"]) - expected) <= 0.005 + 0.02 * expected
     assert re.search(r"nerf vs nerf-pytorch: [0-9.]+ x its training rays/s", captured.out)
     assert "Found ckpts" not in captured.out and "Not ndc!" not in captured.out
 
