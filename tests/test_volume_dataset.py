@@ -104,8 +104,8 @@ def test_incomplete_sequences_are_one_line_data_errors(tmp_path, names, needles)
 
 
 def test_layout_is_derived_from_the_integrators_buffers():
+    from src.data.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS
     from src.data.volume_buffers import VOLUME_LAYOUT
-    from src.render.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS
 
     buffers = VOLUME_LAYOUT.buffers
     assert buffers["color"] == ("R", "G", "B")

@@ -231,3 +231,20 @@ def load_blender_split(
         camera_angle_x=angle,
         files=files,
     )
+
+
+def scene_dir(cfg) -> Path:
+    """The folder of the scene this job fits: `<paths.scenes>/<task.scene>`."""
+    return Path(cfg.paths.scenes) / str(cfg.task.scene)
+
+
+def load_split(cfg, split: str, max_images: int | None = None):
+    """A Blender-format split of this job's scene, composited on `dataset.background`."""
+    return load_blender_split(
+        scene_dir(cfg),
+        split,
+        background=tuple(cfg.dataset.background),
+        downscale=int(cfg.dataset.get("downscale", 1) or 1),
+        max_images=max_images,
+        alpha=str(cfg.dataset.alpha),
+    )

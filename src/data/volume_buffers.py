@@ -2,7 +2,7 @@
 
 One EXR per (scene, frame, sample count), ``<scene>-f<FFFF>-<NNNNN>spp.exr`` (e.g.
 ``cloud-0000-f0003-00016spp.exr``), holding every buffer of the volumetric path tracer
-(``src.render.volume_aovs.CHANNEL_COUNT``, ``color`` first) as flat channels in the KPCN/Tungsten style:
+(``src.data.volume_aovs.CHANNEL_COUNT``, ``color`` first) as flat channels in the KPCN/Tungsten style:
 
 * ``R,G,B``: ``color`` (= ``surface`` + ``volume``);
 * ``<buffer>.R/G/B``: three-channel colours and spectral quantities (``surface``, ``volume``,
@@ -30,8 +30,8 @@ from types import MappingProxyType
 import numpy as np
 
 from src.data.exr_buffers import BufferLayout, RepairPolicy, RepairReport, load_buffers, write_buffers
+from src.data.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS
 from src.errors import DataError
-from src.render.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS
 
 _RGB = ("R", "G", "B")
 _XYZ = ("X", "Y", "Z")

@@ -5,7 +5,7 @@ Preprocessing (`src.data.volume_shards`) stores every candidate once per frame; 
 by name at load time, so a feature ablation needs no new preprocessing and channel counts are derived
 from the list. A feature is a buffer's value (`sigma_t`) or its one-channel Monte Carlo variance of the
 pixel mean (`sigma_t.var`). The buffers are those of the volumetric path tracer
-(`src.render.volume_aovs.VOLUME_BUFFERS`, with `color` first) except the raw world-space points
+(`src.data.volume_aovs.VOLUME_BUFFERS`, with `color` first) except the raw world-space points
 `position` and `scatter_position` (not translation invariant: a network would learn the scenes'
 coordinates; they served to compute `motion`), plus `motion` (screen-space flow in pixels, no variance).
 
@@ -36,8 +36,8 @@ from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 
 from src.data.features import channel_indices, check_no_repeats
+from src.data.volume_aovs import CHANNEL_COUNT
 from src.errors import ConfigError
-from src.render.volume_aovs import CHANNEL_COUNT
 
 #: Where the setting lives, for error messages.
 VOLUME_FEATURES_KEY = "task.volume_features"

@@ -19,13 +19,14 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from src.data.blender import load_split, scene_dir
 from src.data.rays import generate_rays
 from src.eval.loop import Evaluation
 from src.io.images import write_png
 from src.metrics.image import image_metrics
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase
-from src.train.nerf_trainer import load_split, render_chunk, scene_dir
+from src.train.nerf_trainer import render_chunk
 
 
 def render_view(model: NerfModelBase, c2w: np.ndarray, split, cfg: DictConfig) -> dict[str, np.ndarray]:

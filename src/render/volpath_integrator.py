@@ -106,9 +106,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from src.data.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS, VOLUME_BUFFERS
 from src.render.aov_integrator import DEFAULT_ALBEDO_SAMPLES, KPCNAovIntegrator, hammersley_3d
 from src.render.moments import MomentAccumulator, variance_of_mean
-from src.render.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS, VOLUME_BUFFERS
 
 #: Registered plugin name.
 PLUGIN_NAME = "nrbench_volpath"

@@ -16,7 +16,7 @@ class NerfTask(Task):
     schema = NerfTaskSchema
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
-        from src.train.nerf_trainer import scene_dir
+        from src.data.blender import scene_dir
 
         producer = "stage=render (or dvc repro; for your own scenes, dataset=blender dataset.root=...)"
         if stage == "train":
@@ -27,7 +27,7 @@ class NerfTask(Task):
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data the runs' `nrbench.data_fingerprint` tag identifies: this job's scene."""
-        from src.train.nerf_trainer import scene_dir
+        from src.data.blender import scene_dir
 
         return scene_dir(cfg)
 

@@ -23,14 +23,13 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterator, Mapping
-from pathlib import Path
 from typing import Any
 
 import torch
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from src.data.blender import load_blender_split
+from src.data.blender import load_split
 from src.data.ray_batches import RayBatcher, step_seed
 from src.data.rays import rays_for_pixels
 from src.errors import ConfigError
@@ -40,23 +39,6 @@ from src.train.device import autocast, autocast_dtype
 from src.train.loop import Means, OnStep, TrainingLoop, run_training
 
 log = logging.getLogger(__name__)
-
-
-def scene_dir(cfg: DictConfig) -> Path:
-    """The folder of the scene this job fits: `<paths.scenes>/<task.scene>`."""
-    return Path(cfg.paths.scenes) / str(cfg.task.scene)
-
-
-def load_split(cfg: DictConfig, split: str, max_images: int | None = None):
-    """A Blender-format split of this job's scene, composited on `dataset.background`."""
-    return load_blender_split(
-        scene_dir(cfg),
-        split,
-        background=tuple(cfg.dataset.background),
-        downscale=int(cfg.dataset.get("downscale", 1) or 1),
-        max_images=max_images,
-        alpha=str(cfg.dataset.alpha),
-    )
 
 
 def mse_to_psnr(mse: float) -> float:

@@ -1,6 +1,8 @@
 """The buffers the volumetric path tracer (``src.render.volpath_integrator``) writes, declared without
 importing Mitsuba: the integrator's film layout and the volumetric EXR layout (``src.data.volume_buffers``)
 are both derived from these, so a buffer added here reaches the files without a second list to update.
+A data layout, so it lives in ``src/data``: the renderer imports it, the data modules never import the
+renderer.
 """
 
 from __future__ import annotations
