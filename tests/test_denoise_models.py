@@ -5,12 +5,14 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 from src.bench.cli import main as bench_main
 from src.data.features import PAPER_CHANNELS
 from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
-from src.models.denoise.kernels import apply_kernel, default_order
+from src.models.denoise.base import Denoiser
+from src.models.denoise.kernels import apply_kernel, default_order, kernel_application_flops
 from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
@@ -363,6 +365,39 @@ def test_flops_per_pixel_of_a_conv_stack_matches_the_closed_form():
     assert flops["conv"] == 2 * per_branch_conv
     assert flops["kernel"] == 2 * (2 * 9 * 3 + 3 * 9)
     assert flops["total"] == flops["conv"] + flops["kernel"]
+
+
+class _OneBranchKernel(Denoiser):
+    """A user's one-branch kernel predictor (k = 5) on the diffuse inputs, outputting colour."""
+
+    kernel_size = 5
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.net = nn.Conv2d(C_IN, 25, 1)
+
+    @property
+    def halo(self) -> int:
+        return 2
+
+    def forward(self, batch):
+        return {"color": apply_kernel(self.net(batch["diffuse_in"]), batch["color"], self.kernel_size)}
+
+
+class _DeclaredOneBranchKernel(_OneBranchKernel):
+    def kernel_flops_per_pixel(self) -> float:
+        return kernel_application_flops(self.kernel_size)
+
+
+def test_kernel_flops_are_what_a_denoiser_declares_not_read_from_its_attribute_names():
+    """One kernel application of k = 5 is 2*25*3 + 3*25 = 225 FLOPs per pixel; the summary once counted
+    every model with a `kernel_size` as two branches (450). A model that declares nothing adds none."""
+    assert kernel_application_flops(5) == 225
+    conv = 2 * C_IN * 25
+    assert flops_per_pixel(_DeclaredOneBranchKernel()) == {"total": conv + 225, "conv": conv, "kernel": 225}
+    assert flops_per_pixel(_OneBranchKernel())["kernel"] == 0
+    two_branch = build_method(tiny_cfg(kernel_size=5))
+    assert flops_per_pixel(two_branch)["kernel"] == 2 * 225 == two_branch.kernel_flops_per_pixel()
 
 
 def test_model_summary_reports_parameters_and_flops():

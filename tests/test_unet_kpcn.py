@@ -9,9 +9,9 @@ from omegaconf import OmegaConf
 
 from src.data.volume_shards import volume_transform
 from src.errors import ConfigError
+from src.models.denoise.kernels import SOFTMAX_FLOPS_PER_TAP
 from src.models.denoise.models import infer_tiled
 from src.models.denoise.summary import (
-    SOFTMAX_FLOPS_PER_TAP,
     flops_per_pixel,
     model_summary,
     random_frame_batch,

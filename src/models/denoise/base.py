@@ -50,6 +50,13 @@ class Denoiser(nn.Module):
     context one output pixel depends on (receptive-field radius), which tiled inference pads tiles by."""
 
     learned: bool = True
+    #: What the trainer, the summary and tiled inference need to know, declared (not guessed from attribute
+    #: names): the network's input channels (None: a filter, which reads the buffers it names), the
+    #: multiple its input height and width must have (a U-Net pads to 2^(scales-1)), and whether it reads
+    #: volumetric frame batches rather than diffuse/specular ones.
+    in_channels: int | None = None
+    size_multiple: int = 1
+    frame_batch: bool = False
 
     @property
     def halo(self) -> int:
@@ -57,6 +64,19 @@ class Denoiser(nn.Module):
 
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
         raise NotImplementedError
+
+    def kernel_flops_per_pixel(self) -> float:
+        """FLOPs per output pixel outside the convolutions (kernel application, composition across scales),
+        which the summary adds to the convolution FLOPs it measures: 0 for a network that outputs colour."""
+        return 0.0
+
+    def compositor_modules(self) -> nn.Module | None:
+        """The modules whose convolutions combine scales (shown apart in the summary); None: none."""
+        return None
+
+    def flops_per_pixel(self) -> float | None:
+        """A filter's whole cost per pixel (a learned model's is measured instead); None: unknown."""
+        return None
 
     def check_batch_keys(self, keys: Collection[str]) -> None:
         """Raise a one-line error naming what `forward` would miss in batches with tensor `keys` (read from

@@ -31,7 +31,7 @@ from torch import nn
 from src.data.volume_shards import VOLUME_TRANSFORMS, inverse_volume_transform
 from src.errors import ConfigError, DataError
 from src.models.denoise.base import Batch, Denoiser
-from src.models.denoise.kernels import apply_kernel
+from src.models.denoise.kernels import apply_kernel, kernel_application_flops
 from src.models.denoise.models import (
     OUTPUTS,
     TwoBranchArgs,
@@ -39,7 +39,6 @@ from src.models.denoise.models import (
     output_channels,
     residual_maker,
 )
-from src.models.denoise.summary import kernel_application_flops
 
 Transform = Literal["log_modulus", "none"]
 

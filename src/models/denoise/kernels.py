@@ -32,6 +32,16 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+#: FLOPs of the softmax per kernel tap (subtract the max, exp, add to the normaliser).
+SOFTMAX_FLOPS_PER_TAP = 3
+
+
+def kernel_application_flops(kernel_size: int, channels: int = 3) -> int:
+    """FLOPs per pixel of one kernel application: 2 * k*k*channels (weighted sum, Bako et al. 2017, Eq. 5-6)
+    + the softmax over the k*k taps."""
+    taps = kernel_size * kernel_size
+    return 2 * taps * channels + SOFTMAX_FLOPS_PER_TAP * taps
+
 
 def _check_shapes(logits: torch.Tensor, image: torch.Tensor, kernel_size: int) -> None:
     if kernel_size < 1 or kernel_size % 2 == 0:

@@ -21,7 +21,7 @@ from torch import nn
 from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
 from src.models.denoise.base import Batch, Denoiser
-from src.models.denoise.kernels import apply_kernel
+from src.models.denoise.kernels import apply_kernel, kernel_application_flops
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.instantiate import at_least
 
@@ -98,6 +98,10 @@ class TwoBranchDenoiser(Denoiser):
         """Network receptive field plus the kernel radius (kernels read k//2 pixels around each pixel)."""
         kernel_radius = self.kernel_size // 2 if self.kernel_size else 0
         return max(self.diffuse_net.halo, self.specular_net.halo) + kernel_radius
+
+    def kernel_flops_per_pixel(self) -> float:
+        """FLOPs per pixel outside the convolutions: each branch's kernel application (0 for direct)."""
+        return len(BRANCHES) * kernel_application_flops(self.kernel_size) if self.kernel_size else 0.0
 
     def _branch_input(self, batch: Batch, branch: str) -> torch.Tensor:
         x = batch[f"{branch}_in"]

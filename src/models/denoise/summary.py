@@ -3,15 +3,13 @@
 FLOPs are counted as 2 x multiply-accumulates (MACs). Convolution MACs are measured, not derived from the
 config: forward hooks on every `nn.Conv2d` record out_channels * (in_channels / groups) * kh * kw MACs per
 output pixel during one forward pass on a small random batch (bias additions and ReLUs are not counted,
-the usual convention). Kernel application (Bako et al. 2017, Eq. 5-6) is reported separately:
-k*k*3 MACs per branch per pixel for the weighted sum, plus ~3*k*k FLOPs for the softmax (subtract max,
-exp, sum).
+the usual convention). The rest is what each denoiser declares (`Denoiser.kernel_flops_per_pixel()`,
+`src/models/denoise/base.py`): the kernel application (Bako et al. 2017, Eq. 5-6; k*k*3 MACs per branch
+per pixel plus ~3*k*k FLOPs for the softmax, `kernels.kernel_application_flops`) of each branch, or the
+U-Net KPCN's kernels at every scale weighted by the scale's pixel fraction plus the composition.
 
-Models of the volumetric frame batches (`frame_batch = True`: `frame_models.py`, `unet_kpcn.py`) are probed
-with `random_frame_batch` and report their non-convolution cost themselves (`kernel_flops_per_pixel()`:
-one branch's kernel application, or the U-Net KPCN's kernels at every scale weighted by the scale's pixel
-fraction plus the composition); their scale compositors' convolutions are counted by the hooks and also
-shown on their own.
+Models of the volumetric frame batches (`frame_batch = True`) are probed with `random_frame_batch`; scale
+compositors' convolutions (`compositor_modules()`) are counted by the hooks and also shown on their own.
 """
 
 from __future__ import annotations
@@ -28,8 +26,6 @@ from src.models.denoise.base import Denoiser
 from src.models.denoise.models import BRANCHES, TwoBranchDenoiser
 from src.models.parameters import count_parameters
 
-#: FLOPs of the softmax per kernel tap (subtract the max, exp, add to the normaliser).
-SOFTMAX_FLOPS_PER_TAP = 3
 #: Side of the random batch the FLOP count runs on: 'same' convolutions cost the same per pixel at any
 #: size, so a tiny frame gives exact per-pixel counts cheaply.
 PROBE_SIZE = 8
@@ -101,8 +97,9 @@ def random_frame_batch(
 
 
 def is_frame_model(model: nn.Module) -> bool:
-    """Whether `model` reads volumetric frame batches (`base.py`) rather than diffuse/specular ones."""
-    return bool(getattr(model, "frame_batch", False))
+    """Whether `model` is a denoiser of volumetric frame batches (`base.py`) rather than diffuse/specular
+    ones."""
+    return isinstance(model, Denoiser) and model.frame_batch
 
 
 def _conv_macs(model: nn.Module, run) -> int:
@@ -125,16 +122,10 @@ def _conv_macs(model: nn.Module, run) -> int:
     return total
 
 
-def kernel_application_flops(kernel_size: int, channels: int = 3) -> int:
-    """FLOPs per pixel of one branch's kernel application: 2 * k*k*channels (weighted sum) + softmax."""
-    taps = kernel_size * kernel_size
-    return 2 * taps * channels + SOFTMAX_FLOPS_PER_TAP * taps
-
-
 def _probe_size(model: nn.Module) -> int:
     """PROBE_SIZE, rounded up to the model's `size_multiple` (a U-Net pads its input to a multiple of
     2^(S-1): probing at such a size keeps the per-pixel counts exact)."""
-    multiple = int(getattr(model, "size_multiple", 1))
+    multiple = int(model.size_multiple) if isinstance(model, Denoiser) else 1
     return -(-max(PROBE_SIZE, multiple) // multiple) * multiple
 
 
@@ -148,31 +139,26 @@ def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) ->
     "total" if it defines one, else every entry is None (unknown).
     """
     if isinstance(model, Denoiser) and not model.learned:
-        own = getattr(model, "flops_per_pixel", None)
-        total = float(own()) if callable(own) else None
-        return {"total": total, "conv": None, "kernel": None}
+        own = model.flops_per_pixel()
+        return {"total": None if own is None else float(own), "conv": None, "kernel": None}
     device = next((p.device for p in model.parameters()), torch.device("cpu"))
     size = _probe_size(model)
     pixels = size * size
     compositor = None
     if isinstance(model, Denoiser):
         # The batch must match the model's inputs, whatever the caller guessed.
-        in_channels = getattr(model, "in_channels", in_channels)
+        in_channels = model.in_channels or in_channels
         make = random_frame_batch if is_frame_model(model) else random_batch
         batch = make(size, size, in_channels=in_channels, device=device)
         conv = 2 * _conv_macs(model, lambda: model(batch)) / pixels
-        compositors = getattr(model, "compositors", None)
+        compositors = model.compositor_modules()
         if compositors is not None:
             compositor = 2 * _conv_macs(compositors, lambda: model(batch)) / pixels
+        kernel = float(model.kernel_flops_per_pixel())
     else:
         x = torch.rand(1, in_channels, size, size, device=device)
         conv = 2 * _conv_macs(model, lambda: model(x)) / pixels
-    own_kernel = getattr(model, "kernel_flops_per_pixel", None)
-    kernel_size = getattr(model, "kernel_size", None)
-    if callable(own_kernel):
-        kernel = float(own_kernel())
-    else:
-        kernel = len(BRANCHES) * kernel_application_flops(kernel_size) if kernel_size else 0
+        kernel = 0.0
     flops = {"total": conv + kernel, "conv": conv, "kernel": kernel}
     return flops if compositor is None else flops | {"compositor": compositor}
 

@@ -47,8 +47,7 @@ from src.data.volume_shards import inverse_volume_transform, volume_transform
 from src.errors import ConfigError
 from src.models.denoise.base import Batch, Denoiser
 from src.models.denoise.frame_models import Transform, check_frame_input, check_transform
-from src.models.denoise.kernels import apply_kernel
-from src.models.denoise.summary import kernel_application_flops
+from src.models.denoise.kernels import apply_kernel, kernel_application_flops
 from src.models.instantiate import at_least
 
 #: `components` -> the frame-batch keys of the (transformed) radiance each kernel head filters.
@@ -237,6 +236,9 @@ class UNetKPCN(Denoiser):
                 radius += (1 + 1) * step  # compositor conv (3x3) and U(D f) / U(c)
         multiple = self.size_multiple
         return -(-radius // multiple) * multiple
+
+    def compositor_modules(self) -> nn.Module:
+        return self.compositors
 
     def kernel_flops_per_pixel(self) -> float:
         """FLOPs per output pixel outside the convolutions: the kernel application at every scale weighted
