@@ -441,3 +441,21 @@ def test_filter_search_runs_report_fitness_search_curves_and_feature_usage(gp_ru
     page = (out / "index.html").read_text()
     assert "Features of the best expressions" in page and "best fitness per generation" in page
     assert len(_embedded_pngs(page)) == 1  # the search curves; no loss curves, no images
+
+
+def test_each_data_kind_and_task_reports_under_its_own_name():
+    """A standalone volumetric job once wrote its report to reports/denoise/, replacing the still-image
+    one: the report's default name follows the MLflow experiment (task and data kind)."""
+    names = {
+        overrides: compose_config(list(overrides)).report.name
+        for overrides in [(), ("dataset=volumetric",), ("task=nerf",), ("task=filter_search",)]
+    }
+    assert names == {
+        (): "denoise",
+        ("dataset=volumetric",): "denoise-volumetric",
+        ("task=nerf",): "nerf",
+        ("task=filter_search",): "filter_search",
+    }
+    still, volume = (compose_config(o) for o in ([], ["dataset=volumetric"]))
+    assert still.tracking.experiment.removeprefix("nrbench-") == still.report.name
+    assert volume.tracking.experiment.removeprefix("nrbench-") == volume.report.name
