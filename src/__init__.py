@@ -27,17 +27,3 @@ OmegaConf.register_new_resolver("nrbench.scale", _scale, replace=True)
 OmegaConf.register_new_resolver("nrbench.channels", _feature_count, replace=True)
 # `${nrbench.volume_channels:${task.volume_features}}`: the same for the volumetric denoiser's inputs.
 OmegaConf.register_new_resolver("nrbench.volume_channels", _volume_feature_count, replace=True)
-
-
-def _selected_volume_features(selection):
-    """`task.volume_features: ${nrbench.selected_volume_features:${task.feature_selection}}`: null (every
-    candidate) unless `size` is set, then the start set plus the first `size` features of the selection
-    (`src.train.select_features.features_for_size`; imported lazily, it needs torch)."""
-    if selection.size is None:
-        return None
-    from src.train.select_features import features_for_size
-
-    return features_for_size(selection)
-
-
-OmegaConf.register_new_resolver("nrbench.selected_volume_features", _selected_volume_features, replace=True)

@@ -65,7 +65,9 @@ def main(cfg: DictConfig) -> dict[str, dict]:
     try:
         validate_run(cfg)  # every value checked before any data is read or any file written
         stages = stages_to_run(cfg)
-        task_of(cfg).check_stages(stages, cfg)
+        task = task_of(cfg)
+        task.resolve_at_job_start(cfg)
+        task.check_stages(stages, cfg)
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
         in_run = [s for s in stages if s not in AFTER_RUN]
         with _tracked_run(cfg, in_run) as tracker:

@@ -34,10 +34,8 @@ LAYERS: dict[str, int] = {
     "run": 8,
     "bench": 8,
 }
-#: src/__init__.py registers the config resolvers, which read the feature catalogues (data) and, for the
-#: feature-selection sizes, a selection stage's output through a training module (train): to move to job
-#: start, where the task resolves it (then this set shrinks to {"data"}).
-PACKAGE_INIT_IMPORTS = {"data", "train"}
+#: src/__init__.py registers the config resolvers, which read the feature catalogues (data).
+PACKAGE_INIT_IMPORTS = {"data"}
 
 
 def _package(path: Path, src: Path = SRC) -> str:

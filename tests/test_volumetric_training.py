@@ -17,7 +17,7 @@ import torch
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.errors import ConfigError
 from src.eval.sequence_eval import SequenceEvaluation
-from src.stages import evaluate, select_features, train
+from src.stages import evaluate, select_features, task_of, train
 from src.tasks.denoise import DenoiseTask
 from src.tracking.mlflow_tracking import job_run
 from src.tracking.tracker import Tracker
@@ -210,8 +210,11 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     table = pd.read_csv(out / "selection.csv")
     assert list(table["rank"]) == [0, 1, 2, 3, 4] and (out / "selection_curve.png").is_file()
     assert (out / "probe" / "checkpoints" / "final.pt").is_file()
-    # A run with size=2 trains on the colour plus the first two, its model sized to match.
+    # A run with size=2 trains on the colour plus the first two, its model sized to match: settled when the
+    # job starts (composing the config reads no stage's output).
     sized = _cfg(vol_data, tmp_path, "task.feature_selection.size=2")
+    assert sized.task.volume_features is None
+    task_of(sized).resolve_at_job_start(sized)
     assert list(sized.task.volume_features) == rows[2]["features"]
     assert sized.model.in_channels == 4 + sum(
         {"albedo": 3, "depth": 1, "transmittance": 1, "motion": 2}[f] for f in rows[2]["features"][2:]
@@ -219,6 +222,7 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     random_arm = _cfg(
         vol_data, tmp_path, "task.feature_selection.size=2", "task.feature_selection.order=random"
     )
+    task_of(random_arm).resolve_at_job_start(random_arm)
     assert len(random_arm.task.volume_features) == 4 and list(random_arm.task.volume_features)[:2] == [
         "color",
         "color.var",

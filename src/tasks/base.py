@@ -24,6 +24,11 @@ class Task:
         method's checkpoint, which every task's evaluation needs, is added by `stages.require_inputs`.)"""
         return {}
 
+    def resolve_at_job_start(self, cfg: DictConfig) -> None:
+        """Settle, in place, the config values that depend on another stage's output (read once, when a job
+        starts, after the schema check and before any stage runs; a missing output is a one-line
+        ConfigError). Default: none."""
+
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
         before any stage runs). Default: every stage can run."""

@@ -179,6 +179,15 @@ class DenoiseTask(Task):
         """The data the runs' `nrbench.data_fingerprint` tag identifies: the raw EXRs."""
         return Path(cfg.paths.raw)
 
+    def resolve_at_job_start(self, cfg: DictConfig) -> None:
+        """`task.feature_selection.size` = k: `task.volume_features` becomes the start set plus the first k
+        features of the selection stage's output (or k drawn at random), so the model's `in_channels`
+        follows; null leaves the configured features."""
+        if cfg.task.feature_selection.size is not None:
+            from src.train.select_features import features_for_size
+
+            cfg.task.volume_features = features_for_size(cfg.task.feature_selection)
+
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Stages this dataset or method cannot run fail at job start (`_check_*`)."""
         for stage in stages:
