@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from src.render.moments import MomentAccumulator, variance_of_mean
+from tests.conftest import one_line_error
 
 
 def test_variance_of_the_mean_of_two_and_four_samples_by_hand():
@@ -82,6 +83,27 @@ def test_the_accumulator_keeps_float64_precision_across_passes():
 def test_the_accumulator_without_a_pass_is_an_error():
     with pytest.raises(ValueError, match="no pass added"):
         MomentAccumulator().mean()
+
+
+def test_variance_of_mean_matches_brute_force():
+    rng = np.random.default_rng(0)
+    samples = rng.gamma(2.0, 1.5, size=(64, 5, 7, 3))  # n samples of a (5, 7, 3) image
+    n = samples.shape[0]
+    mean, second = samples.mean(0), np.square(samples).mean(0)
+    expected = (samples.var(0, ddof=1) / n).mean(-1, keepdims=True)
+    np.testing.assert_allclose(variance_of_mean(mean, second, n), expected, rtol=1e-10)
+    with pytest.raises(ValueError) as excinfo:
+        variance_of_mean(mean, second, 1)
+    one_line_error(excinfo, "at least 2 samples per pixel, got 1")
+
+
+def test_moment_accumulator_merges_passes_of_different_sizes():
+    rng = np.random.default_rng(1)
+    samples = rng.normal(size=(10, 3, 4, 2))
+    acc = MomentAccumulator()
+    acc.add(samples[:7].mean(0), 7)
+    acc.add(samples[7:].mean(0), 3)
+    np.testing.assert_allclose(acc.mean(), samples.mean(0), rtol=1e-12)
 
 
 # Surviving mutants of src/render/moments.py (bash scripts/mutation.sh moments), all equivalent here:

@@ -5,7 +5,6 @@ import pytest
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError, DataError
-from src.render.moments import MomentAccumulator, variance_of_mean
 from src.render.render_dataset import (
     SceneSource,
     load_scene,
@@ -44,27 +43,6 @@ def test_render_key_tracks_each_base_scenes_constants(ds):
     assert render_key(outdoor, changed, 4, "noisy") == render_key(outdoor, ds, 4, "noisy")
     user = {"file": "a.xml", "sha256": "0"}
     assert render_key(user, changed, 4, "noisy") == render_key(user, ds, 4, "noisy")
-
-
-def test_variance_of_mean_matches_brute_force():
-    rng = np.random.default_rng(0)
-    samples = rng.gamma(2.0, 1.5, size=(64, 5, 7, 3))  # n samples of a (5, 7, 3) image
-    n = samples.shape[0]
-    mean, second = samples.mean(0), np.square(samples).mean(0)
-    expected = (samples.var(0, ddof=1) / n).mean(-1, keepdims=True)
-    np.testing.assert_allclose(variance_of_mean(mean, second, n), expected, rtol=1e-10)
-    with pytest.raises(ValueError) as excinfo:
-        variance_of_mean(mean, second, 1)
-    one_line_error(excinfo, "at least 2 samples per pixel, got 1")
-
-
-def test_moment_accumulator_merges_passes_of_different_sizes():
-    rng = np.random.default_rng(1)
-    samples = rng.normal(size=(10, 3, 4, 2))
-    acc = MomentAccumulator()
-    acc.add(samples[:7].mean(0), 7)
-    acc.add(samples[7:].mean(0), 3)
-    np.testing.assert_allclose(acc.mean(), samples.mean(0), rtol=1e-12)
 
 
 def test_passes_respect_the_wavefront_budget():
