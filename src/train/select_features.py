@@ -13,7 +13,7 @@ Writes, under `task.feature_selection.dir`: `probe/` (its checkpoints and curves
 ordered rows, what made them), `selection.csv` (the talk's "Table 1": rank, feature, channels, validation
 loss) and `selection_curve.png` (loss against the number of features); all are also MLflow artifacts of
 the run, with `select_loss` logged per round. A later run with `size=k` trains on the start set plus the
-first k (`features_for_size`, read when `task.volume_features` resolves), so the feature count follows a
+first k (`features_for_size`, read by the task when a job starts), so the feature count follows a
 storage budget without a new selection.
 """
 
