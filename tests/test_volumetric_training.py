@@ -23,7 +23,7 @@ from src.tracking.mlflow_tracking import job_run
 from src.tracking.tracker import Tracker
 from src.train.checkpoint import load_checkpoint
 from src.train.sequence_trainer import SequenceTrainer
-from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config
+from tests.conftest import ROOT, cli_job, compose_config, one_line_cli_error, one_line_error, smoke_config
 from tests.test_temporal import _np_temporal_loss
 from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
 
@@ -386,3 +386,21 @@ def test_an_interrupted_probe_resumes_to_the_weights_of_an_uninterrupted_one(vol
     a, c = load_checkpoint(straight["checkpoint"])["model"], load_checkpoint(resumed["checkpoint"])["model"]
     for key, value in a.items():
         assert torch.equal(c[key], value), key
+
+
+def test_a_selection_file_naming_an_unknown_feature_is_one_line_at_job_start(tmp_path):
+    """The features a selection file names are checked when the job settles them, as the schema checks
+    configured ones: a hand-edited `selection.json` is one line naming task.volume_features."""
+    rows = [{"features": ["color", "color.var"]}, {"features": ["color", "color.var", "fog_density"]}]
+    (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
+    cfg = compose_config(
+        ["dataset=volumetric", f"task.feature_selection.dir={tmp_path}", "task.feature_selection.size=1"]
+    )
+    with pytest.raises(ConfigError) as err:
+        DenoiseTask().resolve_at_job_start(cfg)
+    one_line_error(err, "task.volume_features[2]='fog_density'", "expected a buffer of")
+    assert cfg.task.volume_features is None  # nothing settled
+    rows[1]["features"][2] = "sigma_t"
+    (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
+    DenoiseTask().resolve_at_job_start(cfg)
+    assert list(cfg.task.volume_features) == ["color", "color.var", "sigma_t"]

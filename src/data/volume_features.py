@@ -127,7 +127,7 @@ def volume_feature_channels(features: Features | None) -> tuple[str, ...]:
 
 def run_volume_features(cfg) -> list[str] | None:
     """`task.volume_features` of a run config as plain data (None: every candidate); what its checkpoint
-    records. (Resolved here, where `feature_selection.size` may have chosen them.)"""
+    records (a `feature_selection.size` has already chosen them when the job started)."""
     features = cfg.task.volume_features
     return None if features is None else [str(f) for f in features]
 

@@ -182,11 +182,15 @@ class DenoiseTask(Task):
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
         """`task.feature_selection.size` = k: `task.volume_features` becomes the start set plus the first k
         features of the selection stage's output (or k drawn at random), so the model's `in_channels`
-        follows; null leaves the configured features."""
+        follows; null leaves the configured features. The chosen names get the schema's check (it ran
+        before they were known): a hand-edited selection file is one line, not a failure later."""
         if cfg.task.feature_selection.size is not None:
+            from src.data.volume_features import volume_feature_channels
             from src.train.select_features import features_for_size
 
-            cfg.task.volume_features = features_for_size(cfg.task.feature_selection)
+            features = features_for_size(cfg.task.feature_selection)
+            volume_feature_channels(features)
+            cfg.task.volume_features = features
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Stages this dataset or method cannot run fail at job start (`_check_*`)."""
