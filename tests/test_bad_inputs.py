@@ -15,6 +15,9 @@ from tests.conftest import ROOT, one_line_cli_error, one_line_error, smoke_confi
 
 #: (overrides, what the one line must contain)
 BAD_VALUES = [
+    (["task=nerf", "dataset=procedural"], ["dataset=procedural: still images", "task=nerf reads multi-view"]),
+    (["dataset=nerf_procedural"], ["dataset=nerf_procedural", "task=denoise reads denoising data"]),
+    (["dataset._target_=src.tasks.nerf.NerfTask"], ["dataset._target_", "not a data kind"]),
     (["task.train.batch_size=-4"], ["task.train.batch_size=-4: expected a positive integer"]),
     (["task.train.lr=abc"], ["task.train.lr='abc': expected a number"]),
     (["task.train.lr=0"], ["task.train.lr=0: expected a positive number"]),

@@ -30,9 +30,10 @@ LAYERS: dict[str, int] = {
     "stages": 5,
     "eval": 6,
     "schema": 6,
-    "tasks": 7,
-    "run": 8,
-    "bench": 8,
+    "kinds": 7,
+    "tasks": 8,
+    "run": 9,
+    "bench": 9,
 }
 #: src/__init__.py registers the config resolvers, which read the feature catalogues (data).
 PACKAGE_INIT_IMPORTS = {"data"}

@@ -417,7 +417,7 @@ def test_the_search_probabilities_may_sit_at_their_bounds_and_migrants_stay_belo
 def test_far_must_lie_beyond_near_and_a_range_may_be_a_single_value():
     from src.schema.dataset import NearFar
 
-    scene = {"near": 2.0, "far": 2.0 + 1e-9, "background": [0.0, 0.0, 0.0], "alpha": "auto"}
+    scene = {"_target_": "kind", "near": 2.0, "far": 2.0 + 1e-9, "background": [0.0, 0.0, 0.0], "alpha": "auto"}
     check(NearFar, scene, "dataset")
     line = _line(NearFar, {**scene, "far": 2.0}, "dataset")
     assert line == "dataset.far=2: expected more than dataset.near=2"

@@ -303,7 +303,7 @@ def _write_raw(cfg):
 
 def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes(tmp_path, capsys):
     from src.stages import preprocess
-    from src.tasks.denoise import _preprocess_key
+    from src.kinds.stills import preprocess_key
 
     cfg = _stage_config(tmp_path)
     _write_raw(cfg)
@@ -321,7 +321,7 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     still = [
         _stage_config(tmp_path, *o, dataset="procedural") for o in ([], ["task.preprocess.sequence_frames=5"])
     ]
-    assert _preprocess_key(still[0], prepared) == _preprocess_key(still[1], prepared)
+    assert preprocess_key(still[0], prepared) == preprocess_key(still[1], prepared)
 
 
 @pytest.mark.parametrize("stage", ["train", "eval", "all"])

@@ -1,5 +1,6 @@
-"""Schemas of `dataset:`, one per shipped dataset (chosen by `dataset.name`; a user's own dataset config
-is checked where it is read), down to the scene families' layout, light and material blocks."""
+"""Schemas of `dataset:`, one per shipped data kind (each kind's `schema`, `src/kinds/`; a user's own kind
+may leave it None and check its config where it reads it), down to the scene families' layout, light and
+material blocks."""
 
 from __future__ import annotations
 
@@ -131,7 +132,13 @@ class BaseScenes(Schema):
     outdoor: Outdoor
 
 
-class ProceduralDataset(Schema):
+class DatasetSchema(Schema):
+    """Every `dataset:` group names its data kind (`src/kinds/`)."""
+
+    target: str = Field(alias="_target_", min_length=1)
+
+
+class ProceduralDataset(DatasetSchema):
     name: Literal["procedural"]
     bases: list[Literal["cornell", "tabletop", "outdoor"]] = Field(min_length=1)
     scenes_per_base: PositiveInt
@@ -282,7 +289,7 @@ class VolumetricBaseScenes(Schema):
     godrays: Godrays
 
 
-class VolumetricDataset(Schema):
+class VolumetricDataset(DatasetSchema):
     name: Literal["volumetric"]
     experiment_suffix: str
     bases: list[Literal["cloud", "smoke_tabletop", "fog_objects", "godrays"]] = Field(min_length=1)
@@ -316,7 +323,7 @@ class Views(Schema):
     test: PositiveInt
 
 
-class NearFar(Schema):
+class NearFar(DatasetSchema):
     """Shared by the radiance-field datasets: the ray interval and the compositing colour."""
 
     near: PositiveFloat
@@ -472,12 +479,3 @@ class BlenderDataset(NearFar):
         if root in ("", "???"):
             raise expected("missing; expected the folder holding your Blender scenes (dataset.root=...)")
         return root
-
-
-#: The schema of each shipped dataset, by `dataset.name`.
-DATASET_SCHEMAS = {
-    "procedural": ProceduralDataset,
-    "nerf_procedural": NerfProceduralDataset,
-    "blender": BlenderDataset,
-    "volumetric": VolumetricDataset,
-}

@@ -10,7 +10,6 @@ from pydantic import Field
 
 from src.errors import ConfigError, NrbenchError, one_line
 from src.schema.checks import check
-from src.schema.dataset import DATASET_SCHEMAS
 from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema
 
 
@@ -139,11 +138,14 @@ def resolved(cfg: DictConfig) -> dict[str, Any]:
 
 def validate_run(cfg: DictConfig) -> dict[str, Any]:
     """Check the resolved config against the schemas: the root keys, the task's `schema` and the dataset's
-    (`DATASET_SCHEMAS`, by name); then build the method once (its constructor is the schema of `model:`:
-    keys, types and ranges) and drop it. Raises a one-line ConfigError; returns the resolved values."""
+    (its data kind's `schema`, `dataset._target_`); then build the method once (its constructor is the
+    schema of `model:`: keys, types and ranges) and drop it. Raises a one-line ConfigError; returns the
+    resolved values."""
     from src.models.instantiate import build_method
     from src.stages import task_of
 
+    task = task_of(cfg)
+    kind = task.kind(cfg)  # first: data of another task's family would fail to resolve less clearly
     values = resolved(cfg)
     check(RunSchema, values)
     if values["task"]["name"] not in values["profile_tasks"]:
@@ -151,10 +153,8 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
             f"profile={values['profile_name']}: has sizes for task {values['profile_tasks']}, "
             f"not task={values['task']['name']}"
         )
-    task = task_of(cfg)
     check(task.schema, values["task"], "task")
-    dataset_schema = DATASET_SCHEMAS.get(values["dataset"].get("name"))
-    if dataset_schema is not None:
-        check(dataset_schema, values["dataset"], "dataset")
+    if kind is not None and kind.schema is not None:
+        check(kind.schema, values["dataset"], "dataset")
     build_method(values["model"])
     return values

@@ -33,6 +33,12 @@ class Task:
         """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
         before any stage runs). Default: every stage can run."""
 
+    def kind(self, cfg: DictConfig) -> Any:
+        """The data kind `dataset._target_` names (`src/kinds/`), checked to be one this task reads (a
+        one-line ConfigError otherwise); its `schema` checks the `dataset:` group at job start. Default:
+        None, a task that reads no data kind."""
+        return None
+
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""
         raise NotImplementedError

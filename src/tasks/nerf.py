@@ -1,13 +1,14 @@
 """The radiance-field task: render (or point at) Blender-format scenes, fit one scene per job, evaluate on
-its test views."""
+its test views. The scenes are the data kind's (`dataset._target_`, `src/kinds/multiview.py`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from src.provenance import write_summary
+from src.kinds.base import kind_of
+from src.kinds.multiview import MultiViewKind
 from src.schema.nerf import NerfTaskSchema
 from src.tasks.base import Task
 
@@ -15,40 +16,23 @@ from src.tasks.base import Task
 class NerfTask(Task):
     schema = NerfTaskSchema
 
-    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
-        from src.data.blender import scene_dir
+    def kind(self, cfg: DictConfig) -> MultiViewKind:
+        """The run's data kind; a one-line ConfigError when it is not multi-view scenes."""
+        return kind_of(cfg, MultiViewKind, str(cfg.task.name))
 
-        producer = "stage=render (or dvc repro; for your own scenes, dataset=blender dataset.root=...)"
-        if stage == "train":
-            return {scene_dir(cfg) / "transforms_train.json": producer}
-        if stage == "eval":
-            return {scene_dir(cfg) / f"transforms_{cfg.task.eval.split}.json": producer}
-        return {}
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        return self.kind(cfg).inputs(stage, cfg)
 
     def data_dir(self, cfg: DictConfig) -> Path:
-        """The data the runs' `nrbench.data_fingerprint` tag identifies: this job's scene."""
-        from src.data.blender import scene_dir
+        return self.kind(cfg).data_dir(cfg)
 
-        return scene_dir(cfg)
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        kind = self.kind(cfg)
+        for stage in stages:
+            kind.check_stage(stage, cfg)
 
     def render(self, cfg: DictConfig) -> dict:
-        """The procedural multi-view scenes into `paths.scenes` (nothing to do for a user's Blender scenes,
-        `dataset=blender`)."""
-        scenes = Path(cfg.paths.scenes)
-        if "root" in cfg.dataset:
-            print(f"render: dataset {cfg.dataset.name} is read from {scenes}; nothing to render")
-            return {}
-        from src.render.multiview import render_multiview_dataset
-
-        summary = render_multiview_dataset(
-            OmegaConf.to_container(cfg.dataset, resolve=True), scenes, cfg.render.variant
-        )
-        print(
-            f"render: {summary.get('scenes_rendered', 0)} scenes rendered, {summary.get('scenes_cached', 0)} "
-            f"up to date in {scenes} ({(summary.get('rays_per_second') or 0) / 1e6:.2f} M rays/s)"
-        )
-        write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, scenes)
-        return summary
+        return self.kind(cfg).render(cfg)
 
     def train(self, cfg: DictConfig, tracker) -> dict:
         from src.train.nerf_trainer import train_nerf

@@ -1,0 +1,70 @@
+"""What every data kind implements (`dataset._target_`), and how a job finds its kind.
+
+A kind is a class with no constructor arguments: each method gets the resolved run config, as the task
+methods do (the `dataset:` group is one part of what they read; the task's settings and paths are others).
+A task declares the family of kinds it reads (`DenoisingKind` for the denoising tasks, `MultiViewKind` for
+the radiance fields) and refuses another family in one line before any stage runs.
+
+A new kind of data = one class here (or in the user's package) and one `conf/dataset/<name>.yaml` whose
+`_target_` names it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+from pydantic import BaseModel
+
+from src.errors import ConfigError
+
+
+class DataKind:
+    """One kind of dataset. `schema` is the pydantic model of its `dataset:` group (`src/schema/dataset.py`),
+    checked when a job starts; `describes` says in a few words what it is, for error lines."""
+
+    schema: type[BaseModel] | None = None
+    describes: str = "a dataset"
+
+    def data_dir(self, cfg: DictConfig) -> Path:
+        """The data a run's `nrbench.data_fingerprint` tag identifies."""
+        raise NotImplementedError
+
+    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
+        """What `stage` reads of this data, each with what produces it (see `Task.inputs`)."""
+        return {}
+
+    def check_stage(self, stage: str, cfg: DictConfig) -> None:
+        """A one-line ConfigError when this data cannot serve `stage` with `cfg` (job start)."""
+
+    def resolve_at_job_start(self, cfg: DictConfig) -> None:
+        """Settle, in place, config values that depend on another stage's output (see `Task`)."""
+
+    def render(self, cfg: DictConfig) -> dict[str, Any]:
+        """Render the data (or say where a user's data are read from)."""
+        raise NotImplementedError
+
+
+def kind_class(dataset: Any) -> type[DataKind]:
+    """The class `dataset._target_` names; a one-line ConfigError when it is not a data kind."""
+    from src.models.instantiate import resolve_target  # lazy: hydra
+
+    found = resolve_target(dataset, "dataset")
+    if not (isinstance(found, type) and issubclass(found, DataKind)):
+        raise ConfigError(
+            f"dataset._target_: {dataset.get('_target_')!r} is not a data kind; expected a subclass of "
+            "src.kinds.base.DataKind (e.g. src.kinds.stills.RenderedStills)"
+        )
+    return found
+
+
+def kind_of(cfg: DictConfig, family: type[DataKind], task: str) -> Any:
+    """The data kind of this run, checked to be of the `family` task `task` reads."""
+    found = kind_class(cfg.dataset)
+    if not issubclass(found, family):
+        raise ConfigError(
+            f"dataset={cfg.dataset.get('name')}: {found.describes} ({found.__module__}.{found.__name__}); "
+            f"task={task} reads {family.describes}"
+        )
+    return found()
