@@ -51,6 +51,23 @@ class BufferLayout:
         """EXR channel name -> the buffer it belongs to."""
         return {ch: b for b, chans in self.buffers.items() for ch in chans}
 
+    def load(
+        self,
+        path: str | os.PathLike[str],
+        repair: RepairPolicy | None = None,
+        expected_size: tuple[int, int] | None = None,
+        aliases: Mapping[str, str] | None = None,
+        buffers: Iterable[str] | None = None,
+    ) -> tuple[dict[str, np.ndarray], RepairReport]:
+        """Load and validate one EXR of this layout (`load_buffers`; see it for the checks)."""
+        return load_buffers(path, self, repair, expected_size, aliases, buffers)
+
+    def write(
+        self, path: str | os.PathLike[str], buffers: Mapping[str, np.ndarray], compression: str = "zip"
+    ) -> Path:
+        """Write buffers of this layout as one float32 EXR in its channel naming (atomically)."""
+        return write_buffers(path, self, buffers, compression=compression)
+
 
 #: Where a RepairPolicy comes from in the config (its errors name these keys).
 REPAIR_KEY = "task.preprocess.repair"

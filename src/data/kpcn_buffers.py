@@ -13,14 +13,10 @@ older renders lack them and still load (without those keys).
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterable, Mapping
-from pathlib import Path
+from collections.abc import Mapping
 from types import MappingProxyType
 
-import numpy as np
-
-from src.data.exr_buffers import BufferLayout, RepairPolicy, RepairReport, load_buffers, write_buffers
+from src.data.exr_buffers import BufferLayout
 
 _RGB = ("R", "G", "B")
 KPCN_BUFFERS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -48,19 +44,6 @@ KPCN_LAYOUT = BufferLayout(
 )
 
 
-def write_kpcn_exr(
-    path: str | os.PathLike[str], buffers: Mapping[str, np.ndarray], compression: str = "zip"
-) -> Path:
-    """Write KPCN buffers as one float32 EXR in the Tungsten channel naming (atomically)."""
-    return write_buffers(path, KPCN_LAYOUT, buffers, compression=compression)
-
-
-def load_kpcn_exr(
-    path: str | os.PathLike[str],
-    repair: RepairPolicy | None = None,
-    expected_size: tuple[int, int] | None = None,
-    aliases: Mapping[str, str] | None = None,
-    buffers: Iterable[str] | None = None,
-) -> tuple[dict[str, np.ndarray], RepairReport]:
-    """Load and validate a KPCN EXR (`load_buffers` with `KPCN_LAYOUT`; see it for the checks)."""
-    return load_buffers(path, KPCN_LAYOUT, repair, expected_size, aliases, buffers)
+#: One KPCN EXR in the Tungsten channel naming: load and validate (`load_buffers`), write (atomically).
+load_kpcn_exr = KPCN_LAYOUT.load
+write_kpcn_exr = KPCN_LAYOUT.write

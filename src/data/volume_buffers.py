@@ -23,13 +23,11 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from types import MappingProxyType
 
-import numpy as np
-
-from src.data.exr_buffers import BufferLayout, RepairPolicy, RepairReport, load_buffers, write_buffers
+from src.data.exr_buffers import BufferLayout
 from src.data.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS
 from src.errors import DataError
 
@@ -68,22 +66,9 @@ VOLUME_LAYOUT = BufferLayout(
 )
 
 
-def write_volume_exr(
-    path: str | os.PathLike[str], buffers: Mapping[str, np.ndarray], compression: str = "zip"
-) -> Path:
-    """Write volumetric buffers as one float32 EXR in the `VOLUME_LAYOUT` naming (atomically)."""
-    return write_buffers(path, VOLUME_LAYOUT, buffers, compression=compression)
-
-
-def load_volume_exr(
-    path: str | os.PathLike[str],
-    repair: RepairPolicy | None = None,
-    expected_size: tuple[int, int] | None = None,
-    aliases: Mapping[str, str] | None = None,
-    buffers: Iterable[str] | None = None,
-) -> tuple[dict[str, np.ndarray], RepairReport]:
-    """Load and validate a volumetric EXR (`load_buffers` with `VOLUME_LAYOUT`; see it for the checks)."""
-    return load_buffers(path, VOLUME_LAYOUT, repair, expected_size, aliases, buffers)
+#: One volumetric EXR in the `VOLUME_LAYOUT` naming: load and validate (`load_buffers`), write (atomically).
+load_volume_exr = VOLUME_LAYOUT.load
+write_volume_exr = VOLUME_LAYOUT.write
 
 
 # --- file naming -------------------------------------------------------------------------------------------

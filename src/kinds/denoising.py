@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
+from src.io.atomic import atomic_directory
 from src.kinds.base import DataKind
 from src.provenance import data_fingerprint, write_summary
 
@@ -85,6 +86,41 @@ class DenoisingKind(DataKind):
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """The raw EXRs into what training and evaluation read (`paths.prepared`)."""
         raise NotImplementedError
+
+    def prepare(
+        self, cfg: DictConfig, key: str, load_exr: Callable, build: Callable[[Path, Path, Callable], dict]
+    ) -> tuple[dict[str, Any], bool]:
+        """(summary, made): the prepared folder's summary when it was made with cache key `key` (made False:
+        each job of a multirun would otherwise redo it), else `build(raw, folder, load)`'s, made in a
+        temporary folder renamed into place (a crash leaves nothing a later stage trusts). `load` is
+        `load_exr` (a layout's loader) with `task.preprocess.repair`; the repairs it made, per file, are
+        in the summary and its provenance file."""
+        raw, out = self.raw_dir(cfg), Path(cfg.paths.prepared)
+        cached = cached_preprocess(out, key)
+        if cached is not None:
+            print(f"preprocess: up to date in {out}")
+            return cached, False
+        from src.data.exr_buffers import RepairPolicy
+
+        policy = RepairPolicy(**OmegaConf.to_container(cfg.task.preprocess.repair, resolve=True))
+        repairs: dict[str, str] = {}
+
+        def load(path: Path, buffers=None):
+            loaded, report = load_exr(path, repair=policy, buffers=buffers)
+            if report.total:
+                repairs[path.name] = report.summary()
+            return loaded
+
+        with atomic_directory(out) as tmp:
+            summary = build(raw, tmp, load)
+            summary["repairs"] = repairs
+            write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
+        return summary, True
+
+
+def repaired_note(summary: dict[str, Any]) -> str:
+    """The printed line's note of the files repaired on loading (empty when none)."""
+    return f", repaired {len(summary['repairs'])} files" if summary["repairs"] else ""
 
     def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
         raise NotImplementedError

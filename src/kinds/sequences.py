@@ -15,9 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.data.sequence_patches import FRAMES_KEY
 from src.errors import ConfigError
-from src.io.atomic import atomic_directory
-from src.kinds.denoising import PREPROCESS_PROVENANCE, DenoisingKind, cache_key, cached_preprocess
-from src.provenance import write_summary
+from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
 from src.schema.dataset import VolumetricDataset
 
 
@@ -78,39 +76,27 @@ class RenderedSequences(DenoisingKind):
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """The sequences into k-frame samples (train/val) and whole sequences (val/test)
         (`src.data.volume_shards`); skipped when made from the same settings, repair policy and raw data."""
-        from src.data.exr_buffers import RepairPolicy
         from src.data.volume_buffers import load_volume_exr
         from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
         from src.data.volume_shards import SEQUENCE_KEYS, preprocess_volume_dataset
 
         repair = OmegaConf.to_container(cfg.task.preprocess.repair, resolve=True)
-        raw, out = self.raw_dir(cfg), Path(cfg.paths.prepared)
         settings = preprocess_settings(cfg)
-        key = cache_key({**settings, "repair": repair}, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
-        cached = cached_preprocess(out, key)
-        if cached is not None:
-            print(f"preprocess: up to date in {out}")
-            return cached
-        policy = RepairPolicy(**repair)
-        repairs: dict[str, str] = {}
+        stored = (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS)
+        key = cache_key({**settings, "repair": repair}, self.raw_dir(cfg), stored)
 
-        def load(path: Path, buffers):
-            loaded, report = load_volume_exr(path, repair=policy, buffers=buffers)
-            if report.total:
-                repairs[path.name] = report.summary()
-            return loaded
+        def build(raw: Path, tmp: Path, load) -> dict[str, Any]:
+            return preprocess_volume_dataset(raw, tmp, **settings, load_fn=load)
 
-        with atomic_directory(out) as tmp:
-            summary = preprocess_volume_dataset(raw, tmp, **settings, load_fn=load)
-            summary["repairs"] = repairs
-            write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
-        repaired = f", repaired {len(repairs)} files" if repairs else ""
-        samples, full = summary["samples"], summary["full_sequences"]
-        print(
-            f"preprocess: {summary['noisy_sequences']} noisy sequences: {samples['train']} train / "
-            f"{samples['val']} val samples of {settings['sequence_frames']} frames, {full['val']} val / "
-            f"{full['test']} test whole sequences{repaired} in {summary['seconds']:.1f} s -> {out}"
-        )
+        summary, made = self.prepare(cfg, key, load_volume_exr, build)
+        if made:
+            samples, full = summary["samples"], summary["full_sequences"]
+            print(
+                f"preprocess: {summary['noisy_sequences']} noisy sequences: {samples['train']} train / "
+                f"{samples['val']} val samples of {settings['sequence_frames']} frames, {full['val']} val / "
+                f"{full['test']} test whole sequences{repaired_note(summary)} in {summary['seconds']:.1f} s "
+                f"-> {cfg.paths.prepared}"
+            )
         return summary
 
     def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:

@@ -12,15 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.data.features import CANDIDATE_CHANNELS
 from src.errors import ConfigError
-from src.io.atomic import atomic_directory
-from src.kinds.denoising import (
-    PREPROCESS_PROVENANCE,
-    DenoisingKind,
-    cache_key,
-    cached_preprocess,
-    held_out_index,
-)
-from src.provenance import write_summary
+from src.kinds.denoising import DenoisingKind, cache_key, held_out_index, repaired_note
 from src.schema.dataset import ProceduralDataset
 
 #: `task.preprocess` keys only the sequences read (`src.kinds.sequences`): changing them leaves prepared
@@ -87,28 +79,14 @@ class RenderedStills(DenoisingKind):
         """The raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test); skipped
         when the prepared folder was made from the same settings and raw data (each job of a multirun
         would otherwise redo it)."""
-        from src.data.exr_buffers import RepairPolicy
         from src.data.kpcn_buffers import load_kpcn_exr
         from src.data.shards import preprocess_dataset
 
         p = cfg.task.preprocess
-        raw, out = self.raw_dir(cfg), Path(cfg.paths.prepared)
-        key = preprocess_key(cfg, raw)
-        cached = cached_preprocess(out, key)
-        if cached is not None:
-            print(f"preprocess: up to date in {out}")
-            return cached
-        policy = RepairPolicy(**OmegaConf.to_container(p.repair, resolve=True))
-        repairs: dict[str, str] = {}
+        out = Path(cfg.paths.prepared)
 
-        def load(path: Path):
-            buffers, report = load_kpcn_exr(path, repair=policy)
-            if report.total:
-                repairs[path.name] = report.summary()
-            return buffers
-
-        with atomic_directory(out) as tmp:
-            summary = preprocess_dataset(
+        def build(raw: Path, tmp: Path, load) -> dict[str, Any]:
+            return preprocess_dataset(
                 raw,
                 tmp,
                 eps=p.eps_albedo,
@@ -128,12 +106,13 @@ class RenderedStills(DenoisingKind):
                 specular_variance=p.specular_variance,
                 load_fn=load,
             )
-            summary["repairs"] = repairs
-            write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
-        repaired = f", repaired {len(repairs)} files" if repairs else ""
-        print(
-            f"preprocess: {summary['noisy_images']} images, {summary['patches']} patches{repaired} -> {out}"
-        )
+
+        summary, made = self.prepare(cfg, preprocess_key(cfg, self.raw_dir(cfg)), load_kpcn_exr, build)
+        if made:
+            print(
+                f"preprocess: {summary['noisy_images']} images, {summary['patches']} patches"
+                f"{repaired_note(summary)} -> {out}"
+            )
         return summary
 
     def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:

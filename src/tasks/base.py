@@ -1,6 +1,10 @@
 """What a task is: the object `task._target_` names, which says what each stage means for it (see
 `src/stages.py`, which calls these methods and has no task-name branches). A new task subclasses `Task`,
-implements the stages its `task.stages` list names, and ships a `conf/task/<name>.yaml`."""
+implements the stages its `task.stages` list names, and ships a `conf/task/<name>.yaml`.
+
+A task that reads data names the family of data kinds it reads (`kinds`, `src/kinds/`); what a stage
+reads, which stages the data can serve and how they are rendered is then the kind's (`dataset._target_`),
+and the task adds only what is its own: training, evaluation, the lines it prints."""
 
 from __future__ import annotations
 
@@ -10,42 +14,53 @@ from typing import Any
 from omegaconf import DictConfig
 from pydantic import BaseModel
 
+from src.kinds.base import DataKind, kind_of
+
 
 class Task:
     """One task (denoising, radiance fields, ...). Each method gets the resolved run config; `train` and
     `evaluate` also get the MLflow tracker of the job's run. Every method returns the stage's summary.
-    `schema` is the pydantic model of its `task:` group (`src/schema/`), checked when a job starts."""
+    `schema` is the pydantic model of its `task:` group (`src/schema/`), checked when a job starts;
+    `kinds` the family of data kinds it reads (None: none)."""
 
     schema: type[BaseModel]
+    kinds: type[DataKind] | None = None
+
+    def kind(self, cfg: DictConfig) -> Any:
+        """The data kind `dataset._target_` names, checked to be of this task's family (a one-line
+        ConfigError otherwise); its `schema` checks the `dataset:` group at job start. None for a task
+        that reads no data kind."""
+        return None if self.kinds is None else kind_of(cfg, self.kinds, str(cfg.task.name))
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
         """What `stage` reads, each with what produces it (a stage or command), so that a stage started too
-        early says what to run first instead of failing on a missing file. Default: nothing. (A learned
+        early says what to run first instead of failing on a missing file: the data kind's. (A learned
         method's checkpoint, which every task's evaluation needs, is added by `stages.require_inputs`.)"""
-        return {}
+        kind = self.kind(cfg)
+        return {} if kind is None else kind.inputs(stage, cfg)
 
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
         """Settle, in place, the config values that depend on another stage's output (read once, when a job
         starts, after the schema check and before any stage runs; a missing output is a one-line
-        ConfigError). Default: none."""
+        ConfigError): the data kind's."""
+        kind = self.kind(cfg)
+        if kind is not None:
+            kind.resolve_at_job_start(cfg)
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
-        before any stage runs). Default: every stage can run."""
-
-    def kind(self, cfg: DictConfig) -> Any:
-        """The data kind `dataset._target_` names (`src/kinds/`), checked to be one this task reads (a
-        one-line ConfigError otherwise); its `schema` checks the `dataset:` group at job start. Default:
-        None, a task that reads no data kind."""
-        return None
+        before any stage runs): the data kind's refusals."""
+        kind = self.kind(cfg)
+        for stage in stages if kind is not None else ():
+            kind.check_stage(stage, cfg)
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""
-        raise NotImplementedError
+        return self.kind(cfg).data_dir(cfg)
 
     def render(self, cfg: DictConfig) -> dict[str, Any]:
         """Produce (or locate) the task's dataset."""
-        raise NotImplementedError
+        return self.kind(cfg).render(cfg)
 
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """Turn the rendered data into what training reads; only tasks listing the stage implement it."""

@@ -5,11 +5,8 @@ denoising one, runs the stages and prints their one-line summaries."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from omegaconf import DictConfig
 
-from src.kinds.base import kind_of
 from src.kinds.denoising import DenoisingKind
 from src.schema.denoise import DenoiseTaskSchema
 from src.tasks.base import Task
@@ -17,28 +14,7 @@ from src.tasks.base import Task
 
 class DenoiseTask(Task):
     schema = DenoiseTaskSchema
-
-    def kind(self, cfg: DictConfig) -> DenoisingKind:
-        """The run's data kind; a one-line ConfigError when it is not denoising data."""
-        return kind_of(cfg, DenoisingKind, str(cfg.task.name))
-
-    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
-        return self.kind(cfg).inputs(stage, cfg)
-
-    def data_dir(self, cfg: DictConfig) -> Path:
-        return self.kind(cfg).data_dir(cfg)
-
-    def resolve_at_job_start(self, cfg: DictConfig) -> None:
-        self.kind(cfg).resolve_at_job_start(cfg)
-
-    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
-        """Stages this data kind or method cannot run fail at job start (`DataKind.check_stage`)."""
-        kind = self.kind(cfg)
-        for stage in stages:
-            kind.check_stage(stage, cfg)
-
-    def render(self, cfg: DictConfig) -> dict:
-        return self.kind(cfg).render(cfg)
+    kinds = DenoisingKind
 
     def preprocess(self, cfg: DictConfig) -> dict:
         return self.kind(cfg).preprocess(cfg)

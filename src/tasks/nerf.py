@@ -3,11 +3,8 @@ its test views. The scenes are the data kind's (`dataset._target_`, `src/kinds/m
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from omegaconf import DictConfig
 
-from src.kinds.base import kind_of
 from src.kinds.multiview import MultiViewKind
 from src.schema.nerf import NerfTaskSchema
 from src.tasks.base import Task
@@ -15,24 +12,7 @@ from src.tasks.base import Task
 
 class NerfTask(Task):
     schema = NerfTaskSchema
-
-    def kind(self, cfg: DictConfig) -> MultiViewKind:
-        """The run's data kind; a one-line ConfigError when it is not multi-view scenes."""
-        return kind_of(cfg, MultiViewKind, str(cfg.task.name))
-
-    def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
-        return self.kind(cfg).inputs(stage, cfg)
-
-    def data_dir(self, cfg: DictConfig) -> Path:
-        return self.kind(cfg).data_dir(cfg)
-
-    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
-        kind = self.kind(cfg)
-        for stage in stages:
-            kind.check_stage(stage, cfg)
-
-    def render(self, cfg: DictConfig) -> dict:
-        return self.kind(cfg).render(cfg)
+    kinds = MultiViewKind
 
     def train(self, cfg: DictConfig, tracker) -> dict:
         from src.train.nerf_trainer import train_nerf
