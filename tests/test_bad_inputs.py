@@ -129,7 +129,6 @@ BAD_VALUES = [
     (["model=unet_kpcn", "model.widths=[]"], ["model.widths", "non-empty list"]),
     (["model=unet_kpcn", "model.components=diffuse"], ["model.components", "surface_volume"]),
     (["model=unet_kpcn", "model.filter_space=log"], ["model.filter_space", "'transformed'"]),
-    (["dataset=volumetric", "model=kpcn", "model.whiten=true"], ["model.whiten", "dataset=volumetric"]),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}

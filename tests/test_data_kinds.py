@@ -4,6 +4,7 @@ a task refuses data of another family in one line, and a `_target_` that is no d
 from __future__ import annotations
 
 import pytest
+from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from tests.conftest import ROOT, one_line_error, smoke_config
@@ -89,3 +90,66 @@ def test_the_schema_of_the_kind_checks_the_dataset_group(tmp_path):
     with pytest.raises(ConfigError) as excinfo:
         validate_run(cfg)
     one_line_error(excinfo, "dataset.bases_extra")
+
+
+#: Every denoiser of the studies, and the branch it reads where it is not every kind's.
+DENOISERS = ["kpcn", "dpcn", "resnet", "unet_kpcn", "cross_bilateral", "oidn", "gp_expr1"]
+
+
+@pytest.mark.parametrize("dataset", ["procedural", "volumetric"])
+@pytest.mark.parametrize("model", DENOISERS)
+def test_every_denoiser_runs_on_every_denoising_kind_that_has_its_inputs(tmp_path, model, dataset):
+    """One batch contract: the KPCN family builds from the data's branches and input channels (two on
+    still images, one over 62 channels on sequences), the filters read the shared buffers; the U-Net
+    KPCN, which reads the sequences' radiance branch, is refused on still images in one line."""
+    from src.schema.run import validate_run
+    from src.tasks.denoise import DenoiseTask
+
+    cfg = smoke_config(tmp_path, tmp_path / "run", [f"model={model}", f"dataset={dataset}"])
+    values = validate_run(cfg)  # builds the model from the composed config
+    if model in ("kpcn", "dpcn", "resnet"):
+        branches = ["diffuse", "specular"] if dataset == "procedural" else ["radiance"]
+        assert values["model"]["branches"] == branches
+        assert values["model"]["in_channels"] == (28 if dataset == "procedural" else 62)
+    if model == "unet_kpcn" and dataset == "procedural":
+        with pytest.raises(ConfigError) as excinfo:
+            DenoiseTask().check_stages(["train"], cfg)
+        one_line_error(
+            excinfo, "model=unet_kpcn", "radiance branch", "dataset=procedural", "diffuse, specular"
+        )
+    else:
+        DenoiseTask().check_stages(["render", "preprocess", "train", "eval"], cfg)
+
+
+def test_a_filter_whose_guides_the_sequences_lack_is_refused_at_job_start_in_one_line(tmp_path):
+    """The GP expression reads the still images' variance guides; the prepared sequences' index says they
+    are missing before any run is opened."""
+    from src.tasks.denoise import DenoiseTask
+    from tests.test_volume_shards import _preprocess, _raw
+
+    _preprocess(_raw(tmp_path / "volumetric" / "raw"), tmp_path / "volumetric" / "prepared", patch_size=8)
+    cfg = smoke_config(tmp_path, tmp_path / "run", ["model=gp_expr1", "dataset=volumetric"])
+    cfg.paths.dataset = str(tmp_path / "volumetric")
+    with pytest.raises(ConfigError) as excinfo:
+        DenoiseTask().check_stages(["eval"], cfg)
+    one_line_error(excinfo, "directIllumination", "visibility")
+    # An expression of the buffers the sequences have (colour, normal, depth, albedo) passes the check.
+    shared = "exp(-(distance2(depth, depth) + distance2(normal, normal) + distance2(color, color)))"
+    DenoiseTask().check_stages(["eval"], OmegaConf.merge(cfg, {"model": {"expression": shared}}))
+
+
+@pytest.mark.parametrize(
+    ("dataset", "model", "line"),
+    [
+        ("procedural", "kpcn", None),
+        ("volumetric", "unet_kpcn", "input features (task.volume_features, 62 channels)"),
+        ("volumetric", "kpcn", "input features (task.volume_features, 62 channels)"),
+    ],
+)
+def test_stage_summary_runs_on_every_denoising_kind(tmp_path, capsys, dataset, model, line):
+    from src.stages import print_model_summary
+
+    print_model_summary(smoke_config(tmp_path, tmp_path / "run", [f"model={model}", f"dataset={dataset}"]))
+    out = capsys.readouterr().out
+    assert "FLOPs per pixel" in out
+    assert ("input features" not in out) if line is None else (line in out)

@@ -13,7 +13,7 @@ from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
 from src.models.denoise.base import Denoiser
 from src.models.denoise.kernels import apply_kernel, default_order, kernel_application_flops
-from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
+from src.models.denoise.models import BranchDenoiser, infer_tiled
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
 from src.models.instantiate import build_method
@@ -345,7 +345,7 @@ def test_invalid_keys_name_the_key(overrides, key):
 
 def test_build_method_accepts_dictconfig():
     model, cfg = paper_model("resnet", blocks=1, width=8, predictor_width=8)
-    assert isinstance(model, TwoBranchDenoiser) and model.halo == (2 + 2) * 1 + 10
+    assert isinstance(model, BranchDenoiser) and model.halo == (2 + 2) * 1 + 10
     assert count_parameters(model) > 0 and cfg._target_.endswith("residual_denoiser")
 
 
@@ -448,6 +448,32 @@ def test_a_checkpoint_from_before_target_configs_still_loads(tmp_path):
             tmp_path / "old.pt",
         )
     one_line_error(excinfo, "old.pt", "model.width: 4 in checkpoint vs 5")
+
+
+def test_a_sequence_checkpoint_from_the_frame_builders_loads_into_the_one_branch_model(tmp_path):
+    """Before one batch contract (issue 31) the sequences' KPCN was `frame_conv_stack_denoiser` (one `net`,
+    a `transform` key); its checkpoints load into today's builder with `branches: [radiance]`."""
+    from src.train.checkpoint import load_weights, save_checkpoint
+
+    cfg = tiny_cfg(whiten=False, branches=["radiance"])
+    torch.manual_seed(0)
+    trained = build_method(cfg)
+    frame_target = "src.models.denoise.frame_models.frame_conv_stack_denoiser"
+    old_cfg = {k: v for k, v in cfg.items() if k != "branches"} | {"_target_": frame_target}
+    old_cfg["transform"] = "log_modulus"
+    weights = {k.replace("radiance_net.", "net.", 1): v for k, v in trained.state_dict().items()}
+    state = {"model": weights, "model_config": old_cfg, "optimizer": {}, "epoch": 1, "batch_in_epoch": 0}
+    save_checkpoint(tmp_path / "frame.pt", state | {"step": 5})
+    torch.manual_seed(1)
+    fresh = build_method(cfg)
+    load_weights(fresh, cfg, tmp_path / "frame.pt")
+    for key, value in trained.state_dict().items():
+        assert torch.equal(fresh.state_dict()[key], value), key
+    with pytest.raises(DataError) as excinfo:  # not into the still images' two branches
+        load_weights(build_method(tiny_cfg(whiten=False)), tiny_cfg(whiten=False), tmp_path / "frame.pt")
+    one_line_error(
+        excinfo, "frame.pt", "model.branches: ['radiance'] in checkpoint vs ['diffuse', 'specular']"
+    )
 
 
 @pytest.mark.parametrize("profile", ["smoke", "cpu", "paper"])

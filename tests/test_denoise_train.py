@@ -10,6 +10,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.data.color_spaces import KpcnSplit
 from src.data.denoise_dataset import FullImageDataset
 from src.errors import ConfigError, DataError
 from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
@@ -20,8 +21,9 @@ from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint, save_checkpoint
 from src.train.device import precision
+from src.train.objectives import BranchLosses, component_losses, objective
 from src.train.schedules import log_linear_lr
-from src.train.trainer import DenoiserTrainer, component_losses, objective, train_denoiser
+from src.train.trainer import DenoiserTrainer, train_denoiser
 from tests.conftest import (
     ROOT,
     cli_job,
@@ -163,9 +165,9 @@ def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
     denoiser = build_method(OmegaConf.to_container(cfg.model, resolve=True)).eval()
     item = FullImageDataset(cfg.paths.prepared, "test")[0]
     batch = {k: v[None] for k, v in item.items() if isinstance(v, torch.Tensor)}
-    eps = cfg.task.preprocess.eps_albedo
-    full = denoise_tiled(denoiser, batch, tile=10_000, eps=eps)
-    tiled = denoise_tiled(denoiser, batch, tile=7, eps=eps)  # 48x32 in ragged 7x7 tiles
+    space = KpcnSplit(cfg.task.preprocess.eps_albedo)
+    full = denoise_tiled(denoiser, batch, tile=10_000, space=space)
+    tiled = denoise_tiled(denoiser, batch, tile=7, space=space)  # 48x32 in ragged 7x7 tiles
     torch.testing.assert_close(tiled, full, rtol=1e-5, atol=1e-6)
 
 
@@ -251,14 +253,15 @@ def test_the_objective_is_the_loss_of_what_the_model_predicts():
     ones, zeros = torch.ones(1, 3, 2, 2), torch.zeros(1, 3, 2, 2)
     batch = {"diffuse_target": zeros, "specular_target": zeros, "reference": zeros, "albedo": zeros}
     l1 = lambda out, target: (out - target).abs().mean()  # noqa: E731
-    pair = component_losses(_Fixed({"diffuse": ones, "specular": 2 * ones}), batch, l1, eps=0.5)
+    space = KpcnSplit(0.5)
+    pair = component_losses(_Fixed({"diffuse": ones, "specular": 2 * ones}), batch, l1, space)
     assert list(pair) == ["diffuse", "specular", "color"]
     assert float(objective(pair)) == 3.0  # diffuse + specular; the rebuilt colour is only logged
     assert float(pair["color"]) == pytest.approx(0.5 + np.expm1(2.0))  # (albedo + eps) d + exp(s) - 1
-    color = component_losses(_Fixed({"color": 4 * ones}), batch, l1, eps=0.5)
+    color = component_losses(_Fixed({"color": 4 * ones}), batch, l1, space)
     assert list(color) == ["color"] and float(objective(color)) == 4.0
     with pytest.raises(DataError) as err:
-        component_losses(_Fixed({"colour": ones}), batch, l1, eps=0.5)
+        component_losses(_Fixed({"colour": ones}), batch, l1, space)
     one_line_error(err, "_Fixed.forward", "'colour'", "'specular'")
 
 
@@ -280,7 +283,7 @@ def test_the_optimiser_and_the_loss_are_built_from_config(smoke_data, tmp_path):
         and trainer.optimizer.param_groups[0]["momentum"] == 0.5
     )
     pred, target = torch.full((4,), 2.0), torch.ones(4)
-    assert float(trainer.loss(pred, target)) == pytest.approx(1 / 3.5)  # |2 - 1| / (2 + 1 + eps 0.5)
+    assert float(trainer.terms.loss(pred, target)) == pytest.approx(1 / 3.5)  # |2 - 1| / (2 + 1 + eps 0.5)
 
     bad = _untracked(smoke_data, tmp_path, "model=dpcn", "task.train.optimizer._target_=torch.optim.Adamm")
     with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
@@ -363,12 +366,13 @@ def test_the_denoiser_trainers_amp_step_runs_the_convolutions_in_bf16_and_the_lo
             optimizer=torch.optim.SGD(model.parameters(), lr=0.0),
             t=OmegaConf.create({"amp": amp}),
             device=torch.device("cpu"),
-            loss=l1,
-            eps=0.01,
+            terms=BranchLosses(l1, KpcnSplit(0.01)),
+            dropout=None,
         )
         trainer.losses = partial(DenoiserTrainer.losses, trainer)
+        trainer.losses_of_frames = partial(DenoiserTrainer.losses_of_frames, trainer)
         trainer.objective = partial(DenoiserTrainer.objective, trainer)
-        return DenoiserTrainer.train_step(trainer, batch)
+        return DenoiserTrainer.train_step(trainer, {k: v[:, None] for k, v in batch.items()})  # one frame
 
     values, size = step(True)
     assert size == 1 and list(values) == ["diffuse", "specular", "color"] and len(seen) == 3

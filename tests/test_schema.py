@@ -97,6 +97,7 @@ BOUNDED: dict[Bound, str] = {
         dataset.VolumetricDataset.scenes_per_base dataset.VolumetricDataset.frames
         dataset.VolumetricDataset.width dataset.VolumetricDataset.height
         dataset.VolumetricDataset.reference_spp dataset.VolumetricDataset.max_pass_samples
+        dataset.DenoisingData.input_channels
         dataset.Views.train dataset.Views.val dataset.Views.test dataset.StudioEnv.res
         dataset.Busy.n_objects dataset.Busy.texture_res dataset.Busy.noise_octaves
         dataset.Busy.noise_base_cells dataset.NerfTabletop.texture_res dataset.NerfTabletop.noise_octaves
@@ -417,7 +418,13 @@ def test_the_search_probabilities_may_sit_at_their_bounds_and_migrants_stay_belo
 def test_far_must_lie_beyond_near_and_a_range_may_be_a_single_value():
     from src.schema.dataset import NearFar
 
-    scene = {"_target_": "kind", "near": 2.0, "far": 2.0 + 1e-9, "background": [0.0, 0.0, 0.0], "alpha": "auto"}
+    scene = {
+        "_target_": "kind",
+        "near": 2.0,
+        "far": 2.0 + 1e-9,
+        "background": [0.0, 0.0, 0.0],
+        "alpha": "auto",
+    }
     check(NearFar, scene, "dataset")
     line = _line(NearFar, {**scene, "far": 2.0}, "dataset")
     assert line == "dataset.far=2: expected more than dataset.near=2"

@@ -1,5 +1,5 @@
-"""The U-Net KPCN (`src/models/denoise/unet_kpcn.py`) and the one-branch frame models
-(`src/models/denoise/frame_models.py`) of the volumetric frame batches: the multi-scale kernels, Vogels et
+"""The U-Net KPCN (`src/models/denoise/unet_kpcn.py`) and the KPCN family on the sequences' one `radiance`
+branch (`src/models/denoise/models.py` with `branches: [radiance]`): the multi-scale kernels, Vogels et
 al.'s scale composition, tiled inference, configs and `stage=summary`. Tiny sizes, CPU, a few seconds."""
 
 import pytest
@@ -7,15 +7,13 @@ import torch
 import torch.nn.functional as F
 from omegaconf import OmegaConf
 
+from src.data.color_spaces import RadianceTransform
 from src.data.volume_shards import volume_transform
 from src.errors import ConfigError
+from src.models.denoise.base import final_color
 from src.models.denoise.kernels import SOFTMAX_FLOPS_PER_TAP
-from src.models.denoise.models import infer_tiled
-from src.models.denoise.summary import (
-    flops_per_pixel,
-    model_summary,
-    random_frame_batch,
-)
+from src.models.denoise.models import conv_stack_denoiser, infer_tiled
+from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
 from src.models.denoise.unet_kpcn import (
     COMPOSE_FLOPS,
     PYRAMID_FLOPS,
@@ -49,8 +47,14 @@ def tiny(**overrides):
     return UNetKPCN(**(args | overrides)).eval()
 
 
+def random_frame_batch(height, width, in_channels=IN, seed=0):
+    """A random batch of the sequences' radiance branch (`random_batch`)."""
+    generator = torch.Generator().manual_seed(seed)
+    return random_batch(height, width, in_channels=in_channels, branches=("radiance",), generator=generator)
+
+
 def frame_batch(height, width, seed=0):
-    return random_frame_batch(height, width, in_channels=IN, generator=torch.Generator().manual_seed(seed))
+    return random_frame_batch(height, width, seed=seed)
 
 
 def brute_force_kernel(logits, image, k):
@@ -71,7 +75,7 @@ def brute_force_kernel(logits, image, k):
 def test_the_kernel_at_every_scale_is_a_softmax_window_over_that_scales_radiance():
     model = tiny()
     batch = frame_batch(12, 8)  # non-square; scales 12x8, 6x4, 3x2
-    logits = model.kernel_logits(batch["inputs"])
+    logits = model.kernel_logits(batch["radiance_in"])
     radiance = torch.rand(1, 3, 12, 8, generator=torch.Generator().manual_seed(1))
     filtered = model.filter_scales(logits, radiance)
     pyramid = radiance_pyramid(radiance, 3)
@@ -123,7 +127,7 @@ def test_any_frame_size_comes_back_at_its_size(height, width):
 def test_a_constant_radiance_stays_constant(components, filter_space, transform):
     model = tiny(components=components, filter_space=filter_space, transform=transform)
     batch = frame_batch(10, 14)
-    value = {"color_t": 2.5, "surface_t": 1.5, "volume_t": 1.0}
+    value = {"radiance_t": 2.5, "surface_t": 1.5, "volume_t": 1.0}
     for key, v in value.items():
         batch[key] = volume_transform(torch.full((1, 3, 10, 14), v), transform)
     with torch.inference_mode():
@@ -139,23 +143,25 @@ def test_surface_volume_has_two_kernel_heads_per_scale_and_twice_the_kernel_cost
 
 @pytest.mark.parametrize(
     ("model", "target"),
-    [
-        ("kpcn", "frame_conv_stack_denoiser"),
-        ("dpcn", "frame_conv_stack_denoiser"),
-        ("resnet", "frame_residual"),
-    ],
+    [("kpcn", "conv_stack_denoiser"), ("dpcn", "conv_stack_denoiser"), ("resnet", "residual_denoiser")],
 )
-def test_the_frame_kpcn_dpcn_and_resnet_build_from_the_volumetric_config_and_run(model, target):
+def test_the_kpcn_dpcn_and_resnet_configs_build_one_radiance_branch_on_the_sequences(model, target):
+    """The same YAML and class as on still images; the data give one branch and its 62 input channels."""
     cfg = compose_config(["dataset=volumetric", f"model={model}", "profile=smoke"])
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    assert target in model_cfg["_target_"] and model_cfg["in_channels"] == 62
+    assert model_cfg["_target_"].endswith(f"models.{target}") and model_cfg["in_channels"] == 62
+    assert model_cfg["branches"] == ["radiance"]
     net = build_method(model_cfg).eval()
+    assert net.branches == ("radiance",) and not net.shared
     batch = random_frame_batch(9, 13, in_channels=62)
     with torch.inference_mode():
-        out = net(batch)["color"]
-    assert out.shape == (1, 3, 9, 13) and torch.isfinite(out).all()
+        out = net(batch)
+        color = final_color(out, batch, RadianceTransform("log_modulus"))
+    assert list(out) == ["radiance"] and color.shape == (1, 3, 9, 13) and torch.isfinite(color).all()
     with torch.inference_mode():  # tiled equals full frame here too (halo = receptive field)
-        torch.testing.assert_close(infer_tiled(net, batch, tile=4)["color"], out, atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(
+            infer_tiled(net, batch, tile=4)["radiance"], out["radiance"], atol=1e-5, rtol=1e-5
+        )
 
 
 def test_stage_summary_names_flops_per_pixel_and_the_volume_features():
@@ -174,10 +180,10 @@ def test_stage_summary_names_flops_per_pixel_and_the_volume_features():
 
 def test_the_paper_unet_kpcn_fits_the_cpu_budget():
     model_cfg = OmegaConf.to_container(
-        compose_config(["model=unet_kpcn", "profile=paper"]).model, resolve=True
+        compose_config(["dataset=volumetric", "model=unet_kpcn", "profile=paper"]).model, resolve=True
     )
     model = build_method(model_cfg)
-    assert 3 <= model.scales <= 5
+    assert model.in_channels == 62 and 3 <= model.scales <= 5
     assert flops_per_pixel(model)["total"] <= 150_000
 
 
@@ -202,17 +208,20 @@ def test_a_bad_unet_kpcn_value_is_a_one_line_config_error(key, value, needles):
     one_line_error(excinfo, *needles)
 
 
-def test_whitening_a_frame_model_and_training_unet_kpcn_on_still_images_are_one_line_errors():
+def test_whitening_on_sequences_and_training_unet_kpcn_on_still_images_are_one_line_errors():
     from src.tasks.denoise import DenoiseTask
 
     cfg = compose_config(["dataset=volumetric", "model=kpcn", "profile=smoke", "model.whiten=true"])
     with pytest.raises(ConfigError) as excinfo:
-        build_method(OmegaConf.to_container(cfg.model, resolve=True))
-    one_line_error(excinfo, "model.whiten", "dataset=volumetric")
-    cfg = compose_config(["model=unet_kpcn", "profile=smoke"])
-    with pytest.raises(ConfigError) as excinfo:
         DenoiseTask().check_stages(["train"], cfg)
-    one_line_error(excinfo, "model=unet_kpcn", "dataset=volumetric", "dataset=procedural")
+    one_line_error(excinfo, "model.whiten", "dataset=volumetric")
+    DenoiseTask().check_stages(["render", "preprocess"], cfg)  # whitening matters to train and eval only
+    cfg = compose_config(["model=unet_kpcn", "profile=smoke"])
+    for stage in ("train", "eval"):
+        with pytest.raises(ConfigError) as excinfo:
+            DenoiseTask().check_stages([stage], cfg)
+        one_line_error(excinfo, "model=unet_kpcn", "radiance branch", f"stage={stage}", "dataset=procedural")
+    DenoiseTask().check_stages(["train"], compose_config(["dataset=volumetric", "model=unet_kpcn"]))
 
 
 # --- the whole forward pass against an independent reference -------------------------------------------
@@ -270,11 +279,11 @@ def reference_forward(model, batch, *, kernel_of=None, compositor_of=None, pyram
     the module docstring's definitions, in plain torch. The keyword arguments build plausible wrong
     variants: `kernel_of[c]` the kernel head serving component c, `compositor_of[c][s]` the (component,
     scale) compositor serving scale s of component c, `pyramid_of_filtered` r_{s+1} = D(f_s)."""
-    keys = {"color": ("color_t",), "surface_volume": ("surface_t", "volume_t")}[model.components]
+    keys = {"color": ("radiance_t",), "surface_volume": ("surface_t", "volume_t")}[model.components]
     scales, k = len(model.widths), model.kernel_size
     multiple = 2 ** (scales - 1)
-    height, width = batch["inputs"].shape[-2:]
-    skips, h = [], _pad_replicate(batch["inputs"], multiple)
+    height, width = batch["radiance_in"].shape[-2:]
+    skips, h = [], _pad_replicate(batch["radiance_in"], multiple)
     for s in range(scales):
         h = model.encoder[s](h if s == 0 else _down(h))
         skips.append(h)
@@ -316,7 +325,12 @@ def varied_frame_batch(height, width, seed=0):
     surface = 2.5 * rows + 0.5 * cols + 0.8 * noise()
     volume = 1.5 * cols * (1 - rows) + 0.6 * noise() - 0.2
     inputs = 2 * torch.rand(2, IN, height, width, generator=g, dtype=torch.float64) - 1
-    return {"inputs": inputs, "surface_t": surface, "volume_t": volume, "color_t": surface + 0.3 * volume}
+    return {
+        "radiance_in": inputs,
+        "surface_t": surface,
+        "volume_t": volume,
+        "radiance_t": surface + 0.3 * volume,
+    }
 
 
 def sharpened(model):
@@ -373,8 +387,8 @@ def test_one_scale_of_width_one_is_one_softmax_kernel_on_the_linear_colour():
     assert [len(c) for c in model.compositors] == [0]
     with torch.no_grad():
         out = model(batch)["color"]
-        scores = model.heads[0](model.encoder[0](batch["inputs"]))
-    expected = _softmax_filter(scores, _inverse_lm(batch["color_t"]), 3)
+        scores = model.heads[0](model.encoder[0](batch["radiance_in"]))
+    expected = _softmax_filter(scores, _inverse_lm(batch["radiance_t"]), 3)
     torch.testing.assert_close(out, expected, atol=1e-9, rtol=1e-9)
     torch.testing.assert_close(out, reference_forward(model, batch), atol=1e-9, rtol=1e-9)
 
@@ -431,71 +445,65 @@ def test_a_bad_value_passed_to_the_constructor_is_a_one_line_config_error(key, v
     one_line_error(excinfo, *needles)
 
 
-# --- the one-branch frame models (frame_models.py) ------------------------------------------------------
+# --- the KPCN family on the one radiance branch (models.py with branches: [radiance]) -----------------
 
 
-def _frame_model(output, transform="log_modulus"):
-    from src.models.denoise.frame_models import frame_conv_stack_denoiser
-
+def _radiance_model(output):
     torch.manual_seed(5)
-    model = frame_conv_stack_denoiser(
-        in_channels=IN, width=4, depth=2, conv_kernel=3, transform=transform, output=output,
-        kernel_size=3, shared=False, whiten=False,
+    model = conv_stack_denoiser(
+        in_channels=IN, width=4, depth=2, conv_kernel=3, output=output, kernel_size=3, shared=False,
+        whiten=False, branches=["radiance"],
     )  # fmt: skip
     return model.double().eval()
 
 
 @pytest.mark.parametrize("transform", ["log_modulus", "none"])
-def test_the_frame_kpcn_filters_the_transformed_colour_and_the_dpcn_outputs_it_both_inverted(transform):
-    """KPCN: inverse(softmax kernel * color_t); DPCN: inverse(network output). The surface/volume parts
-    of the batch must not matter."""
+def test_the_radiance_kpcn_filters_the_transformed_colour_and_the_dpcn_outputs_it_both_inverted(transform):
+    """KPCN: inverse(softmax kernel * radiance_t); DPCN: inverse(network output), the inverse being the
+    sequences' colour space. The surface/volume parts of the batch must not matter."""
     batch = varied_frame_batch(6, 5)
     inverse = _inverse_lm if transform == "log_modulus" else (lambda t: t)
-    kpcn, dpcn = _frame_model("kernel", transform), _frame_model("direct", transform)
+    space = RadianceTransform(transform)
+    kpcn, dpcn = _radiance_model("kernel"), _radiance_model("direct")
     with torch.no_grad():
-        scores, direct = kpcn.net(batch["inputs"]), dpcn.net(batch["inputs"])
-        expected = inverse(_softmax_filter(scores, batch["color_t"], 3))
-        torch.testing.assert_close(kpcn(batch)["color"], expected, atol=1e-12, rtol=1e-12)
-        torch.testing.assert_close(dpcn(batch)["color"], inverse(direct), atol=1e-12, rtol=1e-12)
-    assert (expected - inverse(batch["color_t"])).abs().max() > 1e-2  # the kernel does filter
+        scores, direct = kpcn.radiance_net(batch["radiance_in"]), dpcn.radiance_net(batch["radiance_in"])
+        expected = inverse(_softmax_filter(scores, batch["radiance_t"], 3))
+        torch.testing.assert_close(final_color(kpcn(batch), batch, space), expected, atol=1e-12, rtol=1e-12)
+        torch.testing.assert_close(
+            final_color(dpcn(batch), batch, space), inverse(direct), atol=1e-12, rtol=1e-12
+        )
+    assert (expected - inverse(batch["radiance_t"])).abs().max() > 1e-2  # the kernel does filter
 
 
-def test_the_frame_models_halo_and_kernel_cost_count_the_kernel_only_for_kernel_output():
-    from src.models.denoise.frame_models import frame_conv_stack_denoiser, frame_residual_denoiser
-
-    kpcn, dpcn = _frame_model("kernel"), _frame_model("direct")
+def test_the_radiance_models_halo_and_kernel_cost_count_one_branch_and_the_kernel_only_for_kernel_output():
+    kpcn, dpcn = _radiance_model("kernel"), _radiance_model("direct")
     assert dpcn.halo == 2 and kpcn.halo == 2 + 1  # two 3x3 convs; + the 3x3 kernel's radius
     assert dpcn.kernel_size is None and dpcn.kernel_flops_per_pixel() == 0
-    assert kpcn.kernel_flops_per_pixel() == 2 * 9 * 3 + SOFTMAX_FLOPS_PER_TAP * 9
-    # The builders are marked, so that a job refuses them on a still-image dataset.
-    assert frame_conv_stack_denoiser.frame_batch is True and frame_residual_denoiser.frame_batch is True
+    assert kpcn.kernel_flops_per_pixel() == 2 * 9 * 3 + SOFTMAX_FLOPS_PER_TAP * 9  # one branch, not two
+    assert [name for name, _ in kpcn.named_children()] == ["radiance_net"]
 
 
-def test_a_frame_batch_of_the_wrong_shape_is_a_one_line_data_error():
+def test_a_radiance_batch_of_the_wrong_shape_or_without_the_branch_is_a_one_line_data_error():
     from src.errors import DataError
 
-    kpcn = _frame_model("kernel")
+    kpcn = _radiance_model("kernel")
     batch = varied_frame_batch(6, 5)
-    for bad in (batch["inputs"][:, :4], batch["inputs"][0]):  # 4 of 5 channels; no batch axis
+    for bad in (batch["radiance_in"][:, :4], batch["radiance_in"][0]):  # 4 of 5 channels; no batch axis
         with pytest.raises(DataError) as excinfo:
-            kpcn(batch | {"inputs": bad})
-        one_line_error(excinfo, "batch['inputs'] is", f"expected (N, {IN}, H, W)")
+            kpcn(batch | {"radiance_in": bad})
+        one_line_error(excinfo, "batch['radiance_in'] is", f"expected (N, {IN}, H, W)")
     with pytest.raises(DataError) as excinfo:
-        tiny()({"color_t": batch["color_t"]})
-    one_line_error(excinfo, "batch has no 'inputs'", "dataset=volumetric")
+        tiny()({"radiance_t": batch["radiance_t"]})
+    one_line_error(excinfo, "batch has no 'radiance_in'", "radiance branch")
 
 
-# Surviving mutants of src/models/denoise/unet_kpcn.py and frame_models.py (bash scripts/mutation.sh
-# unet_kpcn), all equivalent here:
+# Surviving mutants of src/models/denoise/unet_kpcn.py (bash scripts/mutation.sh unet_kpcn), all
+# equivalent here:
 # - _conv_block and ScaleCompositor `nn.ReLU(inplace=True)` -> inplace None / False: the same values (in
 #   place only saves the copy).
 # - pad_to_multiple `if dy or dx` -> `... or True`: F.pad by zero pixels returns the input unchanged.
 # - pad_to_multiple and forward `x.shape[-2:]` -> `x.shape[+2:]`: the frames are (N, C, H, W)
-#   (check_frame_input refuses any other rank), so both are (H, W).
+#   (branch_input refuses any other rank), so both are (H, W).
 # - upsample `mode="nearest"` dropped: nearest is F.interpolate's default mode.
 # - filter_scales and kernel_logits `zip(..., strict=True)` -> strict None / False / dropped: both lists
 #   have one entry per scale by construction (heads and features, logits and the pyramid).
-# - frame_batch_builder `builder.frame_batch = True` -> None / False: the decorator runs when the module is
-#   imported, before mutmut switches a mutant in, so no test can see it under mutmut;
-#   test_the_frame_models_halo_and_kernel_cost_count_the_kernel_only_for_kernel_output fails on it (tried
-#   by hand: `frame_batch = False`).

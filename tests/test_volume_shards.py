@@ -135,7 +135,7 @@ def test_a_sample_is_one_crop_over_consecutive_frames(prepared):
     items = list(ds)
     assert len(items) == len(ds) == 20
     for item in items:
-        x = item["inputs"]  # (k, 4, P, P): albedo = (row, col, frame), scattered = frame
+        x = item["radiance_in"]  # (k, 4, P, P): albedo = (row, col, frame), scattered = frame
         r, c, s = int(item["corner"][0]), int(item["corner"][1]), int(item["start"])
         assert x.shape == (3, 4, 4, 4)
         frames = torch.arange(s, s + 3, dtype=torch.float32)
@@ -153,7 +153,7 @@ def test_log_modulus_on_radiance_and_targets_invert_to_the_reference(prepared):
     ref = [synthetic_frame(scene, f, 64) for f in range(FRAMES)]
     color = np.stack([n["color"] for n in noisy])
     chw = lambda a: torch.from_numpy(np.moveaxis(np.asarray(a, np.float32), -1, -3))  # noqa: E731
-    x = seq["inputs"]
+    x = seq["radiance_in"]
     torch.testing.assert_close(x[:, 0:3], chw(log_modulus(color)))
     var = np.stack([n["colorVariance"] for n in noisy])
     torch.testing.assert_close(x[:, 3:4], chw(log_modulus_variance(var, color)))
@@ -161,8 +161,8 @@ def test_log_modulus_on_radiance_and_targets_invert_to_the_reference(prepared):
     torch.testing.assert_close(x[:, 7:10], chw(np.stack([n["normal"] for n in noisy])))  # as is
     reference = chw(np.stack([r["color"] for r in ref]))
     assert torch.equal(seq["reference"], reference) and torch.equal(seq["color"], chw(color))
-    torch.testing.assert_close(inverse_volume_transform(seq["target"], "log_modulus"), reference)
-    torch.testing.assert_close(inverse_log_modulus(seq["color_t"]), chw(color))
+    torch.testing.assert_close(inverse_volume_transform(seq["radiance_target"], "log_modulus"), reference)
+    torch.testing.assert_close(inverse_log_modulus(seq["radiance_t"]), chw(color))
     torch.testing.assert_close(seq["motion"], chw(np.stack([n["motion"] for n in noisy])))
     assert seq["motion"].min() < 0  # signed, untransformed
     # The frame-batch guides and parts come whatever the selection (here: no albedo, no surface).
@@ -196,20 +196,20 @@ def test_features_are_selected_by_name_and_whitened(prepared):
     _, out, _ = prepared
     all_ch = next(iter(SequencePatchDataset(out, "val", shuffle=False)))
     some = next(iter(SequencePatchDataset(out, "val", shuffle=False, features=["depth", "color.var"])))
-    assert all_ch["inputs"].shape[1] == 62 and some["inputs"].shape[1] == 2
+    assert all_ch["radiance_in"].shape[1] == 62 and some["radiance_in"].shape[1] == 2
     i = {n: k for k, n in enumerate(VOLUME_CANDIDATE_CHANNELS)}
-    assert torch.equal(some["inputs"][:, 0], all_ch["inputs"][:, i["depth"]])
-    assert torch.equal(some["inputs"][:, 1], all_ch["inputs"][:, i["color_var"]])
+    assert torch.equal(some["radiance_in"][:, 0], all_ch["radiance_in"][:, i["depth"]])
+    assert torch.equal(some["radiance_in"][:, 1], all_ch["radiance_in"][:, i["color_var"]])
     white = next(iter(SequencePatchDataset(out, "val", shuffle=False, whitening=out / "whitening.json")))
     stats = json.loads((out / "whitening.json").read_text())["inputs"]
     mean, std = (torch.tensor(stats[k], dtype=torch.float32)[:, None, None] for k in ("mean", "std"))
-    torch.testing.assert_close(white["inputs"], (all_ch["inputs"] - mean) / std)
-    assert torch.equal(white["color_t"], all_ch["color_t"])
+    torch.testing.assert_close(white["radiance_in"], (all_ch["radiance_in"] - mean) / std)
+    assert torch.equal(white["radiance_t"], all_ch["radiance_t"])
     some_white = SequencePatchDataset(
         out, "val", shuffle=False, features=["depth", "color.var"], whitening=out / "whitening.json"
     )
     torch.testing.assert_close(
-        next(iter(some_white))["inputs"], white["inputs"][:, [i["depth"], i["color_var"]]]
+        next(iter(some_white))["radiance_in"], white["radiance_in"][:, [i["depth"], i["color_var"]]]
     )
     with pytest.raises(ConfigError) as err:
         SequenceDataset(out, "test", features=["colour"])
@@ -278,7 +278,7 @@ def test_render_and_preprocess_from_the_command_line(tmp_path):
         assert expect in result.stdout, result.stdout[-2000:]
     prepared = tmp_path / "volumetric" / "prepared"
     item = next(iter(SequencePatchDataset(prepared, "train")))
-    assert item["inputs"].shape == (2, 62, 8, 8)
+    assert item["radiance_in"].shape == (2, 62, 8, 8)
     assert len(SequenceDataset(prepared, "test")) == 2
 
 
@@ -302,8 +302,8 @@ def _write_raw(cfg):
 
 
 def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes(tmp_path, capsys):
-    from src.stages import preprocess
     from src.kinds.stills import preprocess_key
+    from src.stages import preprocess
 
     cfg = _stage_config(tmp_path)
     _write_raw(cfg)
@@ -312,7 +312,7 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     assert "preprocess: 3 noisy sequences: 6 train / 6 val samples of 2 frames" in capsys.readouterr().out
     prepared = tmp_path / "data" / "volumetric" / "prepared"
     assert (prepared / "preprocess_provenance.json").is_file()
-    assert next(iter(SequencePatchDataset(prepared, "train")))["inputs"].shape == (2, 62, 8, 8)
+    assert next(iter(SequencePatchDataset(prepared, "train")))["radiance_in"].shape == (2, 62, 8, 8)
     preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
     assert "up to date" in capsys.readouterr().out
     summary = preprocess(_stage_config(tmp_path, "task.preprocess.sequence_frames=1"))

@@ -16,13 +16,13 @@ import torch
 
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.errors import ConfigError
-from src.eval.sequence_eval import SequenceEvaluation
+from src.eval.denoise_eval import DenoiseEvaluation
 from src.stages import evaluate, select_features, task_of, train
 from src.tasks.denoise import DenoiseTask
 from src.tracking.mlflow_tracking import job_run
 from src.tracking.tracker import Tracker
 from src.train.checkpoint import load_checkpoint
-from src.train.sequence_trainer import SequenceTrainer
+from src.train.trainer import DenoiserTrainer
 from tests.conftest import ROOT, cli_job, compose_config, one_line_cli_error, one_line_error, smoke_config
 from tests.test_temporal import _np_temporal_loss
 from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
@@ -102,11 +102,11 @@ def test_the_flicker_column_is_the_metric_of_the_denoised_frames(vol_data, tmp_p
         vol_data, tmp_path, "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"
     )
     monkeypatch.setattr(
-        SequenceEvaluation,
+        DenoiseEvaluation,
         "infer",
         lambda self, item: item["item"]["reference"] * _FRAME_SCALES.view(4, 1, 1, 1),
     )
-    evaluation = SequenceEvaluation(cfg, Tracker())
+    evaluation = DenoiseEvaluation(cfg, Tracker())
     summary = evaluation.run(desc="stub")
     rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
     assert len(rows) == 2
@@ -163,7 +163,7 @@ def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the
     trainer.model = _KnownOutput(color)
     values = trainer.losses(batch)
     output = color.view(n, k, 3, h, w).numpy()
-    reference, target = batch["reference"].double().numpy(), batch["target"].double().numpy()
+    reference, target = batch["reference"].double().numpy(), batch["radiance_target"].double().numpy()
     smape = np.abs(output - reference) / (np.abs(output) + np.abs(reference) + 0.01)
     temporal = _np_temporal_loss(np.sign(output) * np.log1p(np.abs(output)), target, mode)
     assert values["color"].item() == pytest.approx(smape.mean(), rel=1e-5)
@@ -179,7 +179,7 @@ def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the
 
 def _trainer(data, run_dir, weight, probe=False, *overrides):
     cfg = _cfg(data, run_dir, f"task.train.volumetric.temporal_weight={weight}", *overrides)
-    return SequenceTrainer(cfg, Tracker(), probe=probe)
+    return DenoiserTrainer(cfg, Tracker(), probe=probe)
 
 
 def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(vol_data, tmp_path):
@@ -237,7 +237,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
 
     from src.train import select_features as stage
     from src.train.select_features import features_for_size
-    from src.train.sequence_trainer import _FeatureDropout
+    from src.train.trainer import _FeatureDropout
     from tests.test_feature_selection import COVER_NEUTRAL, _cover_inputs, _cover_probe_loss
 
     candidates = ["transmittance", "depth", "sigma_t", "albedo.var"]
@@ -280,8 +280,9 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
         k = 2  # two identical frames per sample
         batches.append(
             {
-                "inputs": inputs.unsqueeze(1).expand(n, k, *inputs.shape[1:]),
+                "radiance_in": inputs.unsqueeze(1).expand(n, k, *inputs.shape[1:]),
                 "reference": reference.unsqueeze(1).expand(n, k, *reference.shape[1:]),
+                "color": reference.unsqueeze(1).expand(n, k, *reference.shape[1:]),
             }
         )
     made = []
@@ -293,7 +294,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
 
         def __init__(self, probe_cfg, tracker, probe=False):
             made.append((probe_cfg, probe))
-            self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.task.volume_features))
+            self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.task.volume_features), "radiance_in")
 
         def fit(self):
             return {"steps": 0, "train_time_s": 0.0, "param_count": 0}
@@ -303,7 +304,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
 
         def losses_of_frames(self, frames, batch, n, k):
             names = [name for name, _ in self.dropout.slices]
-            loss = _cover_probe_loss(frames["inputs"], frames["reference"], names, COVER_NEUTRAL)
+            loss = _cover_probe_loss(frames["radiance_in"], frames["reference"], names, COVER_NEUTRAL)
             return {"total": torch.tensor(loss)}
 
     class Recorder:
@@ -316,7 +317,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
         def log_artifact(self, path, artifact_path):
             self.artifacts.append((path, artifact_path))
 
-    monkeypatch.setattr(stage, "SequenceTrainer", FixedProbe)
+    monkeypatch.setattr(stage, "DenoiserTrainer", FixedProbe)
     tracker = Recorder()
     rows = stage.select_features(cfg, tracker)["rows"]
     probe_cfg, probe = made[0]
@@ -370,7 +371,7 @@ def test_an_interrupted_probe_resumes_to_the_weights_of_an_uninterrupted_one(vol
     from tests.conftest import stop_at
 
     def probe_trainer(cfg, tracker, on_step=None):
-        return SequenceTrainer(cfg, tracker, on_step, probe=True)
+        return DenoiserTrainer(cfg, tracker, on_step, probe=True)
 
     def cfg(name, *extra):
         return _cfg(vol_data, tmp_path / name, "task.train.epochs=2", "tracking.enabled=false", *extra)

@@ -12,8 +12,8 @@ from torch import nn
 from src.bench.model_configs import load_model_config
 from src.errors import one_line
 from src.models.denoise.base import Denoiser
-from src.models.denoise.models import TwoBranchDenoiser, infer_tiled
-from src.models.denoise.summary import flops_per_pixel, is_frame_model, random_frame_batch
+from src.models.denoise.models import BRANCHES, BranchDenoiser, infer_tiled
+from src.models.denoise.summary import flops_per_pixel, random_batch
 from src.models.instantiate import build_method
 from src.models.parameters import count_parameters
 
@@ -35,7 +35,7 @@ class NetworkOnly(nn.Module):
 
     learned = True
 
-    def __init__(self, model: TwoBranchDenoiser) -> None:
+    def __init__(self, model: BranchDenoiser) -> None:
         super().__init__()
         self.model = model
 
@@ -54,20 +54,25 @@ def frame_tiles(size: int, tile: int) -> list[slice]:
 
 def bench_model(name: str, cfg: Mapping[str, Any], batch, tile: int, device: torch.device, timer, seed: int):
     """Rows for one model: itself, and for kernel models its networks alone (timed interleaved). A model of
-    the volumetric frame batches (the U-Net KPCN) gets a random frame batch of the same size, with its
-    own `in_channels` (`task.volume_features` of the profile)."""
+    other branches than the still images' (the U-Net KPCN: the sequences' radiance) gets a random batch of
+    its branches of the same size, with its own `in_channels` (`task.volume_features` of the profile)."""
     torch.manual_seed(seed)
     model: Denoiser = build_method(cfg).to(device).eval()
-    if is_frame_model(model):
+    if model.branches and tuple(model.branches) != BRANCHES:
         height, width = next(iter(batch.values())).shape[-2:]
         generator = torch.Generator().manual_seed(seed)
-        batch = random_frame_batch(
-            height, width, in_channels=model.in_channels, generator=generator, device=device
+        batch = random_batch(
+            height,
+            width,
+            in_channels=model.in_channels,
+            branches=model.branches,
+            generator=generator,
+            device=device,
         )
     flops = flops_per_pixel(model)
     params = count_parameters(model)
     runs = [lambda: infer_tiled(model, batch, tile)]
-    if isinstance(model, TwoBranchDenoiser) and model.output == "kernel":
+    if isinstance(model, BranchDenoiser) and model.output == "kernel":
         net = NetworkOnly(model)
         runs.append(lambda: infer_tiled(net, batch, tile))
     seconds = timer(runs)

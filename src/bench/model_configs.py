@@ -8,6 +8,8 @@ from typing import Any
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from src.models.instantiate import resolve_target
+
 CONF_DIR = Path(__file__).resolve().parent.parent.parent / "conf"
 
 
@@ -20,9 +22,19 @@ def _compose(overrides: list[str], group: str, resolve: bool = True) -> dict[str
 def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
     """The `model:` group as `python -m src.run [task=<task>] model=<name> profile=<profile>` composes it
     (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also sets the NeRF dataset that
-    `model.background` refers to)."""
+    `model.background` refers to). A model whose class reads branches the default data lack (the U-Net
+    KPCN: the sequences' `radiance`) is composed with the first `conf/dataset` that has them, so its
+    `in_channels` are those of its data."""
     overrides = ([f"task={task}"] if task else []) + [f"model={name}", f"profile={profile}"]
-    return _compose(overrides, "model")
+    model = _compose(overrides, "model")
+    reads = set(getattr(resolve_target(model), "branches", ()))
+    if not reads or reads <= set(_compose(overrides, "dataset").get("branches") or ()):
+        return model
+    for dataset in sorted(p.stem for p in (CONF_DIR / "dataset").glob("*.yaml")):
+        data = _compose([*overrides, f"dataset={dataset}"], "dataset", resolve=False)
+        if reads <= set(data.get("branches") or ()):
+            return _compose([*overrides, f"dataset={dataset}"], "model")
+    return model
 
 
 def load_dataset_config(task: str, profile: str) -> dict[str, Any]:

@@ -184,3 +184,36 @@ class FullImageDataset(Dataset):
             guides=self.guides,
         )
         return {**data, "scene": meta["scene"], "spp": meta["spp"], "reference_spp": meta["reference_spp"]}
+
+
+class FramesOfOne(IterableDataset):
+    """Patches as samples of one frame: the batch contract's frame axis (k = 1, `src.models.denoise.base`)
+    put in front of every tensor, so still images train like sequences."""
+
+    def __init__(self, patches: PatchShardDataset) -> None:
+        super().__init__()
+        self.patches = patches
+
+    def set_epoch(self, epoch: int) -> None:
+        self.patches.set_epoch(epoch)
+
+    def __len__(self) -> int:
+        return len(self.patches)
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        for item in self.patches:
+            yield {k: v[None] for k, v in item.items()}
+
+
+class ImagesAsFrames(Dataset):
+    """Full images as sequences of one frame (the frame axis put in front of every tensor; `scene`,
+    `spp` and `reference_spp` as they are)."""
+
+    def __init__(self, images: FullImageDataset) -> None:
+        self.images = images
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        return {k: v[None] if isinstance(v, torch.Tensor) else v for k, v in self.images[i].items()}

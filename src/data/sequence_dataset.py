@@ -6,13 +6,15 @@
 - `SequenceDataset`: whole val/test sequences, one per (scene, noisy spp), map-style.
 
 Items are dicts of float32 tensors, frames first then channels: (k, C, P, P) for samples, (F, C, H, W)
-for sequences, under `SEQUENCE_KEYS`, where `inputs` holds only the channels of `features`
-(`task.volume_features`; None: all 62 candidates), selected by name; plus `color_t` (the transformed
-noisy colour, what a KPCN's kernels filter), `surface_t` / `volume_t`, the guides `albedo`, `normal`,
-`depth` and `motion` (flow in pixels to the next frame), taken from the stored candidates whatever the
-selection (the frame-batch keys of `src.models.denoise.base`).
-`inverse_volume_transform(x, dataset.volume_transform)` maps `target` / `color_t` / a network's output
-back to linear radiance.
+for sequences, in the batch contract of `src.models.denoise.base`: the sequences have one branch,
+`radiance` (`RADIANCE_BRANCH`), whose input group `radiance_in` holds only the channels of `features`
+(`task.volume_features`; None: all 62 candidates), selected by name; `radiance_t` is the transformed noisy
+colour (what a KPCN's kernels filter) and `radiance_target` the transformed reference. Besides:
+`surface_t` / `volume_t` / `target_surface` / `target_volume` (the colour's parts), `color` and
+`reference` (linear), and the guides `albedo`, `normal`, `depth` and `motion` (flow in pixels to the next
+frame), taken from the stored candidates whatever the selection.
+`inverse_volume_transform(x, dataset.volume_transform)` maps `radiance_target` / `radiance_t` / a
+network's output back to linear radiance.
 """
 
 from __future__ import annotations
@@ -33,10 +35,16 @@ from src.data.volume_features import Features, volume_channel_indices, volume_fe
 from src.data.volume_shards import SEQUENCE_KEYS
 
 Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
-#: Tensors taken from the stored candidates whatever `features` selects (the frame-batch keys of
-#: `src.models.denoise.base`): what kernels filter, what filters are guided by, the flow.
+#: The one branch of the sequences (`src.models.denoise.base`: its groups `radiance_in`, `radiance_t`,
+#: `radiance_target`).
+RADIANCE_BRANCH = "radiance"
+#: Stored tensors under their batch-contract names (the others keep theirs).
+_BATCH_NAMES = {"inputs": f"{RADIANCE_BRANCH}_in", "target": f"{RADIANCE_BRANCH}_target"}
+#: Tensors taken from the stored candidates whatever `features` selects: what kernels filter, what filters
+#: are guided by, the flow.
 _ALWAYS = {
-    **{f"{b}_t": (f"{b}_r", f"{b}_g", f"{b}_b") for b in ("color", "surface", "volume")},
+    f"{RADIANCE_BRANCH}_t": ("color_r", "color_g", "color_b"),
+    **{f"{b}_t": (f"{b}_r", f"{b}_g", f"{b}_b") for b in ("surface", "volume")},
     "albedo": ("albedo_r", "albedo_g", "albedo_b"),
     "normal": ("normal_x", "normal_y", "normal_z"),
     "depth": ("depth",),
@@ -58,12 +66,13 @@ class _Selection:
         self.whitening = None if whitening is None else whitening["inputs"].select(self.inputs.tolist())
 
     def apply(self, data: Mapping[str, torch.Tensor], channel_axis: int) -> dict[str, torch.Tensor]:
-        out = {k: data[k] for k in SEQUENCE_KEYS}
+        out = {_BATCH_NAMES.get(k, k): data[k] for k in SEQUENCE_KEYS}
         for key, idx in self.extra.items():
             out[key] = data["inputs"].index_select(channel_axis, idx)
-        out["inputs"] = data["inputs"].index_select(channel_axis, self.inputs)
+        inputs = data["inputs"].index_select(channel_axis, self.inputs)
         if self.whitening is not None:
-            out["inputs"] = whiten(out["inputs"], self.whitening, channel_axis=channel_axis)
+            inputs = whiten(inputs, self.whitening, channel_axis=channel_axis)
+        out[f"{RADIANCE_BRANCH}_in"] = inputs
         return out
 
 
@@ -110,7 +119,7 @@ class SequencePatchDataset(IterableDataset):
             raw = load_tensors(self.root / self.shards[i]["file"])
             data = self.selection.apply(raw, channel_axis=2)
             data |= {"start": raw["starts"], "corner": raw["corners"]}
-            n = data["inputs"].shape[0]
+            n = data["color"].shape[0]
             rng = np.random.default_rng([self.seed, self.epoch, int(i)])
             for j in rng.permutation(n) if self.shuffle else range(n):
                 yield {k: v[j] for k, v in data.items()}
@@ -137,6 +146,11 @@ class SequenceDataset(Dataset):
 
     def __len__(self) -> int:
         return len(self.sequences)
+
+    @property
+    def batch_keys(self) -> frozenset[str]:
+        """The tensor keys of every item (no sequence read): what `_Selection.apply` returns."""
+        return frozenset((*(_BATCH_NAMES.get(k, k) for k in SEQUENCE_KEYS), *_ALWAYS))
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         meta = self.sequences[i]

@@ -1,14 +1,19 @@
-"""Evaluation of a denoiser on the held-out full-resolution images (`stage=eval`).
+"""Evaluation of a denoiser on the held-out data (`stage=eval`), on every denoising kind of data.
 
-For every image of `task.eval.split` (every scene x noisy spp): denoise it (tiled, so memory stays bounded
-on large frames), time it, score it against the reference with `src.metrics.image` (PSNR/SSIM on the
-tone-mapped image, relMSE/SMAPE/MSE on linear HDR), and score the noisy input the same way for
-reference. relMSE comes in two conventions: `relmse` (Bako et al. 2017: mean over pixels and channels)
-and `relmse_spp` (Davletaliyev 2016, Eq. 3.5: summed over channels, times spp/2), with `relmse_ratio`,
-the denoised image's Eq. 3.5 value over the noisy one's (the GP thesis's fitness term).
+Every held-out item (a scene x noisy spp: a still image, or a whole sequence) is denoised frame by frame
+(tiled, `infer_tiled`, so memory stays bounded on large frames; every model, learned or a filter, goes
+through the same call, so all are compared on equal terms), timed, and scored against the reference with
+`src.metrics.image` (PSNR/SSIM/LPIPS on the tone-mapped image, relMSE/SMAPE/MSE/FLIP on linear HDR),
+each also for the noisy input (`noisy_*`). relMSE comes in two conventions: `relmse` (Bako et al. 2017:
+mean over pixels and channels) and `relmse_spp` (Davletaliyev 2016, Eq. 3.5: summed over channels, times
+spp/2), with `relmse_ratio`, the denoised image's Eq. 3.5 value over the noisy one's (the GP thesis's
+fitness term). A row of `per_image.csv` is one item: its frames' metrics averaged; for the kinds of
+sequences (`DataKind.temporal`) also its frame count and the temporal-stability metric `temporal` of the
+whole sequence (`src.metrics.temporal`: mean |Δt output - Δt reference|, tone-mapped; flicker).
 
 Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json` (resolved config,
-git commit, data fingerprint), denoised EXRs and PNG comparison strips under `task.eval.out_dir`.
+git commit, data fingerprint), denoised EXRs, tone-mapped PNGs and comparison strips (a sequence's middle
+frame) under `task.eval.out_dir`.
 """
 
 from __future__ import annotations
@@ -20,35 +25,36 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from src.data.denoise_dataset import FullImageDataset
-from src.data.features import check_trained_features, input_features
 from src.eval.common import mean_rows
 from src.eval.loop import Evaluation
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
 from src.metrics.image import image_metrics, relmse_spp, tonemap
-from src.models.denoise.base import Batch, Denoiser, final_color
+from src.metrics.temporal import temporal_error
+from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
+from src.train.trainer import data_kind
 
 log = logging.getLogger(__name__)
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
-#: (flicker) only where there are sequences (`src.eval.sequence_eval`).
+#: (flicker) only where there are sequences.
 SCORES = ("psnr", "ssim", "relmse", "relmse_spp", "relmse_ratio", "smape", "mse", "lpips", "flip", "temporal")
 
 
 @torch.no_grad()
-def denoise_tiled(model: Denoiser, batch: Batch, tile: int, eps: float) -> torch.Tensor:
+def denoise_tiled(model: Denoiser, batch: Batch, tile: int, space: ColorSpace) -> torch.Tensor:
     """Linear colour (N, 3, H, W) of `batch`, computed in `tile` x `tile` blocks with the model's halo
     (`infer_tiled`: equal to a full-frame pass, memory bounded by the tile), then rebuilt from the
-    transformed branches (a per-pixel operation)."""
-    return final_color(infer_tiled(model, batch, tile), batch, eps).float()
+    transformed branches with the data's colour space (a per-pixel operation)."""
+    return final_color(infer_tiled(model, batch, tile), batch, space).float()
 
 
-def _hwc(x: torch.Tensor) -> np.ndarray:
-    return x[0].permute(1, 2, 0).cpu().numpy().astype(np.float32)
+def _frames_hwc(x: torch.Tensor) -> np.ndarray:
+    """(F, 3, H, W) -> (F, H, W, 3) float32 numpy."""
+    return x.permute(0, 2, 3, 1).cpu().numpy().astype(np.float32)
 
 
 def gp_relmse(
@@ -62,74 +68,98 @@ def gp_relmse(
 
 
 class OnDevice(Sequence):
-    """The held-out items of `data` with their tensors on the device under "batch" (loaded before the
-    timed call): a still image as a batch of one, a sequence's frames as the batch (`as_batch_of_one`
-    False)."""
+    """The held-out items of `data` with their (F, C, H, W) tensors on the device under "batch" (loaded
+    before the timed call)."""
 
-    def __init__(self, data, device: torch.device, as_batch_of_one: bool = True) -> None:
-        self.data, self.device, self.single = data, device, as_batch_of_one
+    def __init__(self, data, device: torch.device) -> None:
+        self.data, self.device = data, device
 
     def __len__(self) -> int:
         return len(self.data)
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         item = self.data[i]
-        tensors = {k: v for k, v in item.items() if isinstance(v, torch.Tensor)}
-        batch = {k: (v[None] if self.single else v).to(self.device) for k, v in tensors.items()}
+        batch = {k: v.to(self.device) for k, v in item.items() if isinstance(v, torch.Tensor)}
         return {"item": item, "batch": batch}
 
 
-def held_out_images(cfg: DictConfig, model: Denoiser) -> FullImageDataset:
-    """The full images of `task.eval.split`, after checking from their index that they hold what `model`
-    reads (`Denoiser.check_batch_keys`: a one-line error before any image is denoised or file written)."""
-    data = FullImageDataset(cfg.paths.prepared, cfg.task.eval.split, features=input_features(cfg))
-    model.check_batch_keys(data.batch_keys)
-    return data
-
-
 class DenoiseEvaluation(Evaluation):
-    """Every image of `task.eval.split` (every scene x noisy spp), denoised in tiles."""
+    """Every held-out item of `task.eval.split` (scene x noisy spp) of the run's kind of data, denoised
+    frame by frame in tiles (module docstring)."""
 
     artifact_folders = ("strips", "png")
 
     def __init__(self, cfg: DictConfig, tracker) -> None:
         super().__init__(cfg, tracker)
-        self.features = input_features(cfg)
+        self.kind = data_kind(cfg)
+        self.unit = self.kind.eval_unit
+        self.features = self.kind.features(cfg)
         if self.checkpoint is not None:
-            check_trained_features(self.checkpoint.get("features"), self.features, cfg.task.eval.checkpoint)
-        self.eps = float(cfg.task.preprocess.eps_albedo)
+            self.kind.check_trained_features(self.checkpoint, self.features, str(cfg.task.eval.checkpoint))
+        self.space = self.kind.color_space(cfg)
 
     def items(self) -> Sequence[dict[str, Any]]:
-        data = held_out_images(self.cfg, self.model)
-        return OnDevice(data, self.device)
+        return OnDevice(self.kind.held_out(self.cfg, self.features, self.model), self.device)
 
+    @torch.no_grad()
     def infer(self, item: dict[str, Any]) -> torch.Tensor:
-        return denoise_tiled(self.model, item["batch"], int(self.cfg.task.eval.tile), self.eps)
+        frames, tile = item["batch"], int(self.cfg.task.eval.tile)
+        count = frames["color"].shape[0]
+        outputs = [
+            denoise_tiled(self.model, {k: v[f : f + 1] for k, v in frames.items()}, tile, self.space)
+            for f in range(count)
+        ]
+        return torch.cat(outputs)
 
     def data_dir(self) -> Path:
-        return Path(self.cfg.paths.raw)
+        return self.kind.raw_dir(self.cfg)
 
     def untimed(self, item: dict[str, Any], output: torch.Tensor) -> dict[str, np.ndarray]:
         return {
-            "noisy": _hwc(item["item"]["color"][None]),
-            "denoised": _hwc(output),
-            "reference": _hwc(item["item"]["reference"][None]),
+            "noisy": _frames_hwc(item["item"]["color"]),
+            "denoised": _frames_hwc(output),
+            "reference": _frames_hwc(item["item"]["reference"]),
         }
 
     def score(self, item: dict[str, Any], images: dict[str, np.ndarray], seconds: float) -> dict[str, Any]:
-        """Metrics of the denoised and of the noisy image against the reference, and the runtime."""
+        """Per-frame metrics of the denoised and of the noisy frames against the reference, averaged over
+        the frames; a sequence's frame count and flicker; the runtime per frame."""
         denoised, noisy, reference = images["denoised"], images["noisy"], images["reference"]
-        m = self.cfg.metrics
-        megapixels = reference.shape[0] * reference.shape[1] / 1e6
-        row: dict[str, Any] = {"scene": item["item"]["scene"], "spp": int(item["item"]["spp"])}
-        row |= image_metrics(denoised, reference, m)
-        row |= {f"noisy_{k}": v for k, v in image_metrics(noisy, reference, m).items()}
-        row |= gp_relmse(denoised, noisy, reference, row["spp"], float(m.relmse_eps))
-        row |= {"ms_per_image": seconds * 1e3, "ms_per_mpixel": seconds * 1e3 / megapixels}
-        return row
+        m, spp = self.cfg.metrics, int(item["item"]["spp"])
+        frames, height, width = reference.shape[:3]
+        per_frame = []
+        for f in range(frames):
+            row = image_metrics(denoised[f], reference[f], m)
+            row |= {f"noisy_{k}": v for k, v in image_metrics(noisy[f], reference[f], m).items()}
+            row |= gp_relmse(denoised[f], noisy[f], reference[f], spp, float(m.relmse_eps))
+            per_frame.append(row)
+        means = {k: float(np.mean([r[k] for r in per_frame])) for k in per_frame[0]}
+        name: dict[str, Any] = {"scene": item["item"]["scene"], "spp": spp}
+        flicker = {}
+        if self.kind.temporal:
+            name["frames"] = frames
+            flicker = {
+                "temporal": temporal_error(denoised, reference, m.tonemap, m.gamma),
+                "noisy_temporal": temporal_error(noisy, reference, m.tonemap, m.gamma),
+            }
+        ms_per_frame = seconds * 1e3 / frames
+        timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
+        return {**name, **means, **flicker, **timing}
 
     def save_outputs(self, item: dict[str, Any], images: dict[str, np.ndarray]) -> None:
-        _save_images(self.out_dir, item["item"], images, self.cfg.task.eval, self.cfg.metrics)
+        """Every frame's EXR and PNGs (a sequence's named `<scene>-f<FFFF>`), the middle frame's strip."""
+        e = self.cfg.task.eval
+        frames = images["reference"].shape[0]
+        for f in range(frames):
+            scene = f"{item['item']['scene']}-f{f:04d}" if self.kind.temporal else item["item"]["scene"]
+            options = e if f == frames // 2 else OmegaConf.merge(e, {"strips": False})
+            _save_images(
+                self.out_dir,
+                {**item["item"], "scene": scene},
+                {k: v[f] for k, v in images.items()},
+                options,
+                self.cfg.metrics,
+            )
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
         per_spp = {
@@ -146,7 +176,7 @@ class DenoiseEvaluation(Evaluation):
 
 
 def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
-    """Denoise and score every held-out image; returns (and writes) the summary of means."""
+    """Denoise and score every held-out item; returns (and writes) the summary of means."""
     return DenoiseEvaluation(cfg, tracker).run(desc=f"eval {cfg.model.name}")
 
 

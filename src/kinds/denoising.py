@@ -12,6 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.errors import ConfigError
 from src.io.atomic import atomic_directory
 from src.kinds.base import DataKind
 from src.provenance import data_fingerprint, write_summary
@@ -35,9 +36,23 @@ def cached_preprocess(out: Path, key: str) -> dict | None:
     return record["summary"] if record.get("cache_key") == key else None
 
 
+def model_branches(model: DictConfig) -> list[str]:
+    """The branches a configured model reads: its `branches` key, or its class's declared `branches`."""
+    if model.get("branches") is not None:
+        return [str(b) for b in model.branches]
+    from src.models.instantiate import resolve_target  # lazy: hydra
+
+    return list(getattr(resolve_target(model), "branches", ()))
+
+
 def held_out_index(cfg: DictConfig) -> Path:
     """The index of the prepared full images that `stage=eval` reads (`task.eval.split`)."""
     return Path(cfg.paths.prepared) / "full" / str(cfg.task.eval.split) / "index.json"
+
+
+def repaired_note(summary: dict[str, Any]) -> str:
+    """The printed line's note of the files repaired on loading (empty when none)."""
+    return f", repaired {len(summary['repairs'])} files" if summary["repairs"] else ""
 
 
 class DenoisingKind(DataKind):
@@ -45,6 +60,31 @@ class DenoisingKind(DataKind):
     this family also implements `preprocess`, `train` and `evaluate` (the summaries the task prints)."""
 
     describes = "denoising data (noisy and reference renders with their buffers)"
+
+    def check_stage(self, stage: str, cfg: DictConfig) -> None:
+        """A model that reads a branch these data lack (`model.branches`, or its class's `branches`: the
+        U-Net KPCN reads the sequences' `radiance`) cannot train or be evaluated on them; an evaluation
+        whose prepared items exist checks now that they hold every buffer the method reads."""
+        if stage not in ("train", "eval", "select_features"):
+            return
+        have = [str(b) for b in cfg.dataset.branches]
+        missing = [b for b in model_branches(cfg.model) if b not in have]
+        if missing:
+            raise ConfigError(
+                f"model={cfg.model.name} reads the {', '.join(missing)} branch: stage={stage} needs data "
+                f"with it; dataset={cfg.dataset.name} has the {', '.join(have)} branches"
+            )
+        if stage == "eval" and held_out_index(cfg).is_file():
+            self._check_held_out_inputs(cfg)
+
+    def _check_held_out_inputs(self, cfg: DictConfig) -> None:
+        """The one-line error of a method that needs a buffer the prepared items lack (e.g. a GP filter's
+        world position on real KPCN data, or its variance guides on sequences), before any run is opened
+        or file written. (When an earlier stage of the job makes them, the eval stage checks the same when
+        it opens them.)"""
+        from src.models.instantiate import build_method
+
+        self.held_out(cfg, self.features(cfg), build_method(OmegaConf.to_container(cfg.model, resolve=True)))
 
     def raw_dir(self, cfg: DictConfig) -> Path:
         """Where the raw EXRs are (`paths.raw`)."""
@@ -117,16 +157,62 @@ class DenoisingKind(DataKind):
             write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
         return summary, True
 
+    # -- what the one denoising trainer and evaluation ask of the data (src/train/trainer.py,
+    # src/eval/denoise_eval.py) -----------------------------------------------------------------------------
+    #: Progress-bar units of a training sample and of a held-out item; whether items are sequences (their
+    #: rows then carry a frame count and the flicker metric); the input group the feature-selection probe
+    #: drops features of (None: no probe on these data).
+    sample_unit = "sample"
+    eval_unit = "img"
+    temporal = False
+    probe_key: str | None = None
 
-def repaired_note(summary: dict[str, Any]) -> str:
-    """The printed line's note of the files repaired on loading (empty when none)."""
-    return f", repaired {len(summary['repairs'])} files" if summary["repairs"] else ""
+    def features(self, cfg: DictConfig) -> list[str] | None:
+        """The run's input features, by name (what a checkpoint records)."""
+        raise NotImplementedError
+
+    def check_trained_features(
+        self, checkpoint: dict[str, Any], features: list[str] | None, where: str
+    ) -> None:
+        """A one-line DataError when the checkpoint's model was trained on other features."""
+        raise NotImplementedError
+
+    def color_space(self, cfg: DictConfig):
+        """How branch outputs become linear colour (`src.data.color_spaces`)."""
+        raise NotImplementedError
+
+    def training_data(self, cfg: DictConfig, features: list[str] | None) -> tuple[Any, Any]:
+        """The training (shuffled per epoch) and validation datasets: items of k frames."""
+        raise NotImplementedError
+
+    def build_context(self, cfg: DictConfig, train_data) -> dict[str, Any]:
+        """What the model's builder gets besides its config (default: nothing)."""
+        return {}
+
+    def schedule(self, cfg: DictConfig):
+        """The learning-rate schedule's config (`task.train.schedule`; None: constant)."""
+        return cfg.task.train.get("schedule")
+
+    def loss_terms(self, cfg: DictConfig, train_data):
+        """What the model is fitted to (`src.train.objectives`)."""
+        raise NotImplementedError
+
+    def held_out(self, cfg: DictConfig, features: list[str] | None, model):
+        """The held-out items of `task.eval.split`: (F, C, H, W) tensors and `scene`, `spp`,
+        `reference_spp`; checked against what `model` reads where the data allow it before any frame."""
+        raise NotImplementedError
 
     def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        raise NotImplementedError
+        """Fit the denoiser (`src.train.trainer`)."""
+        from src.train.trainer import train_denoiser
+
+        return train_denoiser(cfg, tracker)
 
     def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        raise NotImplementedError
+        """Score the method on the held-out items (`src.eval.denoise_eval`)."""
+        from src.eval.denoise_eval import evaluate_denoiser
+
+        return evaluate_denoiser(cfg, tracker)
 
     def training_summary(self, model, cfg: DictConfig) -> str:
         """Lines `stage=summary` adds about the inputs a model reads on this data (default: none)."""

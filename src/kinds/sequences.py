@@ -13,10 +13,15 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.data.color_spaces import RadianceTransform
+from src.data.sequence_dataset import RADIANCE_BRANCH
 from src.data.sequence_patches import FRAMES_KEY
-from src.errors import ConfigError
+from src.data.volume_features import run_volume_features
+from src.errors import ConfigError, DataError
 from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
 from src.schema.dataset import VolumetricDataset
+from src.train.losses import get_loss
+from src.train.objectives import TemporalLosses
 
 
 def preprocess_settings(cfg: DictConfig) -> dict[str, Any]:
@@ -52,12 +57,19 @@ class RenderedSequences(DenoisingKind):
         return summary, summary_path
 
     def check_stage(self, stage: str, cfg: DictConfig) -> None:
-        """A preprocessing window longer than the sequences is one line."""
+        """Besides the branch check: a preprocessing window longer than the sequences, and input
+        whitening (no whitening statistics of the sequences' inputs are passed to a model), are one line."""
+        super().check_stage(stage, cfg)
         k, frames = cfg.task.preprocess.sequence_frames, cfg.dataset.frames
         if stage == "preprocess" and k > frames:
             raise ConfigError(
                 f"{FRAMES_KEY}={k} is more than the dataset.frames={frames} frames of each volumetric "
                 "sequence"
+            )
+        if stage in ("train", "eval", "select_features") and cfg.model.get("whiten"):
+            raise ConfigError(
+                "model.whiten: true is not supported on dataset=volumetric (no whitening statistics of the "
+                "sequences' inputs); set model.whiten=false"
             )
 
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
@@ -99,25 +111,68 @@ class RenderedSequences(DenoisingKind):
             )
         return summary
 
-    def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Fit the denoiser on k-frame samples with the temporal loss (`src.train.sequence_trainer`)."""
-        from src.train.sequence_trainer import train_sequence_denoiser
+    # -- what the denoising trainer and evaluation read ----------------------------------------------------
+    eval_unit = "seq"
+    temporal = True
+    probe_key = f"{RADIANCE_BRANCH}_in"
 
-        return train_sequence_denoiser(cfg, tracker)
+    def features(self, cfg: DictConfig) -> list[str] | None:
+        return run_volume_features(cfg)
 
-    def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Score the method per frame and for flicker on the held-out sequences (`src.eval.sequence_eval`)."""
-        from src.eval.sequence_eval import evaluate_sequences
+    def check_trained_features(self, checkpoint: dict[str, Any], features, where: str) -> None:
+        trained = checkpoint.get("features", features)
+        if trained != features:
+            raise DataError(
+                f"{where}: trained with task.volume_features={trained} (null: all), configured "
+                f"{features}; evaluate with the features it was trained on"
+            )
 
-        return evaluate_sequences(cfg, tracker)
+    def color_space(self, cfg: DictConfig) -> RadianceTransform:
+        return RadianceTransform(cfg.task.preprocess.volume_transform)
+
+    def training_data(self, cfg: DictConfig, features) -> tuple[Any, Any]:
+        """k-frame samples of the train and val splits (`SequencePatchDataset`)."""
+        from src.data.sequence_dataset import SequencePatchDataset
+
+        data = {"seed": int(cfg.seed), "features": features}
+        prepared = Path(cfg.paths.prepared)
+        return (
+            SequencePatchDataset(prepared, "train", shuffle=True, **data),
+            SequencePatchDataset(prepared, "val", shuffle=False, **data),
+        )
+
+    def schedule(self, cfg: DictConfig):
+        """`task.train.volumetric.schedule` (the talk's decay), else `task.train.schedule`."""
+        own = cfg.task.train.volumetric.get("schedule")
+        return own if own is not None else super().schedule(cfg)
+
+    def loss_terms(self, cfg: DictConfig, train_data) -> TemporalLosses:
+        """Reconstruction + temporal loss (`task.train.volumetric`), in the prepared data's transform."""
+        v = cfg.task.train.volumetric
+        return TemporalLosses(
+            get_loss(v.loss),
+            self.color_space(cfg),
+            weight=v.temporal_weight,
+            mode=v.temporal_mode,
+            warp=v.temporal_warp,
+            transform=train_data.volume_transform,
+        )
+
+    def held_out(self, cfg: DictConfig, features, model):
+        """The whole sequences of `task.eval.split`, after checking from their index that they hold what
+        `model` reads (`Denoiser.check_batch_keys`)."""
+        from src.data.sequence_dataset import SequenceDataset
+
+        data = SequenceDataset(cfg.paths.prepared, cfg.task.eval.split, features=features)
+        model.check_batch_keys(data.batch_keys)
+        return data
 
     def training_summary(self, model, cfg: DictConfig) -> str:
-        """For a model of the frame batches: the `task.volume_features` it reads (the model config knows
+        """For a model of the radiance branch: the `task.volume_features` it reads (the model config knows
         only their channel count)."""
         from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, volume_feature_channels
-        from src.models.denoise.summary import is_frame_model
 
-        if not is_frame_model(model):
+        if RADIANCE_BRANCH not in getattr(model, "branches", ()):
             return ""
         selected = cfg.task.volume_features
         features = list(VOLUME_CANDIDATE_FEATURES) if selected is None else [str(f) for f in selected]

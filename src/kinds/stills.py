@@ -10,10 +10,14 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from src.data.features import CANDIDATE_CHANNELS
+from src.data.color_spaces import KpcnSplit
+from src.data.denoise_dataset import FramesOfOne, ImagesAsFrames
+from src.data.features import CANDIDATE_CHANNELS, check_trained_features, input_features
 from src.errors import ConfigError
-from src.kinds.denoising import DenoisingKind, cache_key, held_out_index, repaired_note
+from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
 from src.schema.dataset import ProceduralDataset
+from src.train.losses import get_loss
+from src.train.objectives import BranchLosses
 
 #: `task.preprocess` keys only the sequences read (`src.kinds.sequences`): changing them leaves prepared
 #: still images valid.
@@ -45,35 +49,14 @@ class RenderedStills(DenoisingKind):
         return summary, Path(cfg.paths.dataset) / "render_summary.json"
 
     def check_stage(self, stage: str, cfg: DictConfig) -> None:
-        """Feature selection chooses among the sequences' candidates; a model of the sequences' frame
-        batches (its builder's `frame_batch`) cannot read diffuse/specular batches; an evaluation whose
-        prepared images exist checks now that they hold every buffer the method reads."""
+        """Besides the shared checks: feature selection chooses among the sequences' candidates."""
+        super().check_stage(stage, cfg)
         if stage == "select_features":
             raise ConfigError(
                 f"stage=select_features: the feature selection chooses among the volumetric candidates "
                 f"(task.volume_features); dataset={cfg.dataset.name} has a fixed feature list "
                 "(task.features); run it with dataset=volumetric"
             )
-        if stage in ("train", "eval"):
-            from src.models.instantiate import resolve_target
-
-            if getattr(resolve_target(cfg.model), "frame_batch", False):
-                raise ConfigError(
-                    f"model={cfg.model.name} reads the volumetric frame batches: stage={stage} needs "
-                    f"dataset=volumetric, not dataset={cfg.dataset.name}"
-                )
-        if stage == "eval" and held_out_index(cfg).is_file():
-            self._check_held_out_inputs(cfg)
-
-    @staticmethod
-    def _check_held_out_inputs(cfg: DictConfig) -> None:
-        """The one-line error of a method that needs a buffer the prepared images lack (e.g. a GP filter's
-        world position on real KPCN data), before any run is opened or file written. (When an earlier
-        stage of the job makes them, the eval stage checks the same when it opens them.)"""
-        from src.eval.denoise_eval import held_out_images
-        from src.models.instantiate import build_method
-
-        held_out_images(cfg, build_method(OmegaConf.to_container(cfg.model, resolve=True)))
 
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """The raw EXRs into KPCN inputs/targets: patches (train/val) and full images (val/test); skipped
@@ -115,14 +98,46 @@ class RenderedStills(DenoisingKind):
             )
         return summary
 
-    def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Fit the denoiser on the still-image patches (`src.train.trainer`)."""
-        from src.train.trainer import train_denoiser
+    # -- what the denoising trainer and evaluation read ----------------------------------------------------
+    sample_unit = "patch"
 
-        return train_denoiser(cfg, tracker)
+    def features(self, cfg: DictConfig) -> list[str]:
+        return input_features(cfg)
 
-    def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Score the method on the held-out images (`src.eval.denoise_eval`)."""
-        from src.eval.denoise_eval import evaluate_denoiser
+    def check_trained_features(self, checkpoint: dict[str, Any], features, where: str) -> None:
+        check_trained_features(checkpoint.get("features"), features, where)
 
-        return evaluate_denoiser(cfg, tracker)
+    def color_space(self, cfg: DictConfig) -> KpcnSplit:
+        return KpcnSplit(cfg.task.preprocess.eps_albedo)
+
+    def training_data(self, cfg: DictConfig, features) -> tuple[FramesOfOne, FramesOfOne]:
+        """Patches of the train and val splits (`PatchShardDataset`), as samples of one frame."""
+        from src.data.denoise_dataset import PatchShardDataset
+
+        data = {"seed": int(cfg.seed), "features": features}
+        prepared = Path(cfg.paths.prepared)
+        return (
+            FramesOfOne(PatchShardDataset(prepared, "train", shuffle=True, **data)),
+            FramesOfOne(PatchShardDataset(prepared, "val", shuffle=False, **data)),
+        )
+
+    def build_context(self, cfg: DictConfig, train_data: FramesOfOne) -> dict[str, Any]:
+        """The whitening statistics of the selected inputs, for a model that whitens (an ablation)."""
+        if not cfg.model.get("whiten"):
+            return {"whitening": None}
+        from src.data.denoise_dataset import selected_whitening
+
+        path = Path(cfg.paths.prepared) / "whitening.json"
+        return {"whitening": selected_whitening(path, train_data.patches.select)}
+
+    def loss_terms(self, cfg: DictConfig, train_data) -> BranchLosses:
+        return BranchLosses(get_loss(cfg.task.train.loss), self.color_space(cfg))
+
+    def held_out(self, cfg: DictConfig, features, model) -> ImagesAsFrames:
+        """The full images of `task.eval.split`, after checking from their index that they hold what
+        `model` reads (`Denoiser.check_batch_keys`: a one-line error before any image is denoised)."""
+        from src.data.denoise_dataset import FullImageDataset
+
+        data = FullImageDataset(cfg.paths.prepared, cfg.task.eval.split, features=features)
+        model.check_batch_keys(data.batch_keys)
+        return ImagesAsFrames(data)

@@ -138,7 +138,15 @@ class DatasetSchema(Schema):
     target: str = Field(alias="_target_", min_length=1)
 
 
-class ProceduralDataset(DatasetSchema):
+class DenoisingData(DatasetSchema):
+    """The batch contract of the denoising kinds (`src/models/denoise/base.py`): the colour's branches and
+    each branch's input channels."""
+
+    branches: Names
+    input_channels: PositiveInt
+
+
+class ProceduralDataset(DenoisingData):
     name: Literal["procedural"]
     bases: list[Literal["cornell", "tabletop", "outdoor"]] = Field(min_length=1)
     scenes_per_base: PositiveInt
@@ -289,7 +297,7 @@ class VolumetricBaseScenes(Schema):
     godrays: Godrays
 
 
-class VolumetricDataset(DatasetSchema):
+class VolumetricDataset(DenoisingData):
     name: Literal["volumetric"]
     experiment_suffix: str
     bases: list[Literal["cloud", "smoke_tabletop", "fog_objects", "godrays"]] = Field(min_length=1)

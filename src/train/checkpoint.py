@@ -66,16 +66,42 @@ LEGACY_NERF_TARGETS = {
 }
 
 
+#: Before one batch contract served still images and sequences (issue 31), the sequences' KPCN family had
+#: builders of its own (one `net` over `inputs`, and a `transform` key); today they are the still images'
+#: builders with the sequences' one branch.
+FRAME_TARGETS = {
+    "src.models.denoise.frame_models.frame_conv_stack_denoiser": LEGACY_TARGETS["conv_stack"],
+    "src.models.denoise.frame_models.frame_residual_denoiser": LEGACY_TARGETS["residual"],
+}
+#: The branches of a KPCN-family checkpoint that predates `model.branches`: the still images' two.
+STILL_BRANCHES = ["diffuse", "specular"]
+
+
 def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
-    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`)."""
-    if "_target_" in model_config:
-        return model_config
-    if model_config.get("family") == "nerf":
-        target = LEGACY_NERF_TARGETS.get(model_config.get("name"))
-    else:
-        target = LEGACY_TARGETS.get(model_config.get("architecture"))
-    old = {k: v for k, v in model_config.items() if k != "architecture"}
-    return model_config if target is None else {"_target_": target, **old}
+    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`; the
+    sequences' frame builders -> the branch builders with `branches: [radiance]`; a KPCN-family config
+    without `branches` -> the still images' two)."""
+    if "_target_" not in model_config:
+        if model_config.get("family") == "nerf":
+            target = LEGACY_NERF_TARGETS.get(model_config.get("name"))
+        else:
+            target = LEGACY_TARGETS.get(model_config.get("architecture"))
+        old = {k: v for k, v in model_config.items() if k != "architecture"}
+        model_config = model_config if target is None else {"_target_": target, **old}
+    target = model_config.get("_target_")
+    if target in FRAME_TARGETS:
+        kept = {k: v for k, v in model_config.items() if k not in ("_target_", "transform")}
+        return {"_target_": FRAME_TARGETS[target], **kept, "branches": ["radiance"]}
+    if target in LEGACY_TARGETS.values() and "branches" not in model_config:
+        return {**model_config, "branches": STILL_BRANCHES}
+    return model_config
+
+
+def _upgraded_weights(state: dict[str, Any]) -> dict[str, Any]:
+    """A checkpoint's weights under today's names (a frame builder's `net.*` -> `radiance_net.*`)."""
+    if state["model_config"].get("_target_") not in FRAME_TARGETS:
+        return state["model"]
+    return {(f"radiance_{k}" if k.startswith("net.") else k): v for k, v in state["model"].items()}
 
 
 def check_model_config(
@@ -83,7 +109,7 @@ def check_model_config(
 ) -> None:
     """The checkpoint was trained with the same architecture as `model_cfg` (ignoring the name)."""
     saved = {k: v for k, v in _upgraded(state["model_config"]).items() if k != "name"}
-    wanted = {k: v for k, v in model_cfg.items() if k != "name"}
+    wanted = {k: v for k, v in _upgraded(dict(model_cfg)).items() if k != "name"}
     diff = sorted(k for k in saved.keys() | wanted.keys() if saved.get(k) != wanted.get(k))
     if diff:
         pairs = ", ".join(f"model.{k}: {saved.get(k)!r} in checkpoint vs {wanted.get(k)!r}" for k in diff)
@@ -95,7 +121,7 @@ def load_weights(model: torch.nn.Module, model_cfg: dict[str, Any], path: str | 
     returns the checkpoint."""
     state = load_checkpoint(path)
     check_model_config(state, model_cfg, path)
-    model.load_state_dict(state["model"])
+    model.load_state_dict(_upgraded_weights(state))
     return state
 
 

@@ -3,7 +3,7 @@
 features from its result (`task.feature_selection.size`).
 
 1. One probe denoiser (the run's `model`) is trained on the start set plus every candidate with random
-   feature dropout (`SequenceTrainer(probe=True)`): each sample drops each candidate with probability
+   feature dropout (`DenoiserTrainer(probe=True)`): each sample drops each candidate with probability
    `dropout`, its channels set to their neutral values.
 2. Greedy forward selection with that probe and no retraining (`feature_selection.greedy_forward_selection`):
    from the start set (the noisy colour), each round adds the candidate whose addition lowers the probe's
@@ -34,7 +34,7 @@ from src.io.atomic import atomic_path, atomic_write_csv, atomic_write_json
 from src.provenance import provenance
 from src.train import feature_selection as fs
 from src.train.loop import Means
-from src.train.sequence_trainer import SequenceTrainer, flatten_frames
+from src.train.trainer import DenoiserTrainer, flatten_frames
 
 SELECTION_FILE = "selection.json"
 KEY = "task.feature_selection"
@@ -79,15 +79,16 @@ def probe_config(cfg: DictConfig) -> DictConfig:
 
 
 @torch.no_grad()
-def _validation_loss(trainer: SequenceTrainer, batches: list[dict], keep: torch.Tensor) -> float:
+def _validation_loss(trainer: DenoiserTrainer, batches: list[dict], keep: torch.Tensor) -> float:
     """The probe's mean validation objective with only the `keep` features (others neutral)."""
     means = Means()
     for batch in batches:
-        n, k = batch["inputs"].shape[:2]
+        n, k = batch["color"].shape[:2]
         frames = flatten_frames(batch)
         mask = keep.expand(n * k, -1)
-        frames["inputs"] = fs.drop_features(
-            frames["inputs"], mask, trainer.dropout.slices, trainer.dropout.neutral, channel_axis=1
+        key = trainer.dropout.key
+        frames[key] = fs.drop_features(
+            frames[key], mask, trainer.dropout.slices, trainer.dropout.neutral, channel_axis=1
         )
         losses = trainer.losses_of_frames(frames, batch, n, k)
         means.add({"total": float(losses["total"])}, n)
@@ -117,7 +118,7 @@ def select_features(cfg: DictConfig, tracker) -> dict[str, Any]:
     """Train the probe, run the greedy selection, write and log the ordered table (module docstring)."""
     sel = cfg.task.feature_selection
     probe = probe_config(cfg)
-    trainer = SequenceTrainer(probe, tracker, probe=True)
+    trainer = DenoiserTrainer(probe, tracker, probe=True)
     if cfg.task.train.resume:
         trainer.restore(cfg.task.train.resume)
     summary = trainer.fit()

@@ -1,12 +1,16 @@
-"""Training loop for the learned denoisers (`stage=train`).
+"""Training loop of the learned denoisers (`stage=train`), on every denoising kind of data.
 
-The objective is the sum of the losses of what the model predicts, each against its target
-(`TARGETS`): following the seed thesis, a two-branch model's diffuse and specular outputs are fitted to
-their transformed targets (objective = loss(diffuse) + loss(specular)) and the final colour, rebuilt
-with the inverse transform, is scored with the same loss for the logs only; a model that predicts colour
-directly (one branch) is fitted on that colour against the reference. Per step (every `log_every`) and
-per epoch, on train and validation patches, each loss is logged: `{train,val}_loss_{diffuse,specular,
-color}` for a two-branch model, `{train,val}_loss_color` for a colour model.
+The kind of data (`dataset._target_`, `src/kinds/`) gives what differs: its training and validation
+datasets (items of k frames; a still image is a sequence of one), the input features a checkpoint
+records, the colour space its branches map back through, what the model is fitted to
+(`src.train.objectives`: the branches' losses for still images, reconstruction + temporal loss for
+sequences) and the learning-rate schedule. The frames of a batch's samples are flattened into one
+batch for the model (`flatten_frames`). Per step (every `log_every`) and per epoch, on train and
+validation data, each logged loss is written: `{train,val}_loss_<name>`.
+
+With `probe=True` the run is the feature-selection probe (Zhang et al. 2022, `src.train.feature_selection`):
+every sample drops each candidate feature with probability `task.feature_selection.dropout`, setting its
+channels to their neutral values, so that one network learns to denoise with any subset.
 
 The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`; the
 data order of an epoch depends only on (seed, epoch), so a resumed run ends with the same weights.
@@ -14,54 +18,38 @@ data order of an epoch depends only on (seed, epoch), so a resumed run ends with
 
 from __future__ import annotations
 
-import functools
 import logging
 import math
-import operator
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from src.data.denoise_dataset import PatchShardDataset, selected_whitening
-from src.data.features import input_features
-from src.errors import DataError
-from src.models.denoise.base import Batch, Denoiser, final_color
+from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
+from src.models.denoise.base import Batch
+from src.models.instantiate import resolve_target
+from src.train import feature_selection as fs
 from src.train.curves import write_curves
 from src.train.device import autocast, autocast_dtype
-from src.train.loop import Means, OnStep, TrainingLoop, run_training
-from src.train.losses import Loss, get_loss
+from src.train.loop import Means, OnStep, TrainingLoop, build_schedule, run_training
 
 log = logging.getLogger(__name__)
 
-#: A model output -> the batch entry it is fitted to.
-TARGETS = {"diffuse": "diffuse_target", "specular": "specular_target", "color": "reference"}
+#: Batch entries that are not per-frame tensors (a sample's first frame and crop corner).
+_SAMPLE_META = ("start", "corner")
 
 
-def component_losses(model: Denoiser, batch: Batch, loss: Loss, eps: float) -> dict[str, torch.Tensor]:
-    """Loss of each of the model's outputs against its target (`TARGETS`), and of the final colour
-    (rebuilt from the branches when the model predicts them) against the reference."""
-    out = model(batch)
-    unknown = [key for key in out if key not in TARGETS]
-    if unknown:
-        raise DataError(
-            f"{type(model).__name__}.forward returned {unknown}; a denoiser returns some of {list(TARGETS)}"
-        )
-    losses = {key: loss(value, batch[TARGETS[key]]) for key, value in out.items()}
-    if "color" not in losses:
-        losses["color"] = loss(final_color(out, batch, eps).float(), batch["reference"])
-    return losses
+def data_kind(cfg: DictConfig) -> Any:
+    """The data kind `dataset._target_` names (`src/kinds/`), which this run's data are."""
+    return resolve_target(cfg.dataset, "dataset")()
 
 
-def objective(losses: dict[str, Any]) -> Any:
-    """What the optimiser minimises: the sum of the predicted outputs' losses (diffuse + specular for a
-    two-branch model, whose colour loss is only logged; the colour loss for a colour model)."""
-    fitted = [losses[k] for k in ("diffuse", "specular") if k in losses] or [losses["color"]]
-    return functools.reduce(operator.add, fitted)
+def flatten_frames(batch: Batch) -> dict[str, torch.Tensor]:
+    """(N, k, C, H, W) sample tensors as one (N*k, C, H, W) frame batch."""
+    return {k: v.flatten(0, 1) for k, v in batch.items() if k not in _SAMPLE_META}
 
 
 def _to(batch: Batch, device: torch.device) -> dict[str, torch.Tensor]:
@@ -74,46 +62,36 @@ def _autocast(device: torch.device, amp: bool):
 
 
 class DenoiserTrainer(TrainingLoop):
-    """Patches from the prepared shards, epochs of the training split, validation after every epoch."""
+    """Samples of k frames from the prepared data, epochs of the training split, validation after every
+    epoch; what is fitted comes from the data kind (module docstring)."""
 
-    unit = "patch"
-
-    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None) -> None:
-        self.features = self.configured_features(cfg)
-        self.train_data, self.val_data = self.datasets(cfg)
-        super().__init__(cfg, tracker, on_step, **self.build_context(cfg))
-        self.eps = float(cfg.task.preprocess.eps_albedo)
-        self.loss = get_loss(self.t.loss)
+    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None, probe: bool = False) -> None:
+        self.kind = data_kind(cfg)
+        self.unit = self.kind.sample_unit
+        self.features = self.kind.features(cfg)
+        self.train_data, self.val_data = self.kind.training_data(cfg, self.features)
+        super().__init__(cfg, tracker, on_step, **self.kind.build_context(cfg, self.train_data))
+        self.schedule = build_schedule(self.kind.schedule(cfg))
+        self.terms = self.kind.loss_terms(cfg, self.train_data)
+        self.dropout = _FeatureDropout(cfg, self.features, self.kind.probe_key) if probe else None
         self.history: dict[str, float] = {}  # the last completed epoch's train/val losses
 
-    # -- what the volumetric trainer (`src.train.sequence_trainer`) replaces -------------------------------
-    def configured_features(self, cfg: DictConfig) -> list[str] | None:
-        """The input features of this run (what its checkpoint records)."""
-        return input_features(cfg)
-
-    def datasets(self, cfg: DictConfig) -> tuple[Any, Any]:
-        """The train and validation patch datasets."""
-        data = {"seed": int(cfg.seed), "features": self.features}
-        prepared = Path(cfg.paths.prepared)
-        return (
-            PatchShardDataset(prepared, "train", shuffle=True, **data),
-            PatchShardDataset(prepared, "val", shuffle=False, **data),
-        )
-
-    def build_context(self, cfg: DictConfig) -> dict[str, Any]:
-        """What the model's builder gets besides its config: the whitening statistics of its inputs."""
-        if not cfg.model.get("whiten"):
-            return {"whitening": None}
-        prepared = Path(cfg.paths.prepared)
-        return {"whitening": selected_whitening(prepared / "whitening.json", self.train_data.select)}
-
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
-        """Every logged loss of one batch (`component_losses`)."""
-        return component_losses(self.model, batch, self.loss, self.eps)
+        """Every logged loss of one batch of n samples of k frames."""
+        n, k = batch["color"].shape[:2]
+        frames = flatten_frames(batch)
+        if self.dropout is not None and self.model.training:
+            key = self.dropout.key
+            frames[key] = self.dropout(frames[key], n, k, self.pos.step)
+        return self.losses_of_frames(frames, batch, n, k)
+
+    def losses_of_frames(self, frames: Batch, batch: Batch, n: int, k: int) -> dict[str, torch.Tensor]:
+        """The losses of the flattened `frames` of `batch`'s n samples of k frames."""
+        return self.terms(self.model, frames, batch, n, k)
 
     def objective(self, losses: dict[str, Any]) -> Any:
-        """What the optimiser minimises of `losses` (`objective`)."""
-        return objective(losses)
+        """What the optimiser minimises of `losses`."""
+        return self.terms.objective(losses)
 
     def checkpoint_extra(self) -> dict[str, Any]:
         return {"features": self.features}
@@ -121,7 +99,7 @@ class DenoiserTrainer(TrainingLoop):
     def batches(self, epoch: int, skip: int = 0) -> Iterator[Batch]:
         return self._batches(self.train_data, epoch, skip)
 
-    def _batches(self, data: PatchShardDataset, epoch: int, skip: int = 0) -> Iterator[Batch]:
+    def _batches(self, data, epoch: int, skip: int = 0) -> Iterator[Batch]:
         data.set_epoch(epoch)
         loader = DataLoader(data, batch_size=int(self.t.batch_size), num_workers=int(self.t.num_workers))
         for i, batch in enumerate(loader):
@@ -152,7 +130,7 @@ class DenoiserTrainer(TrainingLoop):
 
     @torch.no_grad()
     def validate(self) -> dict[str, float]:
-        """Mean losses over all validation patches (weighted by batch size)."""
+        """Mean losses over all validation samples (weighted by batch size)."""
         self.model.eval()
         means = Means()
         for batch in self._batches(self.val_data, epoch=0):
@@ -185,6 +163,29 @@ class DenoiserTrainer(TrainingLoop):
 
     def extra_summary(self) -> dict[str, Any]:
         return {"epochs": self.pos.epoch, **self.history}
+
+
+class _FeatureDropout:
+    """The probe's random feature dropout on the input group `key`: per sample (all k frames alike), each
+    candidate but the start set dropped with probability `task.feature_selection.dropout`, seeded by
+    (seed, step), so that a resumed probe sees the same masks."""
+
+    def __init__(self, cfg: DictConfig, features: list[str] | None, key: str) -> None:
+        sel = cfg.task.feature_selection
+        features = list(features or VOLUME_CANDIDATE_FEATURES)
+        self.key = key
+        self.slices = fs.feature_slices(features)
+        names = [name for name, _ in self.slices]
+        # keep_only: a one-line ConfigError if the start set names a feature the probe does not read.
+        self.always = fs.keep_only(sel.start, names).nonzero().flatten().tolist()
+        self.neutral = fs.neutral_values(features, OmegaConf.to_container(sel.neutral, resolve=True))
+        self.p, self.seed = float(sel.dropout), int(cfg.seed)
+
+    def __call__(self, inputs: torch.Tensor, n: int, k: int, step: int) -> torch.Tensor:
+        generator = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
+        keep = fs.random_keep_mask(n, len(self.slices), self.p, generator, self.always)
+        keep = keep.repeat_interleave(k, dim=0).to(inputs.device)
+        return fs.drop_features(inputs, keep, self.slices, self.neutral.to(inputs.device), channel_axis=1)
 
 
 def train_denoiser(cfg: DictConfig, tracker, on_step: OnStep = None) -> dict[str, Any]:

@@ -1,48 +1,56 @@
 """The one interface every denoiser (learned or not) implements, so they share training, evaluation,
-benchmarks and report tables.
+benchmarks and report tables, on every denoising kind of data (`src/kinds/`).
 
-A batch is a dict of float32 (N, C, H, W) tensors, as `src.data.denoise_dataset` yields them:
+A batch is a dict of float32 (N, C, H, W) tensors, one frame per row (the trainer flattens the k frames
+of its samples into N; a still image is a sequence of one frame). Its colour is split into *branches*,
+each with named input groups:
 
-    diffuse_in, specular_in   the `task.features` channels (`src.data.features`; the paper's 28 by
-                              default), in the order configured, NOT whitened: a model
-                              that whitens holds the statistics as buffers and applies them itself, so a
+    <branch>_in               the branch's input features, selected by name from the stored candidates
+                              (`task.features` for still images, `src.data.features`; `task.volume_features`
+                              for sequences, `src.data.volume_features`), NOT whitened: a model that
+                              whitens holds the statistics as buffers and applies them itself, so a
                               checkpoint is self-contained
-    diffuse_t, specular_t     transformed noisy colours (d / (albedo + eps), log(1 + s)): what kernels filter
-    albedo, normal            noisy albedo (3), world-space shading normal in [-1, 1] (3)
-    depth                     depth normalised to [0, 1] by the image maximum (1)
+    <branch>_t                the branch's noisy colour in its transformed space: what kernels filter
+    <branch>_target           the reference in that space (a training target)
+
+The still images have two branches, `diffuse` (d / (albedo + eps)) and `specular` (log(1 + s)); the
+sequences one, `radiance` (under `task.preprocess.volume_transform`); `src.data.color_spaces` maps a
+model's branch outputs back to linear colour for each. Every batch also holds
+
     color, reference          noisy and reference colour, linear HDR (3)
-    diffuse_target, specular_target   transformed reference (training targets)
+    albedo, normal            noisy albedo (3), shading normal in [-1, 1] (3)
+    depth                     depth normalised to [0, 1] (1)
 
-A *frame batch* of the volumetric sequences (`dataset=volumetric`, `src.data.sequence_dataset`: one frame
-per row, the frames of a training sample or sequence flattened into N) holds instead:
-
-    inputs                    the `task.volume_features` channels (`src.data.volume_features`), radiance
-                              and unbounded buffers under `task.preprocess.volume_transform`, NOT whitened
-    color_t, surface_t, volume_t   the noisy colour and its surface / volume parts (3 each), transformed
-    color, reference          noisy and reference colour, linear HDR (3)
-    target, target_surface, target_volume   the reference colour / surface / volume, transformed
-    albedo, normal, depth     guides as stored (albedo, normal in [-1, 1], depth over the sequence's scale)
-    motion                    screen-space flow to the next frame, pixels (2)
-
-and every model of it returns {"color": ...}, linear HDR colour (a network in the transformed space maps
-its output back itself), so learned models and filters share the sequence trainer and evaluation.
+and, where the data have them: `motion` (sequences: flow in pixels to the next frame), the sequences'
+`surface_t` / `volume_t` (the transformed colour's parts), the still images' one-channel guides and GP
+features (`src.data.denoise_dataset`).
 
 `Denoiser.forward(batch)` returns a dict:
-    learned models: {"diffuse": ..., "specular": ...} in the transformed space (then `final_color`
-                    rebuilds linear colour with the inverse transform);
-    filters:        {"color": ...} linear HDR colour.
+    branch models:  {<branch>: ...} per branch it reads, in the transformed space (`final_color` makes
+                    linear colour of them with the data's colour space);
+    colour models:  {"color": ...} linear HDR colour (filters, the U-Net KPCN).
+A model declares the branches it reads (`branches`); a kind of data without them refuses it in one line.
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
+from typing import Protocol
 
 import torch
 from torch import nn
 
-from src.data.kpcn_preprocess import rebuild_color
+from src.errors import DataError
 
 Batch = Mapping[str, torch.Tensor]
+
+
+class ColorSpace(Protocol):
+    """How a kind of data makes linear colour of branch outputs (`src.data.color_spaces`)."""
+
+    branches: tuple[str, ...]
+
+    def to_linear(self, outputs: Batch, batch: Batch) -> torch.Tensor: ...
 
 
 class Denoiser(nn.Module):
@@ -51,12 +59,12 @@ class Denoiser(nn.Module):
 
     learned: bool = True
     #: What the trainer, the summary and tiled inference need to know, declared (not guessed from attribute
-    #: names): the network's input channels (None: a filter, which reads the buffers it names), the
-    #: multiple its input height and width must have (a U-Net pads to 2^(scales-1)), and whether it reads
-    #: volumetric frame batches rather than diffuse/specular ones.
+    #: names): the network's input channels per branch (None: a filter, which reads the buffers it names),
+    #: the multiple its input height and width must have (a U-Net pads to 2^(scales-1)), and the branches
+    #: whose input groups it reads (none: a filter).
     in_channels: int | None = None
     size_multiple: int = 1
-    frame_batch: bool = False
+    branches: tuple[str, ...] = ()
 
     @property
     def halo(self) -> int:
@@ -83,9 +91,22 @@ class Denoiser(nn.Module):
         the data's index before any image is denoised). Default: nothing beyond the common keys."""
 
 
-def final_color(outputs: Mapping[str, torch.Tensor], batch: Batch, eps: float) -> torch.Tensor:
-    """Linear HDR colour from a denoiser's outputs: its "color", or the inverse transform of its
-    diffuse/specular (c = (albedo + eps) * d' + exp(s') - 1)."""
+def final_color(outputs: Mapping[str, torch.Tensor], batch: Batch, space: ColorSpace) -> torch.Tensor:
+    """Linear HDR colour from a denoiser's outputs: its "color", or its branch outputs mapped back by the
+    data's colour space (still images: c = (albedo + eps) * d' + exp(s') - 1)."""
     if "color" in outputs:
         return outputs["color"]
-    return rebuild_color(outputs["diffuse"], outputs["specular"], batch["albedo"], eps)
+    return space.to_linear(outputs, batch)
+
+
+def branch_input(batch: Batch, branch: str, in_channels: int) -> torch.Tensor:
+    """batch["<branch>_in"], checked against the model's input channels (one-line DataError otherwise)."""
+    key = f"{branch}_in"
+    if key not in batch:
+        raise DataError(
+            f"batch has no {key!r}: this model reads the {branch} branch; got keys {sorted(batch)}"
+        )
+    x = batch[key]
+    if x.ndim != 4 or x.shape[1] != in_channels:
+        raise DataError(f"batch[{key!r}] is {tuple(x.shape)}, expected (N, {in_channels}, H, W)")
+    return x

@@ -1,4 +1,5 @@
-"""The learned denoisers: one network per branch (diffuse, specular), or one shared by both.
+"""The learned denoisers: one network per branch of the data (still images: diffuse and specular;
+sequences: radiance; `src.models.denoise.base`), or one shared by all branches.
 
 - DPCN (Bako et al. 2017, "direct prediction"): the network outputs the denoised transformed colour.
 - KPCN (Bako et al. 2017, Eq. 5-6): the network outputs k*k kernel scores per pixel; `apply_kernel`
@@ -6,13 +7,17 @@
 - Residual KPCN (Vogels et al. 2018 style): the same kernel output from `ResidualKernelNet`, with the
   diffuse and specular branches sharing one network or not (an ablation in the seed thesis).
 
+The branches come from the data (`model.branches: ${dataset.branches}`), so the same YAML and class serve
+the still images (two branches, the papers' models) and the sequences (one branch over
+`task.volume_features`, its output mapped back to linear colour by the sequences' radiance transform).
+
 Input whitening (an ablation) lives inside the model as buffers, so a checkpoint is self-contained and
 batches are never whitened outside.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Literal, TypedDict, Unpack
 
 import torch
@@ -20,11 +25,12 @@ from torch import nn
 
 from src.data.kpcn_preprocess import WhiteningStats
 from src.errors import ConfigError, DataError
-from src.models.denoise.base import Batch, Denoiser
+from src.models.denoise.base import Batch, Denoiser, branch_input
 from src.models.denoise.kernels import apply_kernel, kernel_application_flops
 from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.instantiate import at_least
 
+#: The still images' branches: a model built without `branches` (a benchmark, an old checkpoint) has these.
 BRANCHES = ("diffuse", "specular")
 OUTPUTS = ("direct", "kernel")
 #: Colour channels a direct-prediction network outputs (RGB of the transformed branch colour).
@@ -32,27 +38,27 @@ COLOR_CHANNELS = 3
 Whitening = Mapping[str, WhiteningStats] | None
 
 
-class TwoBranchDenoiser(Denoiser):
-    """Diffuse and specular branches, each (whiten ->) network (-> kernel application).
+class BranchDenoiser(Denoiser):
+    """One network per branch, each (whiten ->) network (-> kernel application).
 
     Args:
-        diffuse_net, specular_net: the branch networks; pass the SAME module for shared weights (it is then
-            run once on both branches concatenated along N, which is faster than two calls).
+        nets: branch name -> its network (registered as `<branch>_net`); pass the SAME module for every
+            branch for shared weights (it is then run once on the branches concatenated along N, which is
+            faster than one call per branch).
         output: "direct" (net outputs 3 channels: the transformed colour) or "kernel" (net outputs
             kernel_size**2 scores, applied to batch["<branch>_t"]).
         kernel_size: k for output="kernel".
         whiten: hold per-branch mean/std buffers and whiten batch["<branch>_in"] with them.
-        in_channels: number of input channels (the length of the whitening statistics).
-        whitening: {"diffuse_in": stats, "specular_in": stats} from the training split; with whiten=True and
-            no stats, the buffers start at mean 0 / std 1 (a checkpoint load then fills them).
+        in_channels: number of input channels per branch (the length of the whitening statistics).
+        whitening: {"<branch>_in": stats} from the training split; with whiten=True and no stats, the
+            buffers start at mean 0 / std 1 (a checkpoint load then fills them).
     """
 
     learned = True
 
     def __init__(
         self,
-        diffuse_net: nn.Module,
-        specular_net: nn.Module,
+        nets: Mapping[str, nn.Module],
         *,
         output: str,
         in_channels: int,
@@ -65,8 +71,9 @@ class TwoBranchDenoiser(Denoiser):
             raise ConfigError(f"model.output: unknown {output!r}; expected one of {list(OUTPUTS)}")
         if output == "kernel" and (kernel_size is None or kernel_size < 1 or kernel_size % 2 == 0):
             raise ConfigError(f"model.kernel_size: expected a positive odd integer, got {kernel_size!r}")
-        self.diffuse_net = diffuse_net
-        self.specular_net = specular_net
+        self.branches = tuple(nets)
+        for branch, net in nets.items():
+            setattr(self, f"{branch}_net", net)
         self.output = output
         self.kernel_size = kernel_size if output == "kernel" else None
         self.in_channels = in_channels
@@ -74,13 +81,17 @@ class TwoBranchDenoiser(Denoiser):
         if whiten:
             self._register_whitening(whitening or {})
 
+    def net(self, branch: str) -> nn.Module:
+        return getattr(self, f"{branch}_net")
+
     @property
     def shared(self) -> bool:
-        return self.diffuse_net is self.specular_net
+        """One network for every branch (of more than one)."""
+        return len(self.branches) > 1 and len({id(self.net(b)) for b in self.branches}) == 1
 
     def _register_whitening(self, whitening: Mapping[str, WhiteningStats]) -> None:
         """Buffers `<branch>_mean` / `<branch>_std` of shape (1, C, 1, 1): saved in the state_dict."""
-        for branch in BRANCHES:
+        for branch in self.branches:
             key = f"{branch}_in"
             stats = whitening.get(key)
             mean = torch.zeros(self.in_channels) if stats is None else torch.as_tensor(stats.mean)
@@ -97,50 +108,58 @@ class TwoBranchDenoiser(Denoiser):
     def halo(self) -> int:
         """Network receptive field plus the kernel radius (kernels read k//2 pixels around each pixel)."""
         kernel_radius = self.kernel_size // 2 if self.kernel_size else 0
-        return max(self.diffuse_net.halo, self.specular_net.halo) + kernel_radius
+        return max(self.net(b).halo for b in self.branches) + kernel_radius
 
     def kernel_flops_per_pixel(self) -> float:
         """FLOPs per pixel outside the convolutions: each branch's kernel application (0 for direct)."""
-        return len(BRANCHES) * kernel_application_flops(self.kernel_size) if self.kernel_size else 0.0
+        return len(self.branches) * kernel_application_flops(self.kernel_size) if self.kernel_size else 0.0
+
+    def check_batch_keys(self, keys: Collection[str]) -> None:
+        """Every branch's input group and transformed colour must be in the data (one line otherwise)."""
+        missing = [f"{b}{s}" for b in self.branches for s in ("_in", "_t") if f"{b}{s}" not in keys]
+        if missing:
+            raise DataError(
+                f"model reads the {', '.join(self.branches)} branch(es): the data lack {missing}; they have "
+                f"{sorted(k for k in keys if k.endswith('_in'))}"
+            )
 
     def _branch_input(self, batch: Batch, branch: str) -> torch.Tensor:
-        x = batch[f"{branch}_in"]
-        if x.ndim != 4 or x.shape[1] != self.in_channels:
-            raise DataError(
-                f"batch['{branch}_in'] is {tuple(x.shape)}, expected (N, {self.in_channels}, H, W)"
-            )
+        x = branch_input(batch, branch, self.in_channels)
         if not self.whiten:
             return x
         return (x - getattr(self, f"{branch}_mean")) / getattr(self, f"{branch}_std")
 
     def network_outputs(self, batch: Batch) -> dict[str, torch.Tensor]:
         """The raw network outputs per branch (colour, or kernel scores before `apply_kernel`)."""
-        x = {b: self._branch_input(batch, b) for b in BRANCHES}
+        x = {b: self._branch_input(batch, b) for b in self.branches}
         if self.shared:
-            both = self.diffuse_net(torch.cat([x["diffuse"], x["specular"]], dim=0))
-            return dict(zip(BRANCHES, both.split(x["diffuse"].shape[0], dim=0), strict=True))
-        return {"diffuse": self.diffuse_net(x["diffuse"]), "specular": self.specular_net(x["specular"])}
+            first = x[self.branches[0]]
+            all_branches = self.net(self.branches[0])(torch.cat(list(x.values()), dim=0))
+            return dict(zip(self.branches, all_branches.split(first.shape[0], dim=0), strict=True))
+        return {b: self.net(b)(x[b]) for b in self.branches}
 
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
         raw = self.network_outputs(batch)
         if self.output == "direct":
             return raw
-        return {b: apply_kernel(raw[b], batch[f"{b}_t"], self.kernel_size) for b in BRANCHES}
+        return {b: apply_kernel(raw[b], batch[f"{b}_t"], self.kernel_size) for b in self.branches}
 
 
-class _TwoBranchRequired(TypedDict):
+class _BranchRequired(TypedDict):
     output: Literal["direct", "kernel"]  # direct: the network outputs colour; kernel: k*k kernel scores
-    shared: bool  # one network for both branches
+    shared: bool  # one network for all branches
     whiten: bool  # per-channel input whitening with the training split's statistics
 
 
-class TwoBranchArgs(_TwoBranchRequired, total=False):
-    """Options of both two-branch denoisers (`TwoBranchDenoiser`), declared once for their builders.
+class BranchArgs(_BranchRequired, total=False):
+    """Options of the branch denoisers (`BranchDenoiser`), declared once for their builders.
     (`total=False` rather than `NotRequired`: the latter is not seen under postponed annotations.)"""
 
     kernel_size: int | None  # k, for output: kernel
-    # The training split's {"diffuse_in": stats, "specular_in": stats}, passed by the harness: initialises the
-    # whitening buffers (without it they start at mean 0 / std 1, to be filled by a checkpoint load).
+    # The data's branches (`${dataset.branches}`); default the still images' two.
+    branches: list[str]
+    # The training split's {"<branch>_in": stats}, passed by the harness: initialises the whitening
+    # buffers (without it they start at mean 0 / std 1, to be filled by a checkpoint load).
     whitening: Whitening
 
 
@@ -152,23 +171,24 @@ def output_channels(output: str, kernel_size: int | None) -> int:
     return COLOR_CHANNELS
 
 
-def _two_branch(
-    make_net: Callable[[int], nn.Module], in_channels: int, branches: TwoBranchArgs
-) -> TwoBranchDenoiser:
-    """One network (shared) or two, around the common output/whitening options (checked by
-    `TwoBranchDenoiser`; the kernel size first, as it sets the networks' output channels)."""
-    output, kernel_size = branches["output"], branches.get("kernel_size")
+def _branch_model(make_net: Callable[[int], nn.Module], in_channels: int, opts: BranchArgs) -> BranchDenoiser:
+    """One network (shared) or one per branch, made in branch order, around the common output/whitening
+    options (checked by `BranchDenoiser`; the kernel size first, as it sets the networks' output
+    channels)."""
+    output, kernel_size = opts["output"], opts.get("kernel_size")
+    names = list(opts.get("branches") or BRANCHES)
+    if len(set(names)) != len(names):
+        raise ConfigError(f"model.branches: expected distinct branch names, got {names}")
     out_channels = output_channels(output, kernel_size)
-    diffuse = make_net(out_channels)
-    specular = diffuse if branches["shared"] else make_net(out_channels)
-    return TwoBranchDenoiser(
-        diffuse,
-        specular,
+    first = make_net(out_channels)
+    nets = {b: first if i == 0 or opts["shared"] else make_net(out_channels) for i, b in enumerate(names)}
+    return BranchDenoiser(
+        nets,
         output=output,
         in_channels=in_channels,
         kernel_size=kernel_size if output == "kernel" else None,
-        whiten=branches["whiten"],
-        whitening=branches.get("whitening"),
+        whiten=opts["whiten"],
+        whitening=opts.get("whitening"),
     )
 
 
@@ -200,11 +220,11 @@ def residual_maker(
 
 
 def conv_stack_denoiser(
-    *, in_channels: int, width: int, depth: int, conv_kernel: int, **branches: Unpack[TwoBranchArgs]
-) -> TwoBranchDenoiser:
+    *, in_channels: int, width: int, depth: int, conv_kernel: int, **opts: Unpack[BranchArgs]
+) -> BranchDenoiser:
     """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch."""
     make = conv_stack_maker(in_channels=in_channels, width=width, depth=depth, conv_kernel=conv_kernel)
-    return _two_branch(make, in_channels, branches)
+    return _branch_model(make, in_channels, opts)
 
 
 def residual_denoiser(
@@ -214,8 +234,8 @@ def residual_denoiser(
     blocks: int,
     conv_kernel: int,
     predictor_width: int,
-    **branches: Unpack[TwoBranchArgs],
-) -> TwoBranchDenoiser:
+    **opts: Unpack[BranchArgs],
+) -> BranchDenoiser:
     """Residual KPCN (Vogels et al. 2018 style): a `ResidualKernelNet` per branch, or one shared by both
     (`shared`, an ablation of the seed thesis)."""
     make = residual_maker(
@@ -225,7 +245,7 @@ def residual_denoiser(
         conv_kernel=conv_kernel,
         predictor_width=predictor_width,
     )
-    return _two_branch(make, in_channels, branches)
+    return _branch_model(make, in_channels, opts)
 
 
 def _tile_starts(size: int, tile: int) -> range:

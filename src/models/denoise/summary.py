@@ -8,22 +8,23 @@ the usual convention). The rest is what each denoiser declares (`Denoiser.kernel
 per pixel plus ~3*k*k FLOPs for the softmax, `kernels.kernel_application_flops`) of each branch, or the
 U-Net KPCN's kernels at every scale weighted by the scale's pixel fraction plus the composition.
 
-Models of the volumetric frame batches (`frame_batch = True`) are probed with `random_frame_batch`; scale
+A denoiser is probed with a `random_batch` of the branches it reads (`Denoiser.branches`); scale
 compositors' convolutions (`compositor_modules()`) are counted by the hooks and also shown on their own.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import torch
 from torch import nn
 
 from src.data.features import PAPER_CHANNELS
+from src.data.sequence_dataset import RADIANCE_BRANCH
 from src.data.shards import SHARD_CHANNELS
 from src.models.denoise.base import Denoiser
-from src.models.denoise.models import BRANCHES, TwoBranchDenoiser
+from src.models.denoise.models import BRANCHES, BranchDenoiser
 from src.models.parameters import count_parameters
 
 #: Side of the random batch the FLOP count runs on: 'same' convolutions cost the same per pixel at any
@@ -36,70 +37,50 @@ def random_batch(
     width: int,
     *,
     in_channels: int = len(PAPER_CHANNELS),
+    branches: Sequence[str] = BRANCHES,
     batch_size: int = 1,
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
 ) -> dict[str, torch.Tensor]:
-    """A random batch with every key of the `base.py` interface, in plausible ranges (colours >= 0,
-    normals in [-1, 1], depth in [0, 1]); for benchmarks and FLOP counting, not for accuracy."""
+    """A random batch with every key of the `base.py` contract for `branches` (the still images' two by
+    default; the sequences' `radiance` adds their colour parts and flow), in plausible ranges (colours
+    >= 0, normals in [-1, 1], depth in [0, 1], motion in pixels); for benchmarks and FLOP counting, not
+    for accuracy. Transformed keys are random values >= 0, valid under every transform."""
 
     def rand(channels: int, lo: float = 0.0, hi: float = 1.0) -> torch.Tensor:
         x = torch.rand((batch_size, channels, height, width), generator=generator)
         return (lo + (hi - lo) * x).to(device)
 
+    if tuple(branches) == (RADIANCE_BRANCH,):
+        batch = {key: rand(3) for key in SEQUENCE_RGB_KEYS}
+        batch["normal"] = rand(3, -1.0, 1.0)
+        batch[f"{RADIANCE_BRANCH}_in"] = rand(in_channels, -1.0, 1.0)
+        batch["depth"] = rand(1)
+        batch["motion"] = rand(2, -4.0, 4.0)
+        return batch
     batch = {key: rand(len(names)) for key, names in SHARD_CHANNELS.items() if not key.endswith("_in")}
-    for branch in BRANCHES:
+    for branch in branches:
         batch[f"{branch}_in"] = rand(in_channels, -1.0, 1.0)
-        batch[f"{branch}_t"] = rand(len(SHARD_CHANNELS[f"{branch}_target"]))
+        batch[f"{branch}_t"] = rand(3)
+        if f"{branch}_target" not in batch:
+            batch[f"{branch}_target"] = rand(3)
     batch["normal"] = rand(len(SHARD_CHANNELS["normal"]), -1.0, 1.0)
     return batch
 
 
-#: Frame-batch keys with 3 channels (`base.py`), all but `inputs` and `motion`.
-FRAME_RGB_KEYS = (
-    "color_t",
+#: The sequences' keys with 3 channels (`base.py`), all but the inputs and the flow.
+SEQUENCE_RGB_KEYS = (
+    f"{RADIANCE_BRANCH}_t",
     "surface_t",
     "volume_t",
     "color",
     "reference",
-    "target",
+    f"{RADIANCE_BRANCH}_target",
     "target_surface",
     "target_volume",
     "albedo",
     "normal",
 )
-
-
-def random_frame_batch(
-    height: int,
-    width: int,
-    *,
-    in_channels: int,
-    batch_size: int = 1,
-    generator: torch.Generator | None = None,
-    device: torch.device | str | None = None,
-) -> dict[str, torch.Tensor]:
-    """A random volumetric frame batch (every key of the `base.py` frame-batch contract) in plausible
-    ranges (radiance >= 0, normals in [-1, 1], depth in [0, 1], motion in pixels); for benchmarks and
-    FLOP counting, not for accuracy. The transformed keys are random values >= 0, valid under either
-    volume transform."""
-
-    def rand(channels: int, lo: float = 0.0, hi: float = 1.0) -> torch.Tensor:
-        x = torch.rand((batch_size, channels, height, width), generator=generator)
-        return (lo + (hi - lo) * x).to(device)
-
-    batch = {key: rand(3) for key in FRAME_RGB_KEYS}
-    batch["normal"] = rand(3, -1.0, 1.0)
-    batch["inputs"] = rand(in_channels, -1.0, 1.0)
-    batch["depth"] = rand(1)
-    batch["motion"] = rand(2, -4.0, 4.0)
-    return batch
-
-
-def is_frame_model(model: nn.Module) -> bool:
-    """Whether `model` is a denoiser of volumetric frame batches (`base.py`) rather than diffuse/specular
-    ones."""
-    return isinstance(model, Denoiser) and model.frame_batch
 
 
 def _conv_macs(model: nn.Module, run) -> int:
@@ -131,11 +112,11 @@ def _probe_size(model: nn.Module) -> int:
 
 def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) -> dict[str, Any]:
     """FLOPs per output pixel: {"total", "conv", "kernel"} ("kernel": both branches of a two-branch model,
-    or what a frame model's `kernel_flops_per_pixel()` reports), and for a U-Net KPCN "compositor": the
+    or what a model's `kernel_flops_per_pixel()` reports), and for a U-Net KPCN "compositor": the
     part of "conv" in its scale compositors.
 
     A plain network (e.g. a `ConvStack`) is fed an (1, in_channels, s, s) tensor; a `Denoiser` a random
-    batch (a frame batch for frame models). A non-learned filter reports its own `flops_per_pixel()` as
+    batch of the branches it reads. A non-learned filter reports its own `flops_per_pixel()` as
     "total" if it defines one, else every entry is None (unknown).
     """
     if isinstance(model, Denoiser) and not model.learned:
@@ -148,8 +129,8 @@ def flops_per_pixel(model: nn.Module, in_channels: int = len(PAPER_CHANNELS)) ->
     if isinstance(model, Denoiser):
         # The batch must match the model's inputs, whatever the caller guessed.
         in_channels = model.in_channels or in_channels
-        make = random_frame_batch if is_frame_model(model) else random_batch
-        batch = make(size, size, in_channels=in_channels, device=device)
+        branches = model.branches or BRANCHES
+        batch = random_batch(size, size, in_channels=in_channels, branches=branches, device=device)
         conv = 2 * _conv_macs(model, lambda: model(batch)) / pixels
         compositors = model.compositor_modules()
         if compositors is not None:
@@ -169,11 +150,11 @@ def _fmt(x: float | None, digits: int = 0) -> str:
 
 def _parameter_lines(model: nn.Module) -> list[str]:
     total = count_parameters(model)
-    if not isinstance(model, TwoBranchDenoiser):
+    if not isinstance(model, BranchDenoiser):
         return [f"parameters: {total:,}"]
     if model.shared:
-        return [f"parameters: {total:,} (one network shared by the diffuse and specular branches)"]
-    per = ", ".join(f"{b} {count_parameters(getattr(model, f'{b}_net')):,}" for b in BRANCHES)
+        return [f"parameters: {total:,} (one network shared by the {' and '.join(model.branches)} branches)"]
+    per = ", ".join(f"{b} {count_parameters(model.net(b)):,}" for b in model.branches)
     return [f"parameters: {total:,} ({per})"]
 
 
@@ -194,8 +175,8 @@ def model_summary(
         of_which = f" (of which scale compositors {_fmt(compositor)})" if compositor else ""
         what = "kernel application and composition" if compositor else "kernel application"
         breakdown = f" total = conv {_fmt(flops['conv'])}{of_which} + {what} {_fmt(flops['kernel'])}"
-    if is_frame_model(model):
-        lines.append(f"inputs: volumetric frame batch, in_channels {model.in_channels}")
+    if isinstance(model, Denoiser) and model.branches and tuple(model.branches) != BRANCHES:
+        lines.append(f"inputs: the {', '.join(model.branches)} branch, in_channels {model.in_channels}")
     lines.append(f"FLOPs per pixel: {_fmt(flops['total'])}{breakdown}")
     lines.append(f"GFLOPs per {width}x{height} frame: {_fmt(frame_gflops, 1)}")
     return "\n".join(lines)

@@ -1,4 +1,4 @@
-"""U-Net KPCN for the volumetric frame batches (`dataset=volumetric`).
+"""U-Net KPCN for the sequences' `radiance` branch (`dataset=volumetric`).
 
 Zhu et al. 2023 (Pixar/Disney SIGGRAPH talk "Denoising Production Volumetric Rendering") reshape the
 kernel-predicting network of Bako et al. 2017 / Vogels et al. 2018 into a U-Net with a kernel predictor at
@@ -43,15 +43,16 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from src.data.volume_shards import inverse_volume_transform, volume_transform
+from src.data.sequence_dataset import RADIANCE_BRANCH
+from src.data.volume_shards import VOLUME_TRANSFORMS, inverse_volume_transform, volume_transform
 from src.errors import ConfigError
-from src.models.denoise.base import Batch, Denoiser
-from src.models.denoise.frame_models import Transform, check_frame_input, check_transform
+from src.models.denoise.base import Batch, Denoiser, branch_input
 from src.models.denoise.kernels import apply_kernel, kernel_application_flops
 from src.models.instantiate import at_least
 
-#: `components` -> the frame-batch keys of the (transformed) radiance each kernel head filters.
-COMPONENTS = {"color": ("color_t",), "surface_volume": ("surface_t", "volume_t")}
+Transform = Literal["log_modulus", "none"]
+#: `components` -> the batch keys of the (transformed) radiance each kernel head filters.
+COMPONENTS = {"color": (f"{RADIANCE_BRANCH}_t",), "surface_volume": ("surface_t", "volume_t")}
 FILTER_SPACES = ("linear", "transformed")
 #: Elementwise FLOPs per pixel (3 channels) of one composition step at the fine scale: D(f) (~1 per
 #: channel per fine pixel), f - a*U(D f) + a*U(c) (4 per channel), and the sigmoid of a (~4).
@@ -145,10 +146,10 @@ def _check_widths(widths) -> list[int]:
 
 class UNetKPCN(Denoiser):
     """U-Net kernel predictor with a softmax kernel at every scale and Vogels et al.'s coarse-to-fine
-    composition (module docstring). Reads a frame batch; returns {"color": linear (N, 3, H, W)}.
+    composition (module docstring). Reads the `radiance` branch; returns {"color": linear (N, 3, H, W)}.
 
     Args (all from `conf/model/unet_kpcn.yaml`):
-        in_channels: channels of batch["inputs"] (`task.volume_features`).
+        in_channels: channels of batch["radiance_in"] (`task.volume_features`).
         widths: feature channels per scale; S = len(widths) scales (S - 1 2x2 poolings).
         convs_per_level: convolutions per encoder and decoder level.
         conv_kernel: their size (odd).
@@ -156,13 +157,13 @@ class UNetKPCN(Denoiser):
         compositor_width: hidden channels of each `ScaleCompositor`.
         components: "color" (one kernel head per scale) or "surface_volume" (two, results summed).
         filter_space: "linear" (filter the inverse-transformed radiance) or "transformed".
-        transform: the frame batch's radiance transform (`task.preprocess.volume_transform`).
+        transform: the batch's radiance transform (`task.preprocess.volume_transform`).
 
     Any H x W is accepted: the frame is replicate-padded to multiples of 2^(S-1) and cropped back.
     """
 
     learned = True
-    frame_batch = True
+    branches = (RADIANCE_BRANCH,)
 
     def __init__(
         self,
@@ -186,7 +187,7 @@ class UNetKPCN(Denoiser):
         at_least("compositor_width", compositor_width)
         self.components = _check_choice("components", components, tuple(COMPONENTS))
         self.filter_space = _check_choice("filter_space", filter_space, FILTER_SPACES)
-        self.transform = check_transform(transform)
+        self.transform = _check_choice("transform", transform, VOLUME_TRANSFORMS)
         self.keys = COMPONENTS[components]
         scales = len(self.widths)
         w = self.widths
@@ -291,7 +292,7 @@ class UNetKPCN(Denoiser):
         return composed
 
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
-        x = check_frame_input(batch, self.in_channels)
+        x = branch_input(batch, RADIANCE_BRANCH, self.in_channels)
         height, width = x.shape[-2:]
         multiple = self.size_multiple
         logits = self.kernel_logits(pad_to_multiple(x, multiple))
