@@ -17,6 +17,7 @@ import torch
 
 from src.errors import DataError
 from src.io.atomic import atomic_path
+from src.models.nerf.builders import upgrade_legacy_encodings
 
 #: Keys every checkpoint carries; a file without them is not one of ours.
 CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
@@ -67,15 +68,16 @@ LEGACY_NERF_TARGETS = {
 
 
 def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
-    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`)."""
+    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`; a NeRF's
+    flat encoding keys -> its encoding sub-configs, `upgrade_legacy_encodings`)."""
     if "_target_" in model_config:
-        return model_config
+        return upgrade_legacy_encodings(model_config)
     if model_config.get("family") == "nerf":
         target = LEGACY_NERF_TARGETS.get(model_config.get("name"))
     else:
         target = LEGACY_TARGETS.get(model_config.get("architecture"))
     old = {k: v for k, v in model_config.items() if k != "architecture"}
-    return model_config if target is None else {"_target_": target, **old}
+    return model_config if target is None else upgrade_legacy_encodings({"_target_": target, **old})
 
 
 def check_model_config(
