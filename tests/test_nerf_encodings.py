@@ -17,15 +17,17 @@ import torch
 from src.errors import ConfigError, DataError
 from src.models.instantiate import build_method
 from src.models.nerf.builders import upgrade_legacy_encodings
-from src.models.nerf.directional import integrated_dir_enc, l2_normalize
+from src.models.nerf.directional import integrated_dir_enc, l2_normalize, reflect
 from src.models.nerf.encodings import (
     READS,
     IntegratedDirectionalEncoding,
     IntegratedPositionalEncoding,
     PositionalEncoding,
+    cast_rays,
     integrated_pos_enc,
     pos_enc,
 )
+from src.models.nerf.models import point_inputs
 from src.models.parameters import count_parameters
 from src.train.checkpoint import load_checkpoint
 from tests.conftest import (
@@ -164,6 +166,73 @@ def test_a_profile_changes_an_encoding_setting_and_the_mlp_follows():
     assert [layer.in_features for layer in model.mlp_for(0).trunk.layers][:1] == [60]
 
 
+def _recorded(encoding: torch.nn.Module) -> list:
+    """The (args, kwargs) of every call of `encoding`, appended as it is called."""
+    calls = []
+    encoding.register_forward_pre_hook(lambda _, args, kwargs: calls.append((args, kwargs)), with_kwargs=True)
+    return calls
+
+
+def test_the_models_feed_each_encoding_what_it_reads():
+    """NeRF: the interval midpoints to the position encoding, the unit view directions (not the ray
+    directions) to the view encoding; mip-NeRF: each interval's frustum Gaussian (`cast_rays`); Ref-NeRF:
+    the Gaussians, and the reflected view direction with the sample's roughness to its IDE."""
+    rays, _ = sphere_scene(n_side=3)
+    rays["directions"] = 2.5 * rays["directions"]  # not unit: the view directions differ from them
+    torch.manual_seed(0)
+    nerf = build_method(model_cfg("nerf", "smoke"))
+    position, view = _recorded(nerf.position_encoding), _recorded(nerf.view_encoding)
+    with torch.no_grad():
+        out = nerf(rays, randomized=False)
+    t = out[0]["tdist"]
+    midpoints = (
+        rays["origins"][:, None] + (0.5 * (t[:, 1:] + t[:, :-1]))[..., None] * rays["directions"][:, None]
+    )
+    args, kwargs = position[0]
+    assert args == () and set(kwargs) == {"x"} and torch.equal(kwargs["x"], midpoints)
+    assert len(view) == 2 and all(torch.equal(args[0], rays["viewdirs"]) and not kw for args, kw in view)
+
+    mip = build_method(model_cfg("mipnerf", "smoke"))
+    position = _recorded(mip.position_encoding)
+    with torch.no_grad():
+        out = mip(rays, randomized=False)
+    means, covs = cast_rays(out[1]["tdist"], rays["origins"], rays["directions"], rays["radii"])
+    assert set(position[1][1]) == {"means", "covs"}
+    assert torch.equal(position[1][1]["means"], means) and torch.equal(position[1][1]["covs"], covs)
+
+    ref = build_method(model_cfg("refnerf", "smoke")).mlp_for(0)
+    position, view = _recorded(ref.position_encoding), _recorded(ref.view_encoding)
+    means, covs = cast_rays(out[1]["tdist"], rays["origins"], rays["directions"], rays["radii"])
+    fields = ref({"means": means, "covs": covs}, rays["viewdirs"])
+    assert torch.equal(position[0][1]["means"], means) and torch.equal(position[0][1]["covs"], covs)
+    d = rays["viewdirs"][:, None].expand_as(fields["normals_pred"])
+    (directions, kappa_inv), _ = view[0]
+    assert torch.equal(directions, reflect(-d, fields["normals_pred"]))
+    assert torch.equal(kappa_inv, fields["roughness"][..., None])
+
+
+@pytest.mark.parametrize("name", ["nerf", "mipnerf", "refnerf"])
+def test_the_density_of_a_point_is_the_encoding_of_the_point(name):
+    """An occupancy grid's query (`point_density`): NeRF's PE of the point; for the IPE (mip-NeRF,
+    Ref-NeRF) a Gaussian of zero covariance, i.e. the PE of the point without the identity term."""
+    torch.manual_seed(0)
+    model = build_method(model_cfg(name, "smoke"))
+    p = 0.3 * points(7).float()
+    mlp = model.mlp_for(1)
+    with torch.no_grad():
+        if name == "nerf":
+            expected = mlp.density(pos_enc(p, 0, 10, append_identity=True))
+        elif name == "mipnerf":
+            expected = mlp.density(pos_enc(p, 0, 16, append_identity=False))
+        else:  # RefNerfMLP's spatial trunk and density head, by hand
+            raw = mlp.density_head(mlp.trunk(pos_enc(p, 0, 16, append_identity=False)))[..., 0]
+            expected = mlp.density_act(raw + mlp.density_bias)
+        torch.testing.assert_close(model.point_density(p), expected, rtol=1e-5, atol=1e-6)
+    assert point_inputs("point", p) == {"x": p}
+    with pytest.raises(ValueError, match="'vmf'"):
+        point_inputs("vmf", p)
+
+
 # --- errors ----------------------------------------------------------------------------------------------
 
 
@@ -172,13 +241,14 @@ def test_a_profile_changes_an_encoding_setting_and_the_mlp_follows():
     [
         ("nerf", "position_encoding", "torch.nn.ReLU", ["'torch.nn.ReLU' is not an encoding"]),
         ("nerf", "view_encoding", "src.models.nerf.encodings.pos_enc", ["pos_enc' is not an encoding"]),
-        ("refnerf", "position_encoding", "src.models.nerf.encodings.Encoding", []),  # base: no out_dim
+        ("refnerf", "position_encoding", "src.models.nerf.encodings.Encoding", ["Encoding sets no out_dim"]),
+        ("refnerf", "view_encoding", None, ["expected the dotted path of a class"]),
         ("mipnerf", "position_encoding", "src.models.nerf.encodings.NoSuchEncoding", ["cannot import"]),
     ],
 )
 def test_a_target_that_is_not_an_encoding_is_a_one_line_error(name, key, target, needles):
     cfg = model_cfg(name, "smoke")
-    cfg[key] = {"_target_": target}
+    cfg[key] = {"_target_": target} if target else {"deg_view": 5}
     with pytest.raises(ConfigError) as excinfo:
         build_method(cfg)
     one_line_error(excinfo, f"model.{key}._target_", *needles)
@@ -251,11 +321,42 @@ LEGACY_KEYS = {
 }
 
 
+PE, IPE = (
+    "src.models.nerf.encodings.PositionalEncoding",
+    "src.models.nerf.encodings.IntegratedPositionalEncoding",
+)
+IDE = "src.models.nerf.encodings.IntegratedDirectionalEncoding"
+#: Flat keys with every value distinct (and off the paper's), and the sub-configs they mean: a key read
+#: into the wrong place, or a paper value written in, gives another config.
+DISTINCT = {
+    "nerf": (
+        {"pos_min_deg": 1, "pos_max_deg": 9, "pos_identity": False}
+        | {"view_min_deg": 2, "view_max_deg": 5, "view_identity": True},
+        {"_target_": PE, "min_deg": 1, "max_deg": 9, "identity": False},
+        {"_target_": PE, "min_deg": 2, "max_deg": 5, "identity": True},
+    ),
+    "mipnerf": (
+        {"pos_min_deg": 3, "pos_max_deg": 11, "view_min_deg": 1, "view_max_deg": 3, "view_identity": False},
+        {"_target_": IPE, "min_deg": 3, "max_deg": 11},
+        {"_target_": PE, "min_deg": 1, "max_deg": 3, "identity": False},
+    ),
+    "refnerf": (
+        {"pos_min_deg": 2, "pos_max_deg": 12, "deg_view": 3},
+        {"_target_": IPE, "min_deg": 2, "max_deg": 12},
+        {"_target_": IDE, "deg_view": 3},
+    ),
+}
+
+
 @pytest.mark.parametrize("name", sorted(LEGACY_KEYS))
 def test_a_config_with_the_old_flat_encoding_keys_upgrades_to_todays(name):
     cfg = model_cfg(name)
-    legacy = {k: v for k, v in cfg.items() if not k.endswith("_encoding")} | LEGACY_KEYS[name]
-    assert upgrade_legacy_encodings(legacy) == cfg
+    rest = {k: v for k, v in cfg.items() if not k.endswith("_encoding")}
+    assert upgrade_legacy_encodings(rest | LEGACY_KEYS[name]) == cfg  # the paper's
+    flat, position, view = DISTINCT[name]
+    upgraded = upgrade_legacy_encodings(rest | flat)
+    assert upgraded == rest | {"position_encoding": position, "view_encoding": view}
+    build_method(upgraded)  # a config today's builders take
     assert upgrade_legacy_encodings(cfg) == cfg  # today's config is left as it is
 
 

@@ -71,9 +71,9 @@ def build_encoding(key: str, cfg: Any, reads: tuple[str, ...]) -> Encoding:
     with the other keys, checked like a method's (`instantiate.check_arguments`), and reading one of
     `reads`. Every failure is a one-line ConfigError naming `model.<key>` or `model.<key>.<argument>`."""
     section = f"model.{key}"
-    if not isinstance(cfg, Mapping) or TARGET_KEY not in cfg:
+    if not isinstance(cfg, Mapping):
         raise ConfigError(f"{section}: expected a mapping with {TARGET_KEY} (an encoding class), got {cfg!r}")
-    target = resolve_target(cfg, section)
+    target = resolve_target(cfg, section)  # a missing or unimportable _target_ is its one-line error
     name = getattr(target, "__qualname__", repr(target))
     if not (isinstance(target, type) and issubclass(target, Encoding)):
         raise ConfigError(
