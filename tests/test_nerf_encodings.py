@@ -166,6 +166,17 @@ def test_a_profile_changes_an_encoding_setting_and_the_mlp_follows():
     assert [layer.in_features for layer in model.mlp_for(0).trunk.layers][:1] == [60]
 
 
+def test_an_encoding_file_is_chosen_from_the_command_line():
+    """`encoding@model.position_encoding=mipnerf_position` (README): NeRF on the frustums' IPE, 96 inputs,
+    and the model then computes the Gaussians for it."""
+    cfg = model_cfg("nerf", "smoke", "encoding@model.position_encoding=mipnerf_position")
+    model = build_method(cfg)
+    assert type(model.position_encoding) is IntegratedPositionalEncoding
+    assert model.mlp_for(0).trunk.layers[0].in_features == 96
+    rays, _ = sphere_scene(n_side=2)
+    assert set(model.sample_inputs(rays, torch.linspace(2, 4, 5).expand(4, 5))[1]) == {"means", "covs"}
+
+
 def _recorded(encoding: torch.nn.Module) -> list:
     """The (args, kwargs) of every call of `encoding`, appended as it is called."""
     calls = []
