@@ -27,7 +27,7 @@ from src.models.nerf.encodings import (
     integrated_pos_enc,
     pos_enc,
 )
-from src.models.nerf.models import point_inputs
+from src.models.nerf.models import interval_inputs, point_inputs
 from src.models.parameters import count_parameters
 from src.train.checkpoint import load_checkpoint
 from tests.conftest import (
@@ -242,6 +242,9 @@ def test_the_density_of_a_point_is_the_encoding_of_the_point(name):
     assert point_inputs("point", p) == {"x": p}
     with pytest.raises(ValueError, match="'vmf'"):
         point_inputs("vmf", p)
+    rays, _ = sphere_scene(n_side=2)
+    with pytest.raises(ValueError, match="'vmf'"):  # not a position encoding's input
+        interval_inputs("vmf", rays, torch.linspace(2, 4, 5).expand(4, 5))
 
 
 # --- errors ----------------------------------------------------------------------------------------------

@@ -37,9 +37,8 @@ REFNERF_VIEW_READS = ("vmf",)
 class FieldArgs(TypedDict):
     """Options of every NeRF-family model: the encodings, the MLP, and the sampling."""
 
-    position_encoding: Mapping[
-        str, Any
-    ]  # a `_target_` sub-config of an encodings.Encoding (`build_encoding`)
+    # `_target_` sub-configs of encodings.Encoding subclasses, built by `build_encoding` (conf/encoding/)
+    position_encoding: Mapping[str, Any]
     view_encoding: Mapping[str, Any]
     depth: int  # spatial MLP layers
     width: int
