@@ -27,6 +27,7 @@ from src.models.nerf.encodings import (
     integrated_pos_enc,
     pos_enc,
 )
+from src.models.nerf.fields import RefNerfMLP
 from src.models.nerf.models import interval_inputs, point_inputs
 from src.models.parameters import count_parameters
 from src.train.checkpoint import load_checkpoint
@@ -156,6 +157,13 @@ def test_the_paper_configs_build_the_paper_encodings(name, position, view):
         assert type(pos_enc_) is IntegratedPositionalEncoding
         assert (pos_enc_.min_deg, pos_enc_.max_deg) == position
     assert mlp.trunk.layers[0].in_features == pos_enc_.out_dim
+
+
+def test_refnerf_mlp_without_encodings_given_takes_the_papers():
+    mlp = RefNerfMLP(depth=1, width=4, bottleneck_width=4, view_depth=1, view_width=4, view_skip_layer=None)
+    assert (mlp.position_encoding.min_deg, mlp.position_encoding.max_deg) == (0, 16)
+    assert mlp.view_encoding.deg_view == 5 and mlp.trunk.layers[0].in_features == 96
+    assert mlp.view_mlp.layers[0].in_features == 4 + 72 + 1
 
 
 def test_a_profile_changes_an_encoding_setting_and_the_mlp_follows():

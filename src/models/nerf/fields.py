@@ -216,9 +216,7 @@ class RefNerfMLP(nn.Module):
     ) -> None:
         super().__init__()
         self.position_encoding = position_encoding or IntegratedPositionalEncoding(0, 16)
-        self.view_encoding = view_encoding or IntegratedDirectionalEncoding(5)
-        if self.view_encoding.reads != "vmf":
-            raise ValueError(f"view_encoding: reads {self.view_encoding.reads!r}; expected 'vmf' (the IDE's)")
+        self.view_encoding = view_encoding or IntegratedDirectionalEncoding(5)  # reads "vmf"
         self.density_normals = density_normals
         self.density_act = _activation(density_activation)
         self.density_bias, self.roughness_bias, self.rgb_padding = density_bias, roughness_bias, rgb_padding
