@@ -10,6 +10,7 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from src.models.instantiate import build_method
+from src.models.nerf.encodings import IntegratedDirectionalEncoding, IntegratedPositionalEncoding
 from src.models.nerf.fields import RefNerfMLP
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import RefNeRF
@@ -182,8 +183,8 @@ def test_refnerf_normals_are_negative_density_gradient():
     finite differences in float64; unit length, predicted normals too."""
     torch.manual_seed(0)
     mlp = RefNerfMLP(
-        max_deg_point=4,
-        deg_view=2,
+        position_encoding=IntegratedPositionalEncoding(0, 4),
+        view_encoding=IntegratedDirectionalEncoding(2),
         depth=2,
         width=16,
         skip_layer=1,
@@ -195,11 +196,15 @@ def test_refnerf_normals_are_negative_density_gradient():
     means = torch.randn(2, 3, 3, dtype=torch.float64)
     covs = 0.01 * torch.rand(2, 3, 3, dtype=torch.float64)
     viewdirs = torch.nn.functional.normalize(torch.randn(2, 3, dtype=torch.float64), dim=-1)
-    out = mlp(means, covs, viewdirs)
+    out = mlp({"means": means, "covs": covs}, viewdirs)
     eps = 1e-6
     grad = torch.stack(
         [
-            (mlp._spatial(means + eps * e, covs)[1] - mlp._spatial(means - eps * e, covs)[1]) / (2 * eps)
+            (
+                mlp._spatial({"means": means + eps * e, "covs": covs})[1]
+                - mlp._spatial({"means": means - eps * e, "covs": covs})[1]
+            )
+            / (2 * eps)
             for e in torch.eye(3, dtype=torch.float64)
         ],
         dim=-1,
@@ -315,8 +320,15 @@ def test_summary():
 
 def test_a_misspelt_or_foreign_key_is_a_one_line_config_error():
     with pytest.raises(ConfigError) as excinfo:
-        build_method(dict(model_cfg("mipnerf", "smoke"), pos_identity=True))  # the IPE has no identity term
-    one_line_error(excinfo, "model.pos_identity", "not an argument of mipnerf_model", "'view_identity'")
+        cfg = model_cfg("mipnerf", "smoke")
+        cfg["position_encoding"]["identity"] = True  # the IPE has no identity term
+        build_method(cfg)
+    one_line_error(
+        excinfo,
+        "model.position_encoding.identity",
+        "not an argument of IntegratedPositionalEncoding",
+        "['max_deg', 'min_deg']",
+    )
     with pytest.raises(ConfigError) as excinfo:
         build_method(dict(model_cfg("refnerf", "smoke"), widht=8))
     one_line_error(excinfo, "model.widht", "not an argument of refnerf_model", "'width'")
@@ -329,14 +341,26 @@ def test_a_misspelt_or_foreign_key_is_a_one_line_config_error():
 
 @pytest.mark.parametrize(
     ("key", "value"),
-    [("width", None), ("density_activation", "tanh"), ("background", [1, 1]), ("pos_max_deg", 0)],
+    [
+        ("width", None),
+        ("density_activation", "tanh"),
+        ("background", [1, 1]),
+        ("position_encoding.max_deg", 0),
+        ("position_encoding.min_deg", -1),
+        ("position_encoding.max_deg", None),
+        ("view_encoding.max_deg", 0.5),
+    ],
 )
 def test_bad_config_values_name_the_key(key, value):
     cfg = model_cfg("mipnerf", "smoke")
+    *parents, last = key.split(".")
+    node = cfg
+    for parent in parents:
+        node = node[parent]
     if value is None:
-        del cfg[key]
+        del node[last]
     else:
-        cfg[key] = value
+        node[last] = value
     with pytest.raises(ConfigError) as excinfo:
         build_method(cfg)
     one_line_error(excinfo, f"model.{key}")

@@ -126,14 +126,18 @@ class PositionInInput:
 
 
 class RegionRefMLP(RegionMLP):
-    """Ref-NeRF's MLP with density exactly 0 outside REGION (the positions are its `means` input)."""
+    """Ref-NeRF's MLP with density exactly 0 outside REGION (the positions are its IPE's `means` input)."""
 
-    def forward(self, means, covs, viewdirs):
-        out = self.inner(means, covs, viewdirs)
-        return out | {"density": torch.where(_outside(means), 0.0, out["density"])}
+    @property
+    def position_encoding(self):  # what RefNeRF reads to compute the MLP's inputs
+        return self.inner.position_encoding
 
-    def density(self, means, covs):
-        return torch.where(_outside(means), 0.0, self.inner.density(means, covs))
+    def forward(self, samples, viewdirs):
+        out = self.inner(samples, viewdirs)
+        return out | {"density": torch.where(_outside(samples["means"]), 0.0, out["density"])}
+
+    def density(self, samples):
+        return torch.where(_outside(samples["means"]), 0.0, self.inner.density(samples))
 
 
 def region_model(name: str) -> nn.Module:

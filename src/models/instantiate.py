@@ -3,7 +3,9 @@
 `model._target_` names the class or factory (any importable dotted path, in this repository or the
 user's own package); every other key of the group is one of its keyword arguments, so the constructor
 signature is the contract between a YAML file and its code (the lightning-hydra-template convention;
-the method is called directly, nested `_target_` groups go through `hydra.utils.instantiate`). A few
+the method is called directly, nested `_target_` groups go through `hydra.utils.instantiate`, except for
+an argument annotated as a `Mapping`: that method builds the group itself, with its own checks, e.g. the
+radiance fields' encodings). A few
 keys are read by the harness itself and not passed on (`HARNESS_KEYS`). Before anything is built, the
 keys are checked against the signature, so that a typo, a missing value or a wrong type is a one-line
 `ConfigError` naming `model.<key>` rather than a `TypeError` deep inside Hydra: Hydra's own errors span
@@ -86,7 +88,7 @@ def _describe(hint: Any) -> str:
     return text.removeprefix("<class '").removesuffix("'>")
 
 
-def _arguments(target: Callable[..., Any]) -> tuple[dict[str, Any], set[str], bool]:
+def arguments_of(target: Callable[..., Any]) -> tuple[dict[str, Any], set[str], bool]:
     """(argument -> type hint, required arguments, whether any other keyword is accepted) of `target`.
 
     `**kwargs: Unpack[SomeTypedDict]` (PEP 692) counts as the TypedDict's keys, so that options several
@@ -125,19 +127,23 @@ def check_arguments(
     arguments: tuple[dict[str, Any], set[str], bool],
     kwargs: Mapping[str, Any],
     provided: set[str],
+    section: str = "model",
 ) -> None:
-    """Every key is an argument of `target` (its `_arguments`), of the annotated type; every required
-    argument is given (by the config, or by the harness in `provided`)."""
+    """Every key is an argument of `target` (its `arguments_of`), of the annotated type; every required
+    argument is given (by the config, or by the harness in `provided`). Errors name `<section>.<key>`
+    (a nested group, e.g. `model.position_encoding`, passes its own section)."""
     accepted, required, takes_any = arguments
     name = getattr(target, "__qualname__", repr(target))
     for key in kwargs:
         if key not in accepted and not takes_any:
-            raise ConfigError(f"model.{key}: not an argument of {name}; expected one of {sorted(accepted)}")
+            raise ConfigError(
+                f"{section}.{key}: not an argument of {name}; expected one of {sorted(accepted)}"
+            )
     for key in sorted(required - set(kwargs) - provided):
-        raise ConfigError(f"model.{key}: missing; {name} needs it")
+        raise ConfigError(f"{section}.{key}: missing; {name} needs it")
     for key, value in kwargs.items():
         if key in accepted and not _conforms(value, accepted[key]):
-            raise ConfigError(f"model.{key}: expected {_describe(accepted[key])}, got {value!r}")
+            raise ConfigError(f"{section}.{key}: expected {_describe(accepted[key])}, got {value!r}")
 
 
 def at_least(key: str, value: float, minimum: float = 1, odd: bool = False) -> float:
@@ -158,19 +164,24 @@ def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
     cfg = model_dict(model_cfg)
     target = resolve_target(cfg)
     kwargs = {k: v for k, v in cfg.items() if k not in HARNESS_KEYS and k != TARGET_KEY}
-    arguments = _arguments(target)
+    arguments = arguments_of(target)
     accepted, _, takes_any = arguments
     wanted = {k: v for k, v in context.items() if k in accepted or takes_any}
     check_arguments(target, arguments, kwargs, set(wanted))
-    # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra; the method itself is called
-    # directly, so that run-time objects (statistics, tensors) reach it as they are, not as OmegaConf nodes.
-    kwargs = {k: _build_nested(v) for k, v in kwargs.items()}
+    # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra, unless the method takes the
+    # group itself (a Mapping); the method is called directly, so that run-time objects (statistics,
+    # tensors) reach it as they are, not as OmegaConf nodes.
+    kwargs = {k: v if _takes_mapping(accepted.get(k)) else _build_nested(v) for k, v in kwargs.items()}
     try:
         return target(**kwargs, **wanted)
     except ConfigError:
         raise
     except (TypeError, ValueError) as err:  # a value the constructor rejects (e.g. an even conv kernel)
         raise ConfigError(f"model ({cfg.get('name', cfg[TARGET_KEY])}): {one_line(err)}") from None
+
+
+def _takes_mapping(hint: Any) -> bool:
+    return (typing.get_origin(hint) or hint) in (Mapping, dict)
 
 
 def _build_nested(value: Any) -> Any:

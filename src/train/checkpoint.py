@@ -17,6 +17,7 @@ import torch
 
 from src.errors import DataError
 from src.io.atomic import atomic_path
+from src.models.nerf.builders import upgrade_legacy_encodings
 
 #: Keys every checkpoint carries; a file without them is not one of ours.
 CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
@@ -78,9 +79,10 @@ STILL_BRANCHES = ["diffuse", "specular"]
 
 
 def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
-    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`; the
-    sequences' frame builders -> the branch builders with `branches: [radiance]`; a KPCN-family config
-    without `branches` -> the still images' two)."""
+    """A checkpoint's model config in today's keys (`architecture` or a NeRF name -> `_target_`; a NeRF's
+    flat encoding keys -> its encoding sub-configs, `upgrade_legacy_encodings`; the sequences' frame
+    builders -> the branch builders with `branches: [radiance]`; a KPCN-family config without
+    `branches` -> the still images' two)."""
     if "_target_" not in model_config:
         if model_config.get("family") == "nerf":
             target = LEGACY_NERF_TARGETS.get(model_config.get("name"))
@@ -88,6 +90,7 @@ def _upgraded(model_config: dict[str, Any]) -> dict[str, Any]:
             target = LEGACY_TARGETS.get(model_config.get("architecture"))
         old = {k: v for k, v in model_config.items() if k != "architecture"}
         model_config = model_config if target is None else {"_target_": target, **old}
+    model_config = upgrade_legacy_encodings(model_config)
     target = model_config.get("_target_")
     if target in FRAME_TARGETS:
         kept = {k: v for k, v in model_config.items() if k not in ("_target_", "transform")}

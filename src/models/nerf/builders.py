@@ -4,6 +4,12 @@ Each factory's keyword arguments are the group's keys (`src.models.instantiate.b
 against the signature); the options all three share are one `TypedDict`, `FieldArgs`, unpacked into
 `**common`, so that they are declared, typed and documented once. A size out of range is a one-line
 `ConfigError` naming `model.<key>` (`model.occupancy_grid.<key>` for the grid's options).
+
+The encodings are `_target_` sub-configs, `model.position_encoding` and `model.view_encoding`
+(conf/encoding/), each built into an `encodings.Encoding` by `build_encoding`; the MLPs' input sizes are
+the encodings' `out_dim`. A `_target_` that is not an encoding, an argument it does not take, a value it
+rejects, or an encoding that reads the wrong input for its place is a one-line `ConfigError` naming
+`model.<position|view>_encoding[.<key>]`.
 """
 
 from __future__ import annotations
@@ -13,21 +19,27 @@ from typing import Any, Literal, NotRequired, TypedDict, Unpack
 
 from torch import nn
 
-from src.errors import ConfigError
-from src.models.instantiate import at_least
+from src.errors import ConfigError, one_line
+from src.models.instantiate import TARGET_KEY, arguments_of, at_least, check_arguments, resolve_target
+from src.models.nerf.encodings import Encoding
 from src.models.nerf.fields import ACTIVATIONS, NerfMLP, RefNerfMLP
 from src.models.nerf.models import MipNeRF, NeRF, RefNeRF
 from src.models.nerf.occupancy import OccupancyGrid
 
-#: Ref-NeRF's integrated directional encoding uses degrees l = 1, 2, 4, ..., 2^(deg_view - 1) <= 16.
-MAX_DEG_VIEW = 5
+#: What the encoding at each place may read (`encodings.READS`): a position encoding a point (the interval
+#: midpoint) or a Gaussian (the conical frustum); NeRF's view encoding the unit view direction (a point);
+#: Ref-NeRF's a von Mises-Fisher lobe (the reflected direction and the roughness).
+POSITION_READS = ("point", "gaussian")
+NERF_VIEW_READS = ("point",)
+REFNERF_VIEW_READS = ("vmf",)
 
 
 class FieldArgs(TypedDict):
-    """Options of every NeRF-family model: positional encoding degrees, the MLP, and the sampling."""
+    """Options of every NeRF-family model: the encodings, the MLP, and the sampling."""
 
-    pos_min_deg: int  # positional encoding frequencies 2^pos_min_deg .. 2^(pos_max_deg - 1)
-    pos_max_deg: int
+    # `_target_` sub-configs of encodings.Encoding subclasses, built by `build_encoding` (conf/encoding/)
+    position_encoding: Mapping[str, Any]
+    view_encoding: Mapping[str, Any]
     depth: int  # spatial MLP layers
     width: int
     skip_layer: int | None  # the input is concatenated after layer i > 0 with i % skip_layer == 0
@@ -53,11 +65,80 @@ class FieldArgs(TypedDict):
     occupancy_grid: NotRequired[Mapping[str, Any] | None]
 
 
-def _degrees(prefix: str, lo: int, hi: int) -> tuple[int, int]:
-    at_least(f"{prefix}_min_deg", lo, 0)
-    if hi <= lo:
-        raise ConfigError(f"model.{prefix}_max_deg: expected > {prefix}_min_deg ({lo}), got {hi}")
-    return lo, hi
+def build_encoding(key: str, cfg: Any, reads: tuple[str, ...]) -> Encoding:
+    """The encoding `model.<key>` configures: its `_target_` (a subclass of `encodings.Encoding`) called
+    with the other keys, checked like a method's (`instantiate.check_arguments`), and reading one of
+    `reads`. Every failure is a one-line ConfigError naming `model.<key>` or `model.<key>.<argument>`."""
+    section = f"model.{key}"
+    if not isinstance(cfg, Mapping):
+        raise ConfigError(f"{section}: expected a mapping with {TARGET_KEY} (an encoding class), got {cfg!r}")
+    target = resolve_target(cfg, section)  # a missing or unimportable _target_ is its one-line error
+    name = getattr(target, "__qualname__", repr(target))
+    if not (isinstance(target, type) and issubclass(target, Encoding)):
+        raise ConfigError(
+            f"{section}.{TARGET_KEY}: {cfg[TARGET_KEY]!r} is not an encoding; expected a subclass of "
+            "src.models.nerf.encodings.Encoding"
+        )
+    kwargs = {k: v for k, v in cfg.items() if k != TARGET_KEY}
+    arguments = arguments_of(target)
+    check_arguments(target, arguments, kwargs, set(), section=section)
+    try:
+        encoding = target(**kwargs)
+    except (TypeError, ValueError) as err:  # the class's own range checks, "<argument>: ..."
+        message = one_line(err)
+        argument, colon, rest = message.partition(":")
+        if colon and argument in arguments[0]:
+            raise ConfigError(f"{section}.{argument}:{rest}") from None
+        raise ConfigError(f"{section} ({name}): {message}") from None
+    out_dim = getattr(encoding, "out_dim", None)
+    if not isinstance(out_dim, int) or isinstance(out_dim, bool) or out_dim < 1:
+        raise ConfigError(f"{section}.{TARGET_KEY}: {name} sets no out_dim (a positive int), got {out_dim!r}")
+    if getattr(encoding, "reads", None) not in reads:
+        raise ConfigError(
+            f"{section}.{TARGET_KEY}: {name} reads {getattr(encoding, 'reads', None)!r}; expected an "
+            f"encoding that reads one of {list(reads)} here"
+        )
+    return encoding
+
+
+#: The flat encoding keys of the configs from before the encodings were `_target_` sub-configs.
+LEGACY_ENCODING_KEYS = (
+    "pos_min_deg",
+    "pos_max_deg",
+    "pos_identity",
+    "view_min_deg",
+    "view_max_deg",
+    "view_identity",
+    "deg_view",
+)
+
+
+def upgrade_legacy_encodings(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """A NeRF-family model config in today's keys: one from before the encodings were sub-configs
+    (`pos_min_deg`, `pos_max_deg`, `pos_identity` / `view_*` / `deg_view` of `nerf_model`,
+    `mipnerf_model`, `refnerf_model`) gets the `position_encoding` and `view_encoding` that build the same
+    network, so that its checkpoints still load; any other config is returned as it is."""
+    target = str(cfg.get(TARGET_KEY, ""))
+    builder = target.rsplit(".", 1)[-1]
+    if "pos_max_deg" not in cfg or builder not in ("nerf_model", "mipnerf_model", "refnerf_model"):
+        return dict(cfg)
+    module = Encoding.__module__
+    degrees = {"min_deg": cfg["pos_min_deg"], "max_deg": cfg["pos_max_deg"]}
+    if builder == "nerf_model":
+        position = {TARGET_KEY: f"{module}.PositionalEncoding", **degrees, "identity": cfg["pos_identity"]}
+    else:
+        position = {TARGET_KEY: f"{module}.IntegratedPositionalEncoding", **degrees}
+    if builder == "refnerf_model":
+        view = {TARGET_KEY: f"{module}.IntegratedDirectionalEncoding", "deg_view": cfg["deg_view"]}
+    else:
+        view = {
+            TARGET_KEY: f"{module}.PositionalEncoding",
+            "min_deg": cfg["view_min_deg"],
+            "max_deg": cfg["view_max_deg"],
+            "identity": cfg["view_identity"],
+        }
+    rest = {k: v for k, v in cfg.items() if k not in LEGACY_ENCODING_KEYS}
+    return {**rest, "position_encoding": position, "view_encoding": view}
 
 
 def _trunk(common: FieldArgs) -> dict:
@@ -167,43 +248,24 @@ def _levels(single_mlp: bool, make: Callable[[], nn.Module]) -> tuple[nn.Module,
     return coarse, (None if single_mlp else make())
 
 
-def _pe_model(cls: type[NeRF], pos_identity: bool, view: tuple[int, int, bool], common: FieldArgs) -> NeRF:
-    pos_deg = _degrees("pos", common["pos_min_deg"], common["pos_max_deg"])
-    view_deg, view_identity = _degrees("view", view[0], view[1]), view[2]
-    pos_dim = 3 * (2 * (pos_deg[1] - pos_deg[0]) + pos_identity)
-    view_dim = 3 * (2 * (view_deg[1] - view_deg[0]) + view_identity)
+def _pe_model(cls: type[NeRF], common: FieldArgs) -> NeRF:
+    position = build_encoding("position_encoding", common["position_encoding"], POSITION_READS)
+    view = build_encoding("view_encoding", common["view_encoding"], NERF_VIEW_READS)
     trunk = _trunk(common)
-    coarse, fine = _levels(common["single_mlp"], lambda: NerfMLP(pos_dim, view_dim, **trunk))
-    return cls(
-        coarse,
-        fine,
-        pos_deg=pos_deg,
-        pos_identity=pos_identity,
-        view_deg=view_deg,
-        view_identity=view_identity,
-        **_rendering(common),
-    )
+    coarse, fine = _levels(common["single_mlp"], lambda: NerfMLP(position.out_dim, view.out_dim, **trunk))
+    return cls(coarse, fine, position_encoding=position, view_encoding=view, **_rendering(common))
 
 
-def nerf_model(
-    *,
-    pos_identity: bool,
-    view_min_deg: int,
-    view_max_deg: int,
-    view_identity: bool,
-    **common: Unpack[FieldArgs],
-) -> NeRF:
-    """NeRF (Mildenhall et al. 2020): positional encoding of points (with the point itself when
-    `pos_identity`) and of the view direction."""
-    return _pe_model(NeRF, pos_identity, (view_min_deg, view_max_deg, view_identity), common)
+def nerf_model(**common: Unpack[FieldArgs]) -> NeRF:
+    """NeRF (Mildenhall et al. 2020): its configs encode the interval midpoints and the view direction with
+    the positional encoding (Eq. 4)."""
+    return _pe_model(NeRF, common)
 
 
-def mipnerf_model(
-    *, view_min_deg: int, view_max_deg: int, view_identity: bool, **common: Unpack[FieldArgs]
-) -> MipNeRF:
-    """mip-NeRF (Barron et al. 2021): the integrated positional encoding of conical frustums (which has no
-    identity term)."""
-    return _pe_model(MipNeRF, False, (view_min_deg, view_max_deg, view_identity), common)
+def mipnerf_model(**common: Unpack[FieldArgs]) -> MipNeRF:
+    """mip-NeRF (Barron et al. 2021): its configs encode the conical frustums with the integrated positional
+    encoding (Eq. 14-16) and the view direction with NeRF's PE."""
+    return _pe_model(MipNeRF, common)
 
 
 def _check_without_density_normals(pred_normal_loss_mult: float, orientation_normals: str) -> None:
@@ -222,7 +284,6 @@ def _check_without_density_normals(pred_normal_loss_mult: float, orientation_nor
 
 def refnerf_model(
     *,
-    deg_view: int,
     roughness_bias: float,
     orientation_loss_mult: float,
     pred_normal_loss_mult: float,
@@ -231,24 +292,21 @@ def refnerf_model(
     density_normals: bool = True,
     **common: Unpack[FieldArgs],
 ) -> RefNeRF:
-    """Ref-NeRF (Verbin et al. 2022): mip-NeRF's sampling and IPE, the integrated directional encoding of
-    the reflected view direction, and the orientation / predicted-normal regularisers.
+    """Ref-NeRF (Verbin et al. 2022): mip-NeRF's sampling and (in its config) IPE, an encoding of the
+    reflected view direction that reads a vMF lobe (its config: the integrated directional encoding), and
+    the orientation / predicted-normal regularisers.
     `density_normals=False` (multinerf's `disable_density_normals`) leaves out the density-gradient normals
     and so needs the regularisers that read them off."""
-    pos_deg = _degrees("pos", common["pos_min_deg"], common["pos_max_deg"])
-    if not 1 <= deg_view <= MAX_DEG_VIEW:
-        raise ConfigError(
-            f"model.deg_view: expected an integer in [1, {MAX_DEG_VIEW}] (l <= 16), got {deg_view}"
-        )
+    position = build_encoding("position_encoding", common["position_encoding"], POSITION_READS)
+    view = build_encoding("view_encoding", common["view_encoding"], REFNERF_VIEW_READS)
     at_least("orientation_loss_mult", orientation_loss_mult, 0.0)
     at_least("pred_normal_loss_mult", pred_normal_loss_mult, 0.0)
     if not density_normals:
         _check_without_density_normals(pred_normal_loss_mult, orientation_normals)
     mlp = {
         **_trunk(common),
-        "min_deg_point": pos_deg[0],
-        "max_deg_point": pos_deg[1],
-        "deg_view": deg_view,
+        "position_encoding": position,
+        "view_encoding": view,
         "roughness_bias": roughness_bias,
         "density_normals": density_normals,
     }

@@ -9,12 +9,40 @@
 
 Every function takes and returns torch tensors, is batched over the leading dimensions and has no Python
 loop over rays or samples.
+
+The models do not call these functions themselves: they hold `Encoding` objects, built from the
+`model.position_encoding` / `model.view_encoding` configs (`_target_` sub-configs, conf/encoding/), that
+call them. An encoding knows its output size (`out_dim`, which sizes the MLP's input) and says what it
+reads (`reads`), so that a model computes the right per-sample inputs without knowing which encoding it
+holds:
+
+- `PositionalEncoding` reads a point (NeRF's interval midpoints, or a view direction): `pos_enc`.
+- `IntegratedPositionalEncoding` reads a Gaussian (mip-NeRF's conical frustums): `integrated_pos_enc`.
+- `IntegratedDirectionalEncoding` reads a von Mises-Fisher lobe (Ref-NeRF's reflected direction and
+  roughness): `directional.integrated_dir_enc`.
+
+A new encoding is a subclass of `Encoding` (anywhere importable) and a `_target_` config naming it.
 """
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
-from torch import Tensor
+from torch import Tensor, nn
+
+from src.models.nerf.directional import MAX_DEG_VIEW, ide_dim, integrated_dir_enc
+
+#: What an encoding reads, as the names of its `forward` arguments (every tensor (..., k), batched):
+#: "point": x (..., 3), a point or a direction (NeRF: the interval midpoints o + t_mid d; the view direction);
+#: "gaussian": means (..., 3) and diagonal covs (..., 3), a conical frustum's Gaussian (mip-NeRF Eq. 7-8);
+#: "vmf": directions (..., 3) unit and kappa_inv (..., 1), a von Mises-Fisher lobe (Ref-NeRF Sec. 3.1).
+#: The first name is the position a sample stands for (the occupancy grid's query, Ref-NeRF's normals).
+READS: dict[str, tuple[str, ...]] = {
+    "point": ("x",),
+    "gaussian": ("means", "covs"),
+    "vmf": ("directions", "kappa_inv"),
+}
 
 
 def _scales(min_deg: int, max_deg: int, like: Tensor) -> Tensor:
@@ -135,3 +163,98 @@ def cast_rays(
     """
     means, covs = conical_frustum_to_gaussian(directions, tdist[..., :-1], tdist[..., 1:], radii, diag)
     return means + origins[..., None, :], covs
+
+
+def position_key(reads: str) -> str:
+    """The input of an encoding that reads `reads` that is the sample position ("x" or "means")."""
+    return READS[reads][0]
+
+
+# --- encodings as objects ------------------------------------------------------------------------------
+
+
+class Encoding(nn.Module):
+    """An input encoding of a radiance field: `forward(*inputs) -> (..., out_dim)`.
+
+    Subclasses set `reads` (a key of `READS`: what `forward` takes) and, in `__init__`, `out_dim` (the
+    number of output features for their settings; the MLPs are sized by it). They raise ValueError naming
+    the argument (`"max_deg: ..."`) for a setting out of range. An encoding holds no trained parameters of
+    its own in the built-in classes (their state dicts are the MLPs' alone).
+    """
+
+    reads: ClassVar[str]
+    #: Dimension of the vectors it encodes (points and directions: 3).
+    in_dim: ClassVar[int] = 3
+    out_dim: int
+
+
+def _check_degrees(min_deg: int, max_deg: int) -> None:
+    if min_deg < 0:
+        raise ValueError(f"min_deg: expected >= 0, got {min_deg}")
+    if max_deg <= min_deg:
+        raise ValueError(f"max_deg: expected > min_deg ({min_deg}), got {max_deg}")
+
+
+class PositionalEncoding(Encoding):
+    """NeRF's positional encoding gamma(x) (Mildenhall et al. 2020, Eq. 4; `pos_enc`) of a point or a
+    direction: frequencies 2^k, k in [min_deg, max_deg), the input itself first when `identity`.
+    out_dim = 3 (2 (max_deg - min_deg) + identity): 63 for NeRF's points (L = 10), 27 for its view
+    directions (L = 4)."""
+
+    reads = "point"
+
+    def __init__(self, min_deg: int, max_deg: int, identity: bool = True) -> None:
+        super().__init__()
+        _check_degrees(min_deg, max_deg)
+        self.min_deg, self.max_deg, self.identity = min_deg, max_deg, identity
+        self.out_dim = self.in_dim * (2 * (max_deg - min_deg) + int(identity))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return pos_enc(x, self.min_deg, self.max_deg, append_identity=self.identity)
+
+    def extra_repr(self) -> str:
+        return f"degrees [{self.min_deg}, {self.max_deg}), identity={self.identity}, out_dim={self.out_dim}"
+
+
+class IntegratedPositionalEncoding(Encoding):
+    """mip-NeRF's integrated positional encoding (Barron et al. 2021, Eq. 14-16; `integrated_pos_enc`) of
+    a conical frustum's Gaussian: the expected PE over the Gaussian, without the identity term.
+    out_dim = 2 * 3 (max_deg - min_deg): 96 at mip-NeRF's degrees 0-15."""
+
+    reads = "gaussian"
+
+    def __init__(self, min_deg: int, max_deg: int) -> None:
+        super().__init__()
+        _check_degrees(min_deg, max_deg)
+        self.min_deg, self.max_deg = min_deg, max_deg
+        self.out_dim = 2 * self.in_dim * (max_deg - min_deg)
+
+    def forward(self, means: Tensor, covs: Tensor) -> Tensor:
+        return integrated_pos_enc(means, covs, self.min_deg, self.max_deg)
+
+    def extra_repr(self) -> str:
+        return f"degrees [{self.min_deg}, {self.max_deg}), out_dim={self.out_dim}"
+
+
+class IntegratedDirectionalEncoding(Encoding):
+    """Ref-NeRF's integrated directional encoding (Verbin et al. 2022, Eq. 7-8;
+    `directional.integrated_dir_enc`) of a von Mises-Fisher lobe: the attenuated spherical harmonics
+    Y_l^m, l in {1, 2, 4, ..., 2^(deg_view - 1)}, m in 0..l, real and imaginary parts.
+    out_dim = 2 sum_l (l + 1): 72 at Ref-NeRF's deg_view = 5."""
+
+    reads = "vmf"
+
+    def __init__(self, deg_view: int) -> None:
+        super().__init__()
+        if not 1 <= deg_view <= MAX_DEG_VIEW:
+            raise ValueError(
+                f"deg_view: expected an integer in [1, {MAX_DEG_VIEW}] (l <= 16), got {deg_view}"
+            )
+        self.deg_view = deg_view
+        self.out_dim = ide_dim(deg_view)
+
+    def forward(self, directions: Tensor, kappa_inv: Tensor) -> Tensor:
+        return integrated_dir_enc(directions, kappa_inv, self.deg_view)
+
+    def extra_repr(self) -> str:
+        return f"deg_view={self.deg_view}, out_dim={self.out_dim}"

@@ -10,15 +10,20 @@ MLP producing the colour. Weights are He-uniform initialised and biases zero (mu
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
 from src.io.srgb import linear_to_srgb
-from src.models.nerf.directional import ide_dim, integrated_dir_enc, l2_normalize, reflect
-from src.models.nerf.encodings import integrated_pos_enc
+from src.models.nerf.directional import l2_normalize, reflect
+from src.models.nerf.encodings import (
+    Encoding,
+    IntegratedDirectionalEncoding,
+    IntegratedPositionalEncoding,
+    position_key,
+)
 
 ACTIVATIONS: dict[str, Callable[[Tensor], Tensor]] = {"relu": F.relu, "softplus": F.softplus}
 #: Colour channels of every head.
@@ -120,7 +125,8 @@ class NerfMLP(nn.Module):
     NeRF: density_activation relu, density_bias 0, rgb_padding 0. mip-NeRF: softplus, -1, 0.001.
 
     forward(x_enc (..., S, pos_dim), view_enc (..., view_dim) per ray) ->
-    {"density": (..., S), "rgb": (..., S, 3)}.
+    {"density": (..., S), "rgb": (..., S, 3)}: the model encodes (its encodings' `out_dim` are
+    pos_dim and view_dim).
     """
 
     def __init__(
@@ -167,18 +173,23 @@ class NerfMLP(nn.Module):
 class RefNerfMLP(nn.Module):
     """Ref-NeRF's spatial and directional MLPs (Verbin et al. 2022, Sec. 3-4, Fig. 2).
 
-    Spatial MLP on IPE(mean, diag cov) (mip-NeRF encoding, degrees [min_deg_point, max_deg_point)):
-    density = act(raw + density_bias); diffuse colour c_d = sigmoid(raw - log 3) (linear, initialised
-    around 0.25); specular tint s = sigmoid(raw); roughness rho = softplus(raw + roughness_bias) (the
-    vMF's 1 / kappa); predicted normals n' = -normalize(raw_3); a linear bottleneck b.
-    Normals n = -grad_x(raw density) / ||.|| (Ref-NeRF Sec. 3), by autograd w.r.t. the Gaussian means;
+    Spatial MLP on the `position_encoding` of the samples (Ref-NeRF's: the IPE of the frustum Gaussians,
+    mip-NeRF's encoding, degrees 0-15): density = act(raw + density_bias); diffuse colour
+    c_d = sigmoid(raw - log 3) (linear, initialised around 0.25); specular tint s = sigmoid(raw);
+    roughness rho = softplus(raw + roughness_bias) (the vMF's 1 / kappa); predicted normals
+    n' = -normalize(raw_3); a linear bottleneck b.
+    Normals n = -grad_x(raw density) / ||.|| (Ref-NeRF Sec. 3), by autograd w.r.t. the sample positions
+    (the Gaussian means; `encodings.position_key`);
     `density_normals=False` skips them (multinerf's `disable_density_normals`: no `normals` output).
 
-    Directional MLP on [b, IDE(omega_r, rho), n' . d] with omega_r = reflect(-d, n') and the IDE (Eq. 7-8),
-    the reflection of the view direction about the predicted normal: specular colour c_s = sigmoid(raw);
+    Directional MLP on [b, view_encoding(omega_r, rho), n' . d] with omega_r = reflect(-d, n'), the
+    reflection of the view direction about the predicted normal (the `view_encoding` reads a vMF lobe:
+    Ref-NeRF's IDE, Eq. 7-8): specular colour c_s = sigmoid(raw);
     rgb = clip(linear_to_srgb(s * c_s + c_d), 0, 1), then the mip-NeRF padding.
+    Without encodings given, the paper's: IPE degrees 0-15 and IDE deg_view 5.
 
-    forward(means (N, S, 3), covs (N, S, 3) diagonal, viewdirs (N, 3) unit) -> per-sample dict with
+    forward(samples, viewdirs (N, 3) unit), samples the position encoding's inputs (N, S, ...)
+    (`encodings.READS`; the IPE's: {"means", "covs" diagonal}) -> per-sample dict with
     density (N, S), rgb, normals, normals_pred, diffuse, tint, specular (N, S, 3), roughness (N, S).
     The density gradient keeps its graph (double backprop, so the normal losses train the density)
     exactly when grad mode is on at the call; under `torch.no_grad` it is computed and detached.
@@ -188,9 +199,8 @@ class RefNerfMLP(nn.Module):
     def __init__(
         self,
         *,
-        min_deg_point: int = 0,
-        max_deg_point: int = 16,
-        deg_view: int = 5,
+        position_encoding: Encoding | None = None,
+        view_encoding: Encoding | None = None,
         depth: int = 8,
         width: int = 256,
         skip_layer: int | None = 4,
@@ -205,12 +215,12 @@ class RefNerfMLP(nn.Module):
         density_normals: bool = True,
     ) -> None:
         super().__init__()
-        self.min_deg_point, self.max_deg_point, self.deg_view = min_deg_point, max_deg_point, deg_view
+        self.position_encoding = position_encoding or IntegratedPositionalEncoding(0, 16)
+        self.view_encoding = view_encoding or IntegratedDirectionalEncoding(5)  # reads "vmf"
         self.density_normals = density_normals
         self.density_act = _activation(density_activation)
         self.density_bias, self.roughness_bias, self.rgb_padding = density_bias, roughness_bias, rgb_padding
-        pos_dim = 2 * 3 * (max_deg_point - min_deg_point)
-        self.trunk = SkipMLP(pos_dim, depth, width, skip_layer)
+        self.trunk = SkipMLP(self.position_encoding.out_dim, depth, width, skip_layer)
         feat = self.trunk.out_dim
         self.density_head = _init_linear(nn.Linear(feat, 1))
         self.diffuse_head = _init_linear(nn.Linear(feat, RGB))
@@ -218,19 +228,19 @@ class RefNerfMLP(nn.Module):
         self.roughness_head = _init_linear(nn.Linear(feat, 1))
         self.normal_head = _init_linear(nn.Linear(feat, 3))
         self.bottleneck = _init_linear(nn.Linear(feat, bottleneck_width))
-        dir_in = bottleneck_width + ide_dim(deg_view) + 1  # [b, IDE, n' . d]
+        dir_in = bottleneck_width + self.view_encoding.out_dim + 1  # [b, IDE, n' . d]
         self.view_mlp = SkipMLP(dir_in, view_depth, view_width, view_skip_layer)
         self.rgb_head = _init_linear(nn.Linear(self.view_mlp.out_dim, RGB))
 
-    def _spatial(self, means: Tensor, covs: Tensor) -> tuple[Tensor, Tensor]:
-        h = self.trunk(integrated_pos_enc(means, covs, self.min_deg_point, self.max_deg_point))
+    def _spatial(self, samples: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
+        h = self.trunk(self.position_encoding(**samples))
         return h, self.density_head(h)[..., 0]
 
-    def density(self, means: Tensor, covs: Tensor) -> Tensor:
+    def density(self, samples: Mapping[str, Tensor]) -> Tensor:
         """The density alone (spatial MLP; no normals, no directional MLP), e.g. for an occupancy grid."""
-        return self.density_act(self._spatial(means, covs)[1] + self.density_bias)
+        return self.density_act(self._spatial(samples)[1] + self.density_bias)
 
-    def _spatial_with_normals(self, means: Tensor, covs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def _spatial_with_normals(self, samples: Mapping[str, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
         """The trunk features, raw density and density-gradient normals (graph kept iff grad mode is on)."""
         if torch.is_inference_mode_enabled():
             raise RuntimeError(
@@ -238,20 +248,21 @@ class RefNerfMLP(nn.Module):
                 "not torch.inference_mode"
             )
         keep_graph = torch.is_grad_enabled()
+        key = position_key(self.position_encoding.reads)
         with torch.enable_grad():
-            x = means if means.requires_grad else means.detach().requires_grad_(True)
-            h, raw_density = self._spatial(x, covs)
+            x = samples[key] if samples[key].requires_grad else samples[key].detach().requires_grad_(True)
+            h, raw_density = self._spatial({**samples, key: x})
             (grad,) = torch.autograd.grad(raw_density.sum(), x, create_graph=keep_graph)
         if not keep_graph:
             h, raw_density, grad = h.detach(), raw_density.detach(), grad.detach()
         return h, raw_density, -l2_normalize(grad)
 
-    def forward(self, means: Tensor, covs: Tensor, viewdirs: Tensor) -> dict[str, Tensor]:
+    def forward(self, samples: Mapping[str, Tensor], viewdirs: Tensor) -> dict[str, Tensor]:
         normals: dict[str, Tensor] = {}
         if self.density_normals:
-            h, raw_density, normals["normals"] = self._spatial_with_normals(means, covs)
+            h, raw_density, normals["normals"] = self._spatial_with_normals(samples)
         else:
-            h, raw_density = self._spatial(means, covs)
+            h, raw_density = self._spatial(samples)
         normals_pred = -l2_normalize(self.normal_head(h))
         density = self.density_act(raw_density + self.density_bias)
         diffuse = torch.sigmoid(self.diffuse_head(h) - math.log(3.0))
@@ -261,7 +272,7 @@ class RefNerfMLP(nn.Module):
 
         d = viewdirs[..., None, :].expand_as(normals_pred)
         refdirs = reflect(-d, normals_pred)
-        dir_features = integrated_dir_enc(refdirs, roughness, self.deg_view)
+        dir_features = self.view_encoding(refdirs, roughness)
         n_dot_d = (normals_pred * d).sum(dim=-1, keepdim=True)
         hv = self.view_mlp(bottleneck, dir_features, n_dot_d)
         specular = torch.sigmoid(self.rgb_head(hv))

@@ -13,6 +13,11 @@ Every model renders two levels (coarse, fine) of the same rays:
 - `RefNeRF` (Verbin et al. 2022): mip-NeRF's sampling and IPE with `RefNerfMLP`, plus the orientation
   and predicted-normal regularisers (Ref-NeRF Eq. 11-12).
 
+The encodings are objects (`encodings.Encoding`) given by the builders: a model reads the position
+encoding's `reads` to compute each interval's inputs (`interval_inputs`: the midpoint for a point
+encoding, the conical frustum's Gaussian for an integrated one) and never branches on the encoding's
+class, so NeRF and mip-NeRF are one code path (`MipNeRF` differs by its name and its config).
+
 With an `OccupancyGrid` (`occupancy.py`; None by default) the three models run their MLP only on the
 samples whose position (NeRF: the interval midpoint; mip-NeRF, Ref-NeRF: the frustum Gaussian's mean)
 lies in an occupied cell; the other samples get density 0 and zero colour (normals), and everything
@@ -31,7 +36,7 @@ import torch
 from torch import Tensor, nn
 
 from src.models.nerf.directional import l2_normalize
-from src.models.nerf.encodings import cast_rays, integrated_pos_enc, pos_enc
+from src.models.nerf.encodings import Encoding, cast_rays
 from src.models.nerf.fields import NerfMLP, RefNerfMLP
 from src.models.nerf.occupancy import OccupancyGrid, gather_samples, scatter_samples
 from src.models.nerf.sampling import resample_draws, resample_tdist, stratified_samples
@@ -48,6 +53,31 @@ class SampleField(Protocol):
     """A field on per-sample inputs (N, S, ...) and per-ray inputs (N, ...) -> per-sample outputs."""
 
     def __call__(self, samples: dict[str, Tensor], rays: dict[str, Tensor]) -> dict[str, Tensor]: ...
+
+
+def interval_inputs(reads: str, rays: Rays, tdist: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    """(positions (N, S, 3), the per-sample inputs of an encoding that reads `reads`) of the intervals
+    [tdist[i], tdist[i+1]] of every ray: for "point" the midpoints o + t_mid d ({"x"}); for "gaussian"
+    each interval's conical frustum as a Gaussian (mip-NeRF Eq. 7-8; {"means", "covs"}, diagonal), whose
+    means are the positions."""
+    if reads == "gaussian":
+        means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
+        return means, {"means": means, "covs": covs}
+    if reads == "point":
+        t_mid = 0.5 * (tdist[..., 1:] + tdist[..., :-1])
+        x = rays["origins"][..., None, :] + t_mid[..., None] * rays["directions"][..., None, :]
+        return x, {"x": x}
+    raise ValueError(f"an encoding of sample positions reads 'point' or 'gaussian', not {reads!r}")
+
+
+def point_inputs(reads: str, points: Tensor) -> dict[str, Tensor]:
+    """The inputs of an encoding that reads `reads` for bare points (P, 3) (an occupancy grid's queries):
+    the point itself, or a Gaussian of zero covariance (whose IPE is the plain PE)."""
+    if reads == "gaussian":
+        return {"means": points, "covs": torch.zeros_like(points)}
+    if reads == "point":
+        return {"x": points}
+    raise ValueError(f"an encoding of sample positions reads 'point' or 'gaussian', not {reads!r}")
 
 
 def at_least_fp32(x: Tensor) -> Tensor:
@@ -232,8 +262,9 @@ class NerfModelBase(nn.Module):
 
 
 class NeRF(NerfModelBase):
-    """NeRF (Mildenhall et al. 2020): positional encoding (Eq. 4) of the interval midpoints
-    o + t_mid d and of the view direction; one MLP per level unless `single_mlp`."""
+    """NeRF (Mildenhall et al. 2020): an encoding of each interval (`position_encoding`; NeRF's: the
+    positional encoding, Eq. 4, of the midpoint o + t_mid d) and of the view direction (`view_encoding`,
+    which reads a point: the unit direction); one MLP per level unless `single_mlp`."""
 
     name = "nerf"
 
@@ -242,27 +273,22 @@ class NeRF(NerfModelBase):
         coarse_mlp: NerfMLP,
         fine_mlp: NerfMLP | None,
         *,
-        pos_deg: tuple[int, int],
-        pos_identity: bool,
-        view_deg: tuple[int, int],
-        view_identity: bool,
+        position_encoding: Encoding,
+        view_encoding: Encoding,
         **base: Any,
     ) -> None:
         super().__init__(coarse_mlp, fine_mlp, **base)
-        self.pos_deg, self.pos_identity = pos_deg, pos_identity
-        self.view_deg, self.view_identity = view_deg, view_identity
+        self.position_encoding, self.view_encoding = position_encoding, view_encoding
 
     def sample_inputs(self, rays: Rays, tdist: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
-        """(positions (N, S, 3), per-sample inputs of the encoding): the interval midpoints o + t_mid d."""
-        t_mid = 0.5 * (tdist[..., 1:] + tdist[..., :-1])
-        x = rays["origins"][..., None, :] + t_mid[..., None] * rays["directions"][..., None, :]
-        return x, {"x": x}
+        """(positions (N, S, 3), per-sample inputs of the position encoding) (`interval_inputs`)."""
+        return interval_inputs(self.position_encoding.reads, rays, tdist)
 
     def encode_positions(self, samples: dict[str, Tensor]) -> Tensor:
-        return pos_enc(samples["x"], *self.pos_deg, append_identity=self.pos_identity)
+        return self.position_encoding(**samples)
 
     def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
-        view_enc = pos_enc(rays["viewdirs"], *self.view_deg, append_identity=self.view_identity)
+        view_enc = self.view_encoding(rays["viewdirs"])
         mlp = self.mlp_for(level)
         points, samples = self.sample_inputs(rays, tdist)
         return self.evaluate_occupied(
@@ -270,27 +296,18 @@ class NeRF(NerfModelBase):
         )
 
     def point_density(self, points: Tensor) -> Tensor:
-        return self.mlp_for(1).density(self.encode_positions({"x": points}))
+        """The density at points: the encoding of a point (a Gaussian of zero covariance for the IPE)."""
+        return self.mlp_for(1).density(
+            self.encode_positions(point_inputs(self.position_encoding.reads, points))
+        )
 
 
 class MipNeRF(NeRF):
-    """mip-NeRF (Barron et al. 2021): the integrated positional encoding (Eq. 14-16) of each interval's
-    conical frustum Gaussian (Eq. 7-8) instead of the PE of a point."""
+    """mip-NeRF (Barron et al. 2021): NeRF's code with the integrated positional encoding (Eq. 14-16) of
+    each interval's conical frustum Gaussian (Eq. 7-8) as its position encoding (conf/model/mipnerf.yaml);
+    its own name, for the runs and reports."""
 
     name = "mipnerf"
-
-    def sample_inputs(self, rays: Rays, tdist: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
-        """(the Gaussians' means (N, S, 3), {means, covs (diagonal)})."""
-        means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
-        return means, {"means": means, "covs": covs}
-
-    def encode_positions(self, samples: dict[str, Tensor]) -> Tensor:
-        return integrated_pos_enc(samples["means"], samples["covs"], *self.pos_deg)
-
-    def point_density(self, points: Tensor) -> Tensor:
-        """The density of a point: the IPE of a Gaussian of zero covariance (the plain PE)."""
-        zero = torch.zeros_like(points)
-        return self.mlp_for(1).density(self.encode_positions({"means": points, "covs": zero}))
 
 
 class RefNeRF(NerfModelBase):
@@ -333,20 +350,19 @@ class RefNeRF(NerfModelBase):
             self.render_keys = tuple(k for k in self.render_keys if k != "normals")
 
     def evaluate(self, level: int, rays: Rays, tdist: Tensor) -> dict[str, Tensor]:
-        """The field on the Gaussians; with an occupancy grid, the normals (density gradient w.r.t. the
-        means) are those of the gathered samples, each of which depends on its own mean only."""
-        means, covs = cast_rays(tdist, rays["origins"], rays["directions"], rays["radii"], diag=True)
+        """The field on the intervals' inputs (Ref-NeRF's IPE: the Gaussians); with an occupancy grid, the
+        normals (density gradient w.r.t. the positions) are those of the gathered samples, each of which
+        depends on its own position only."""
         mlp = self.mlp_for(level)
+        points, samples = interval_inputs(mlp.position_encoding.reads, rays, tdist)
         return self.evaluate_occupied(
-            means,
-            {"means": means, "covs": covs},
-            {"viewdirs": rays["viewdirs"]},
-            lambda s, r: mlp(s["means"], s["covs"], r["viewdirs"]),
+            points, samples, {"viewdirs": rays["viewdirs"]}, lambda s, r: mlp(s, r["viewdirs"])
         )
 
     def point_density(self, points: Tensor) -> Tensor:
-        """The density of a point: the spatial MLP on a Gaussian of zero covariance."""
-        return self.mlp_for(1).density(points, torch.zeros_like(points))
+        """The density of a point: the spatial MLP on it (for the IPE: a Gaussian of zero covariance)."""
+        mlp = self.mlp_for(1)
+        return mlp.density(point_inputs(mlp.position_encoding.reads, points))
 
     def level_extras(self, fields: dict[str, Tensor], weights: Tensor, rays: Rays) -> dict[str, Tensor]:
         w = weights[..., None]

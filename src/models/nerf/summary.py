@@ -7,7 +7,7 @@ form their concatenations (`fields.SkipMLP`), so each tensor is kept once: a Ski
 input and every layer's output (the next layer's input, or the heads' shared one):
 
     floats = sum_m (per-sample in_dim(m) + width(m) x depth(m))   over the trunk and the view MLP m
-           + width x depth + 4 (pos_dim + ide_dim)                 Ref-NeRF only
+           + width x depth + 4 (pos_dim + view_dim)                Ref-NeRF only (view_dim: the IDE's)
 
 NeRF's view encoding is one row per ray (not counted). Ref-NeRF differentiates its density w.r.t. the
 sample positions with `create_graph=True` (its normals, Verbin et al. 2022 Sec. 3), which keeps about
@@ -28,7 +28,6 @@ from typing import Any
 from torch import nn
 
 from src.models.instantiate import model_dict
-from src.models.nerf.directional import ide_dim
 from src.models.nerf.fields import NerfMLP, RefNerfMLP, SkipMLP
 from src.models.nerf.models import LEVELS, NerfModelBase, RefNeRF
 from src.models.parameters import count_parameters
@@ -65,7 +64,7 @@ def activation_floats_per_sample(mlp: nn.Module) -> int:
     if isinstance(mlp, RefNerfMLP):  # the density gradient's graph (double backward) and the encodings
         trunk, view = mlp.trunk, mlp.view_mlp
         floats = _skip_mlp_floats(trunk, trunk.in_dim) + _skip_mlp_floats(view, view.in_dim)
-        return floats + trunk.width * trunk.depth + 4 * (trunk.in_dim + ide_dim(mlp.deg_view))
+        return floats + trunk.width * trunk.depth + 4 * (trunk.in_dim + mlp.view_encoding.out_dim)
     return sum(m.in_features for m in mlp.modules() if isinstance(m, nn.Linear))
 
 
