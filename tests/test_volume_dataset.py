@@ -317,6 +317,6 @@ def test_render_stage_from_the_command_line(tmp_path):
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "render: 24 files (0 cached)" in result.stdout and "M samples/s" in result.stdout
-    raw = tmp_path / "volumetric" / "raw"
+    raw = tmp_path / "volumetric" / "smoke" / "raw"
     assert len(list(raw.glob("*-f000[01]-*spp.exr"))) == 24
-    assert (tmp_path / "volumetric" / "render_summary.json").is_file()
+    assert (tmp_path / "volumetric" / "smoke" / "render_summary.json").is_file()

@@ -276,7 +276,7 @@ def test_render_and_preprocess_from_the_command_line(tmp_path):
         result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
         assert result.returncode == 0, result.stderr[-3000:]
         assert expect in result.stdout, result.stdout[-2000:]
-    prepared = tmp_path / "volumetric" / "prepared"
+    prepared = tmp_path / "volumetric" / "smoke" / "prepared"
     item = next(iter(SequencePatchDataset(prepared, "train")))
     assert item["inputs"].shape == (2, 62, 8, 8)
     assert len(SequenceDataset(prepared, "test")) == 2
@@ -310,7 +310,7 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     summary = preprocess(cfg)
     assert summary["samples"] == {"train": 6, "val": 6} and summary["settings"]["sequence_frames"] == 2
     assert "preprocess: 3 noisy sequences: 6 train / 6 val samples of 2 frames" in capsys.readouterr().out
-    prepared = tmp_path / "data" / "volumetric" / "prepared"
+    prepared = tmp_path / "data" / "volumetric" / "smoke" / "prepared"
     assert (prepared / "preprocess_provenance.json").is_file()
     assert next(iter(SequencePatchDataset(prepared, "train")))["inputs"].shape == (2, 62, 8, 8)
     preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
