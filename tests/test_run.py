@@ -135,5 +135,6 @@ def test_bad_exr_stops_preprocess_naming_the_file(smoke_run, tmp_path):
     assert len(list(raw.glob("*.exr"))) == 9
     repaired = run(["profile=smoke", "stage=preprocess", "task.preprocess.repair.nonfinite=zero"], tmp_path)
     assert repaired.returncode == 0, repaired.stderr
-    record = json.loads((tmp_path / "procedural" / "smoke" / "prepared" / "preprocess_provenance.json").read_text())
+    prepared = tmp_path / "procedural" / "smoke" / "prepared"
+    record = json.loads((prepared / "preprocess_provenance.json").read_text())
     assert "specular.G" in record["summary"]["repairs"]["cornell-0000-00004spp.exr"]

@@ -257,8 +257,23 @@ def test_changed_config_renders_only_what_changed(rendered, ds, tmp_path):
 
     raw = tmp_path / "raw"
     shutil.copytree(rendered[0], raw)
+    (raw / "mine-f0000-00004spp.exr").write_bytes(b"a user's file: no manifest entry")
     summary = render_volumetric_dataset({**ds, "reference_spp": 6}, raw, "auto", frames=[0])
     assert summary["files_rendered"] == 1 and summary["files_cached"] == 1  # the new reference only
+    # The old references are gone, frame 1's too (outside this job's frames, but no frame has them now);
+    # frame 1's noisy file stays for the job that renders frame 1, and the user's file stays.
+    assert summary["files_removed"] == 2
+    assert sorted(p.name for p in raw.glob("*.exr")) == [
+        "fog_objects-0000-f0000-00002spp.exr",
+        "fog_objects-0000-f0000-00006spp.exr",
+        "fog_objects-0000-f0001-00002spp.exr",
+        "mine-f0000-00004spp.exr",
+    ]
+    assert sorted(p.name for p in (raw / "manifest").iterdir()) == [
+        "fog_objects-0000-f0000-00002spp.exr.json",
+        "fog_objects-0000-f0000-00006spp.exr.json",
+        "fog_objects-0000-f0001-00002spp.exr.json",
+    ]
 
 
 def test_bad_subsets_are_config_errors(ds):
