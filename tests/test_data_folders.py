@@ -5,6 +5,7 @@ only files it rendered itself (src/render/stale_renders.py) and never a user's o
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -143,21 +144,19 @@ def test_smoke_then_cpu_then_smoke_in_one_data_folder(tmp_path, mitsuba_variant,
     frame size and other sample counts) must not collide either, and switching back renders nothing
     that is still current."""
     smoke, first = _render_and_preprocess(tmp_path, [])
-    smoke_raw = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "procedural" / "smoke" / "raw").iterdir()}
+    raw = Path(smoke.paths.raw)
+    smoke_raw = {p.name: p.stat().st_mtime_ns for p in raw.iterdir()}
     cpu, summary = _render_and_preprocess(tmp_path, SMALL_CPU)
     assert cpu.paths.raw != smoke.paths.raw and summary["noisy_images"] == 3 * 2
     again, _ = _render_and_preprocess(tmp_path, [])
     out = capsys.readouterr().out
     assert out.count("render: all 9 files up to date") == 1 and out.count("preprocess: up to date") == 1
-    assert {p.name: p.stat().st_mtime_ns for p in (tmp_path / "procedural" / "smoke" / "raw").iterdir()} == (
-        smoke_raw
-    )
+    assert {p.name: p.stat().st_mtime_ns for p in raw.iterdir()} == smoke_raw
     # Within one profile: smoke with cpu's sizes, then plain smoke again.
     _, within = _render_and_preprocess(tmp_path, SMALL_CPU[1:])
     assert within["noisy_images"] == 3 * 2
     _, back = _render_and_preprocess(tmp_path, [])
     assert back["noisy_images"] == first["noisy_images"] == 3 * 2
-    raw = tmp_path / "procedural" / "smoke" / "raw"
     names = [f"{b}-0000-{spp:05d}spp.exr" for b in ("cornell", "outdoor", "tabletop") for spp in (4, 16, 128)]
     assert sorted(p.name for p in raw.glob("*.exr")) == names
     assert sorted(json.loads((raw / "manifest.json").read_text())) == names
