@@ -60,17 +60,41 @@ def _files(folder):
 def test_still_images_the_config_no_longer_makes_are_removed(tmp_path, capsys):
     for name in ("a-00004spp.exr", "a-00008spp.exr", "b-00004spp.exr", "mine-00004spp.exr"):
         (tmp_path / name).write_bytes(b"x")
-    rendered = {"a-00004spp.exr": "k1", "a-00008spp.exr": "k2", "b-00004spp.exr": "k3"}
+    # c's file is already gone (deleted by hand, or by another job): its entry goes all the same
+    rendered = {
+        "a-00004spp.exr": "k1",
+        "a-00008spp.exr": "k2",
+        "b-00004spp.exr": "k3",
+        "c-00004spp.exr": "k4",
+    }
     (tmp_path / "manifest.json").write_text(json.dumps(rendered))
     removed = remove_stale_files(tmp_path, {"a-00004spp.exr", "a-00016spp.exr"})
-    assert removed == ["a-00008spp.exr", "b-00004spp.exr"]
+    assert removed == ["a-00008spp.exr", "b-00004spp.exr", "c-00004spp.exr"]
     # the user's file (not in the manifest) stays; the manifest keeps only what stays
     assert _files(tmp_path) == ["a-00004spp.exr", "manifest.json", "mine-00004spp.exr"]
     assert json.loads((tmp_path / "manifest.json").read_text()) == {"a-00004spp.exr": "k1"}
-    assert "removed 2 earlier render(s)" in capsys.readouterr().out
+    assert capsys.readouterr().out == (
+        f"render: removed 3 earlier render(s) the config no longer makes from {tmp_path}: "
+        "a-00008spp.exr, b-00004spp.exr, c-00004spp.exr\n"
+    )
     # nothing to remove: nothing printed, nothing rewritten
     assert remove_stale_files(tmp_path, {"a-00004spp.exr"}) == []
     assert capsys.readouterr().out == ""
+
+
+def test_a_long_list_of_removed_files_is_shortened(tmp_path, capsys):
+    names = [f"s{i}-00004spp.exr" for i in range(5)]
+    (tmp_path / "manifest.json").write_text(json.dumps(dict.fromkeys(names, "k")))
+    assert remove_stale_files(tmp_path, set()) == names
+    assert capsys.readouterr().out == (
+        f"render: removed 5 earlier render(s) the config no longer makes from {tmp_path}: "
+        "s0-00004spp.exr, s1-00004spp.exr, s2-00004spp.exr, s3-00004spp.exr, ... (5 in all)\n"
+    )
+    (tmp_path / "manifest.json").write_text(json.dumps(dict.fromkeys(names[:4], "k")))
+    remove_stale_files(tmp_path, set())
+    assert capsys.readouterr().out.endswith(
+        ": s0-00004spp.exr, s1-00004spp.exr, s2-00004spp.exr, s3-00004spp.exr\n"
+    )
 
 
 def test_a_folder_without_a_manifest_is_a_users_and_is_left_alone(tmp_path):
@@ -102,7 +126,27 @@ def test_volumetric_files_the_dataset_no_longer_has_are_removed(tmp_path):
     ]
 
 
-def test_multiview_scenes_the_config_no_longer_lists_are_removed(tmp_path):
+def test_jobs_removing_the_same_stale_entry_at_once_all_succeed(tmp_path, monkeypatch, capsys):
+    """Fanned-out volumetric render jobs start together and each removes the same stale files: a job may
+    find an entry it listed already deleted by another."""
+    entries = tmp_path / "manifest"
+    entries.mkdir()
+    (entries / "old-f0000-00004spp.exr.json").write_text("{}")
+    glob = Path.glob
+
+    def glob_seeing_a_vanished_entry(self, pattern):
+        return [*glob(self, pattern), self / "taken-f0000-00004spp.exr.json"]
+
+    monkeypatch.setattr(Path, "glob", glob_seeing_a_vanished_entry)
+    removed = remove_stale_entries(tmp_path, "manifest", set())
+    assert removed == ["old-f0000-00004spp.exr", "taken-f0000-00004spp.exr"] and not any(entries.iterdir())
+    assert (
+        f"removed 2 earlier render(s) the config no longer makes from {tmp_path}: old-"
+        in capsys.readouterr().out
+    )
+
+
+def test_multiview_scenes_the_config_no_longer_lists_are_removed(tmp_path, capsys):
     for name in ("spheres", "busy", ".tabletop.tmp-12-ab12cd34", "lego"):
         (tmp_path / name).mkdir()
         (tmp_path / name / "transforms_train.json").write_text("{}")
@@ -110,6 +154,10 @@ def test_multiview_scenes_the_config_no_longer_lists_are_removed(tmp_path):
         (tmp_path / name / "nrbench_render.json").write_text("{}")
     assert remove_stale_scenes(tmp_path, "nrbench_render.json", ["spheres", "tabletop"]) == ["busy"]
     assert sorted(p.name for p in tmp_path.iterdir()) == [".tabletop.tmp-12-ab12cd34", "lego", "spheres"]
+    assert (
+        f"removed 1 earlier render(s) the config no longer makes from {tmp_path}: busy"
+        in capsys.readouterr().out
+    )
 
 
 # --- the issue's sequence: smoke, then cpu, then smoke, in one data folder ----------------------------------
