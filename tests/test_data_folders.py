@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from src.errors import ConfigError
 from src.render.stale_renders import remove_stale_entries, remove_stale_files, remove_stale_scenes
-from tests.conftest import compose_config, smoke_config
+from tests.conftest import compose_config, one_line_error, smoke_config
 
 # --- where each configuration's data go -------------------------------------------------------------------
 
@@ -208,3 +209,11 @@ def test_smoke_then_cpu_then_smoke_in_one_data_folder(tmp_path, mitsuba_variant,
     names = [f"{b}-0000-{spp:05d}spp.exr" for b in ("cornell", "outdoor", "tabletop") for spp in (4, 16, 128)]
     assert sorted(p.name for p in raw.glob("*.exr")) == names
     assert sorted(json.loads((raw / "manifest.json").read_text())) == names
+    # A stage=train after them with other preprocessing settings stops at job start (prepared_check.py).
+    from src.stages import task_of
+
+    task_of(smoke).check_stages(["train"], smoke)
+    other = smoke_config(tmp_path, tmp_path / "run", ["task.preprocess.patch_size=16"])
+    with pytest.raises(ConfigError) as excinfo:
+        task_of(other).check_stages(["train"], other)
+    one_line_error(excinfo, "procedural/smoke/prepared:", "task.preprocess", "run stage=preprocess")

@@ -324,6 +324,36 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     assert _preprocess_key(still[0], prepared) == _preprocess_key(still[1], prepared)
 
 
+def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_path):
+    """A stage that reads `paths.prepared` without preprocessing first stops with one line when the folder
+    was made with other preprocessing settings or from other raw data (src/data/prepared_check.py)."""
+    from src.data.volume_buffers import write_volume_exr
+    from src.stages import preprocess, task_of
+
+    mine = f"paths.raw={tmp_path}/my_sequences"  # a user's own raw folder, named at preprocess time only
+    made = _stage_config(tmp_path, mine)
+    _write_raw(made)
+    preprocess(made)
+    cfg = _stage_config(tmp_path)
+    for stage in ("train", "eval", "select_features"):
+        task_of(cfg).check_stages([stage], cfg)  # same settings, the raw data it was made from
+    task_of(cfg).check_stages(
+        ["train"], _stage_config(tmp_path, "task.preprocess.eps_albedo=0.5")
+    )  # still-only
+    other = _stage_config(tmp_path, "task.preprocess.sequence_frames=1")
+    with pytest.raises(ConfigError) as excinfo:
+        task_of(other).check_stages(["train"], other)
+    one_line_error(
+        excinfo, f"{made.paths.prepared}:", "task.preprocess", "my_sequences", "run stage=preprocess"
+    )
+    task_of(other).check_stages(["preprocess", "train"], other)  # the job makes them again first
+    task_of(other).check_stages(["render"], other)  # reads no prepared data
+    # the raw data changed since (one more sequence)
+    write_volume_exr(tmp_path / "my_sequences" / "d-0000-f0000-00002spp.exr", synthetic_frame("d-0000", 0, 2))
+    with pytest.raises(ConfigError):
+        task_of(cfg).check_stages(["eval"], cfg)
+
+
 @pytest.mark.parametrize("stage", ["train", "eval", "all"])
 def test_every_stage_of_the_volumetric_dataset_passes_the_job_start_checks(stage, tmp_path):
     """Issue 17 lifted the refusal of train and eval: the sequence trainer and evaluation run them."""

@@ -11,6 +11,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.features import CANDIDATE_CHANNELS
+from src.data.prepared_check import check_prepared_is_current
 from src.data.sequence_patches import FRAMES_KEY
 from src.errors import ConfigError
 from src.io.atomic import atomic_directory
@@ -39,6 +40,28 @@ def _preprocess_key(cfg: DictConfig, raw: Path) -> str:
     from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
 
     return _cache_key(settings, raw, (*CANDIDATE_CHANNELS, *SHARD_CHANNEL_NAMES))
+
+
+def _volumetric_key(cfg: DictConfig, raw: Path) -> tuple[dict, str]:
+    """The volumetric `preprocess_volume_dataset` settings and their cache key (with the repair policy)."""
+    from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
+    from src.data.volume_shards import SEQUENCE_KEYS
+
+    p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+    settings = {
+        **{k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")},
+        "split_fractions": p["split"],
+        **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
+        "min_distance": p["min_distance"] * p["patch_size"],
+        **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
+    }
+    key = _cache_key({**settings, "repair": p["repair"]}, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
+    return settings, key
+
+
+def _prepared_key(cfg: DictConfig, raw: Path) -> str:
+    """The cache key `stage=preprocess` gives `paths.prepared` for this config and the raw data in `raw`."""
+    return _volumetric_key(cfg, raw)[1] if cfg.dataset.name == "volumetric" else _preprocess_key(cfg, raw)
 
 
 def _cached_preprocess(out: Path, key: str) -> dict | None:
@@ -121,19 +144,11 @@ def _preprocess_volumetric(cfg: DictConfig) -> dict:
     (`src.data.volume_shards`); skipped when made from the same settings, repair policy and raw data."""
     from src.data.exr_buffers import RepairPolicy
     from src.data.volume_buffers import load_volume_exr
-    from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
-    from src.data.volume_shards import SEQUENCE_KEYS, preprocess_volume_dataset
+    from src.data.volume_shards import preprocess_volume_dataset
 
     p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
     raw, out = Path(cfg.paths.raw), Path(cfg.paths.prepared)
-    settings = {
-        **{k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")},
-        "split_fractions": p["split"],
-        **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
-        "min_distance": p["min_distance"] * p["patch_size"],
-        **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
-    }
-    key = _cache_key({**settings, "repair": p["repair"]}, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
+    settings, key = _volumetric_key(cfg, raw)
     cached = _cached_preprocess(out, key)
     if cached is not None:
         print(f"preprocess: up to date in {out}")
@@ -194,6 +209,8 @@ class DenoiseTask(Task):
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Stages this dataset or method cannot run fail at job start (`_check_*`)."""
+        prepared = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
+        check_prepared_is_current(stages, prepared, lambda raw: _prepared_key(cfg, raw))
         for stage in stages:
             _check_model_dataset(stage, cfg)
             _check_dataset_stage(stage, cfg)
