@@ -209,12 +209,12 @@ class DenoiseTask(Task):
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Stages this dataset or method cannot run fail at job start (`_check_*`)."""
-        prepared = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
-        check_prepared_is_current(stages, prepared, lambda raw: _prepared_key(cfg, raw))
         for stage in stages:
             _check_model_dataset(stage, cfg)
             _check_dataset_stage(stage, cfg)
             _check_held_out_inputs(stage, cfg)
+        prepared = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
+        check_prepared_is_current(stages, prepared, lambda raw: _prepared_key(cfg, raw))
 
     def render(self, cfg: DictConfig) -> dict:
         """The denoising EXRs into `paths.raw` (files whose render key is unchanged are kept): the
