@@ -209,7 +209,7 @@ def test_a_stage_started_too_early_names_the_stage_to_run_first(args, needles, t
 
 
 def _garbage_exr(data):
-    raw = data / "procedural" / "raw"
+    raw = data / "procedural" / "smoke" / "raw"
     raw.mkdir(parents=True)
     for scene in ("box", "room", "sky"):  # three scenes: enough to split into train/val/test
         for spp in (4, 128):
@@ -218,14 +218,14 @@ def _garbage_exr(data):
 
 
 def _malformed_transforms(data):
-    scene = data / "nerf_procedural" / "scenes" / "spheres"
+    scene = data / "nerf_procedural" / "smoke" / "scenes" / "spheres"
     scene.mkdir(parents=True)
     (scene / "transforms_train.json").write_text('{"camera_angle_x": 0.69, "frames": [')
     return ["task=nerf", "stage=train"], [str(scene / "transforms_train.json"), "JSON"]
 
 
 def _garbage_checkpoint(data):
-    scene = data / "nerf_procedural" / "scenes" / "spheres"
+    scene = data / "nerf_procedural" / "smoke" / "scenes" / "spheres"
     scene.mkdir(parents=True)
     (scene / "transforms_test.json").write_text('{"camera_angle_x": 0.69, "frames": []}')
     (data / "final.pt").write_bytes(b"\x00garbage")
@@ -251,7 +251,7 @@ def test_bad_data_is_one_line_through_the_cli(make, tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("task", "made"), [("denoise", "procedural/prepared/full/test/index.json"), ("nerf", None)]
+    ("task", "made"), [("denoise", "procedural/smoke/prepared/full/test/index.json"), ("nerf", None)]
 )
 def test_a_learned_methods_evaluation_needs_its_checkpoint_whatever_the_task(task, made, tmp_path):
     """`stages.require_inputs` adds the checkpoint of a learned method to what the task's eval reads."""
@@ -260,7 +260,7 @@ def test_a_learned_methods_evaluation_needs_its_checkpoint_whatever_the_task(tas
     models = {"denoise": ("kpcn", "oidn"), "nerf": ("mipnerf", None)}[task]
     overrides = [f"task={task}"]
     cfg = smoke_config(tmp_path / "data", tmp_path / "run", [*overrides, f"model={models[0]}"])
-    made = made or f"nerf_procedural/scenes/{cfg.task.scene}/transforms_test.json"
+    made = made or f"nerf_procedural/smoke/scenes/{cfg.task.scene}/transforms_test.json"
     (tmp_path / "data" / made).parent.mkdir(parents=True)
     (tmp_path / "data" / made).touch()
     with pytest.raises(DataError) as excinfo:

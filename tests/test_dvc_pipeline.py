@@ -68,7 +68,7 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
         assert all(m.split("-")[0] in table for m in names)
     flicker = json.loads((repo / "runs" / "volumetric" / "unet_kpcn" / "eval" / "metrics.json").read_text())
     assert flicker["mean"]["temporal"] >= 0  # every volumetric table has the flicker column
-    selection = repo / "data" / "volumetric" / "feature_selection"
+    selection = repo / "data" / "volumetric" / "smoke" / "feature_selection"  # params.yaml's profile
     assert (selection / "selection.json").is_file() and (selection / "selection.csv").is_file()
     shown = json.loads(_dvc(repo, "metrics", "show", "--json"))
     assert "runs/denoise/kpcn/eval/metrics.json" in shown[""]["data"]

@@ -11,6 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
+import yaml
 from dvc.repo import Repo
 
 from src.run import _tracked_run
@@ -38,6 +39,14 @@ _WRITE_FLAGS = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_APPEND
 # src/io/atomic.py's temporary names, `.<name>.tmp-<pid>-<hex>[<suffix>]`: they count as `<name>`.
 _ATOMIC_TMP = re.compile(r"^\.(.+)\.tmp-\d+-[0-9a-f]+(\.\w+)?$")
 _seen: list[tuple[str, str]] | None = None  # (read|write, path) while a stage runs
+#: The profile params.yaml gives the pipeline; the stages run here at `smoke` instead.
+PROFILE = yaml.safe_load((ROOT / "params.yaml").read_text())["profile"]
+
+
+def _at_smoke(path: str) -> str:
+    """A declared path as a stage run at the smoke profile writes it: the data folders are per profile
+    (`data/<dataset>/<profile>/...`, conf/config.yaml's paths.dataset)."""
+    return re.sub(rf"^data/([^/]+)/{PROFILE}(?=/|$)", r"data/\1/smoke", path)
 
 
 def _audit(event: str, args: tuple) -> None:
@@ -72,7 +81,9 @@ def _stage_config(cmd: str, workspace: Path):
     """The config `cmd` composes, at the smoke profile, with the workspace as the repository root."""
     args = shlex.split(cmd)
     assert args[:3] == ["python", "-m", "src.run"], cmd
-    overrides = [a.replace("profile=cpu", "profile=smoke") for a in args[3:] if not a.startswith("hydra")]
+    overrides = [
+        a.replace(f"profile={PROFILE}", "profile=smoke") for a in args[3:] if not a.startswith("hydra")
+    ]
     run_dir = next((a.split("=", 1)[1] for a in args if a.startswith("hydra.run.dir=")), "outputs")
     return compose_config(
         [
@@ -122,8 +133,8 @@ def test_every_stage_declares_what_it_reads_and_writes(tmp_path, monkeypatch, mi
     problems = []
     for name in SAMPLE:
         stage = stages[name]
-        deps = [str(d.def_path) for d in stage.deps]
-        outs = [str(o.def_path) for o in stage.outs]
+        deps = [_at_smoke(str(d.def_path)) for d in stage.deps]
+        outs = [_at_smoke(str(o.def_path)) for o in stage.outs]
         for dep in deps:
             if dep.startswith(("conf", "src")):
                 problems += [] if (ROOT / dep).exists() else [f"{name}: dep {dep} does not exist"]

@@ -47,7 +47,7 @@ def test_gp_filters_needing_world_position_evaluate_end_to_end(smoke_data, tmp_p
 def test_the_index_lists_every_tensor_key_of_an_item(smoke_data):
     """`FullImageDataset.batch_keys` (read from the index, what the job-start check trusts) is exactly
     what an item holds."""
-    data = FullImageDataset(smoke_data / "procedural" / "prepared", "test")
+    data = FullImageDataset(smoke_data / "procedural" / "smoke" / "prepared", "test")
     item = data[0]
     assert data.batch_keys == {k for k, v in item.items() if isinstance(v, torch.Tensor)}
     assert data.batch_keys >= GP_KEYS
@@ -56,9 +56,9 @@ def test_the_index_lists_every_tensor_key_of_an_item(smoke_data):
 def _data_without_world_position(smoke_data, tmp_path):
     """A data dir whose prepared test index lacks the world position (as real KPCN data do); the shards
     are not copied: the check must fail from the index alone."""
-    index = json.loads((smoke_data / "procedural/prepared/full/test/index.json").read_text())
+    index = json.loads((smoke_data / "procedural/smoke/prepared/full/test/index.json").read_text())
     del index["channels"]["position"], index["channels"]["position_var"]
-    out = tmp_path / "data" / "procedural/prepared/full/test/index.json"
+    out = tmp_path / "data" / "procedural/smoke/prepared/full/test/index.json"
     out.parent.mkdir(parents=True)
     out.write_text(json.dumps(index))
     return tmp_path / "data"

@@ -258,14 +258,17 @@ def test_search_images_follow_spp_then_max_images():
     assert search_image_indices(images, [8], None) == []
 
 
-def test_searching_on_an_unrendered_spp_fails_at_job_start():
+def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
     from omegaconf import OmegaConf
 
     from src.errors import ConfigError
     from src.tasks.filter_search import FilterSearchTask
     from tests.conftest import compose_config, one_line_error
 
-    cfg = compose_config(["task=filter_search", "profile=smoke", "task.search.spp=[4,8]"])
+    # paths.data: the job-start checks look for the prepared folder (none here)
+    cfg = compose_config(
+        ["task=filter_search", "profile=smoke", "task.search.spp=[4,8]", f"paths.data={tmp_path}"]
+    )
     with pytest.raises(ConfigError) as excinfo:
         FilterSearchTask().check_stages(["render", "search"], cfg)
     one_line_error(excinfo, "task.search.spp=[4, 8]", "[8] not rendered", "dataset.noisy_spp=[4, 16]")

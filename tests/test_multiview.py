@@ -172,6 +172,12 @@ def test_renders_loadable_blender_scenes_and_caches(mitsuba_variant, ds, tmp_pat
     assert changed["scenes_rendered"] == 1 and list(changed["per_scene"]) == ["busy"]
     assert (tmp_path / "spheres" / "train" / "r_0.png").read_bytes() == before
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folders left
+    # A scene the config no longer lists is deleted; a user's own scene folder (no KEY_FILE) stays.
+    (tmp_path / "mine" / "train").mkdir(parents=True)
+    fewer = render_multiview_dataset({**ds, "scenes": ["spheres", "tabletop"]}, tmp_path)
+    assert (fewer["scenes_removed"], fewer["scenes_rendered"]) == (1, 0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine", "spheres", "tabletop"]
+    assert (tmp_path / "spheres" / "train" / "r_0.png").read_bytes() == before
 
 
 def test_an_interrupted_render_leaves_no_scene(mitsuba_variant, ds, tmp_path, monkeypatch):

@@ -82,13 +82,13 @@ def smoke_run(tmp_path_factory):
 def test_main_job_renders_and_preprocesses(smoke_run):
     data, result = smoke_run
     assert "samples/s" in result.stdout
-    raw = data / "procedural" / "raw"
+    raw = data / "procedural" / "smoke" / "raw"
     assert len(list(raw.glob("*.exr"))) == 9  # 3 scenes x (2 noisy + 1 reference)
-    render = json.loads((data / "procedural" / "render_summary.json").read_text())
+    render = json.loads((data / "procedural" / "smoke" / "render_summary.json").read_text())
     assert render["summary"]["samples_per_second"] > 0
     assert render["config"]["dataset"]["width"] == 48 and render["git_commit"]
     assert len(render["data_fingerprint"]) == 16
-    prepared = data / "procedural" / "prepared"
+    prepared = data / "procedural" / "smoke" / "prepared"
     splits = json.loads((prepared / "splits.json").read_text())
     scenes = [s for names in splits.values() for s in names]
     assert len(scenes) == len(set(scenes)) == 3
@@ -104,7 +104,7 @@ def _stat(folder):
 
 def test_rerun_renders_nothing(smoke_run):
     data, _ = smoke_run
-    raw = data / "procedural" / "raw"
+    raw = data / "procedural" / "smoke" / "raw"
     before = _stat(raw)
     result = run(["profile=smoke", "stage=render"], data)
     assert result.returncode == 0 and "up to date" in result.stdout
@@ -120,9 +120,9 @@ def test_bad_exr_stops_preprocess_naming_the_file(smoke_run, tmp_path):
     from src.data.kpcn_buffers import load_kpcn_exr, write_kpcn_exr
 
     data, _ = smoke_run
-    raw = tmp_path / "procedural" / "raw"
+    raw = tmp_path / "procedural" / "smoke" / "raw"
     raw.mkdir(parents=True)
-    for exr in (data / "procedural" / "raw").glob("*.exr"):
+    for exr in (data / "procedural" / "smoke" / "raw").glob("*.exr"):
         (raw / exr.name).write_bytes(exr.read_bytes())
     victim = raw / "cornell-0000-00004spp.exr"
     buffers, _ = load_kpcn_exr(victim)
@@ -131,9 +131,10 @@ def test_bad_exr_stops_preprocess_naming_the_file(smoke_run, tmp_path):
     result = run(["profile=smoke", "stage=preprocess"], tmp_path)
     one_line_cli_error(result, str(victim), "specular.G", "task.preprocess.repair.nonfinite=zero")
     # Nothing half-written is left for a later stage to trust; the inputs are untouched.
-    assert sorted(p.name for p in (tmp_path / "procedural").iterdir()) == ["raw"]
+    assert sorted(p.name for p in (tmp_path / "procedural" / "smoke").iterdir()) == ["raw"]
     assert len(list(raw.glob("*.exr"))) == 9
     repaired = run(["profile=smoke", "stage=preprocess", "task.preprocess.repair.nonfinite=zero"], tmp_path)
     assert repaired.returncode == 0, repaired.stderr
-    record = json.loads((tmp_path / "procedural" / "prepared" / "preprocess_provenance.json").read_text())
+    prepared = tmp_path / "procedural" / "smoke" / "prepared"
+    record = json.loads((prepared / "preprocess_provenance.json").read_text())
     assert "specular.G" in record["summary"]["repairs"]["cornell-0000-00004spp.exr"]

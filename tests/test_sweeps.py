@@ -10,6 +10,7 @@ import sys
 import mlflow
 import pandas as pd
 import pytest
+import yaml
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.utils import get_class
@@ -360,6 +361,15 @@ def test_a_users_own_radiance_field_runs_beside_nerf(smoke_data, tmp_path):
     assert set(toy["model"]) == {"mlps.0.0.weight", "mlps.0.0.bias", "mlps.0.2.weight", "mlps.0.2.bias"}
 
 
+def _leaves(loop):
+    """A foreach's list (or variable), or each of a matrix's lists (or variables)."""
+    return list(loop.values()) if isinstance(loop, dict) else [loop]
+
+
+def _is_variable(value) -> bool:
+    return isinstance(value, str) and value.startswith("${") and value.endswith("}")
+
+
 def test_the_compared_models_live_in_one_place():
     """conf/compare.yaml is what the denoisers / nerf_variants sweeps and the DVC pipeline compare."""
     from dvc.repo import Repo
@@ -375,16 +385,22 @@ def test_the_compared_models_live_in_one_place():
     def items(kind):
         return {s.split("@", 1)[1] for s in stages if s.startswith(f"{kind}@")}
 
-    assert items("denoise_config") == set(learned + baselines)  # dvc.yaml's foreach lists them by name
+    assert items("denoise_config") == set(learned) and items("denoise_baseline_config") == set(baselines)
     assert items("denoise_train") == items("denoise_eval") == set(learned)
     assert items("denoise_baseline") == set(baselines)
     assert items("nerf_train") == {f"{m}-{s}" for m in compare.nerf.models for s in compare.nerf.scenes}
     vol_learned, vol_baselines = list(compare.volumetric.learned), list(compare.volumetric.baselines)
     unet_vs_kpcn = swept(compose_sweep("unet_vs_kpcn"))
     assert list(unet_vs_kpcn["model"].sweep_string_iterator()) == vol_learned + vol_baselines
-    assert items("vol_config") == set(vol_learned + vol_baselines)
+    assert items("vol_config") == set(vol_learned) and items("vol_baseline_config") == set(vol_baselines)
     assert items("vol_train") == items("vol_eval") == set(vol_learned)
     assert items("vol_baseline") == set(vol_baselines)
+    # ... and not by coincidence: every list dvc.yaml loops over is a template variable (from
+    # conf/compare.yaml), none written out by hand.
+    raw = yaml.safe_load((ROOT / "dvc.yaml").read_text())["stages"]
+    loops = {n: s.get("foreach", s.get("matrix")) for n, s in raw.items() if "foreach" in s or "matrix" in s}
+    written = {n: v for n, v in loops.items() if not all(_is_variable(x) for x in _leaves(v))}
+    assert not written, f"dvc.yaml stages loop over lists written out by hand: {written}"
 
 
 def test_the_volumetric_studies_sweep_what_they_name():
@@ -419,7 +435,7 @@ def test_the_nerf_thesis_sweep_writes_the_thesis_tables(tmp_path, mitsuba_varian
     render(smoke_config(rendered, rendered / "run", ["task=nerf"]))
     root = tmp_path / "nerf_synthetic"
     for ours, theirs in (("spheres", "lego"), ("busy", "materials")):
-        shutil.copytree(rendered / "nerf_procedural" / "scenes" / ours, root / theirs)
+        shutil.copytree(rendered / "nerf_procedural" / "smoke" / "scenes" / ours, root / theirs)
     sweep(["+sweep=nerf_thesis", f"dataset.root={root}", "task.scene=lego,materials", "model=nerf,mipnerf"],
           tmp_path / "data", tmp_path)  # fmt: skip
     out = tmp_path / "reports" / "sweeps" / "nerf_thesis"

@@ -26,7 +26,7 @@ from src.models.denoise.unet_kpcn import (
     upsample,
 )
 from src.models.instantiate import build_method
-from tests.conftest import compose_config, one_line_error
+from tests.conftest import compose_config, one_line_error, smoke_config
 
 IN = 5
 
@@ -208,7 +208,7 @@ def test_a_bad_unet_kpcn_value_is_a_one_line_config_error(key, value, needles):
     one_line_error(excinfo, *needles)
 
 
-def test_whitening_on_sequences_and_training_unet_kpcn_on_still_images_are_one_line_errors():
+def test_whitening_on_sequences_and_training_unet_kpcn_on_still_images_are_one_line_errors(tmp_path):
     from src.tasks.denoise import DenoiseTask
 
     cfg = compose_config(["dataset=volumetric", "model=kpcn", "profile=smoke", "model.whiten=true"])
@@ -221,7 +221,9 @@ def test_whitening_on_sequences_and_training_unet_kpcn_on_still_images_are_one_l
         with pytest.raises(ConfigError) as excinfo:
             DenoiseTask().check_stages([stage], cfg)
         one_line_error(excinfo, "model=unet_kpcn", "radiance branch", f"stage={stage}", "dataset=procedural")
-    DenoiseTask().check_stages(["train"], compose_config(["dataset=volumetric", "model=unet_kpcn"]))
+    DenoiseTask().check_stages(
+        ["train"], smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric", "model=unet_kpcn"])
+    )
 
 
 # --- the whole forward pass against an independent reference -------------------------------------------

@@ -257,8 +257,23 @@ def test_changed_config_renders_only_what_changed(rendered, ds, tmp_path):
 
     raw = tmp_path / "raw"
     shutil.copytree(rendered[0], raw)
+    (raw / "mine-f0000-00004spp.exr").write_bytes(b"a user's file: no manifest entry")
     summary = render_volumetric_dataset({**ds, "reference_spp": 6}, raw, "auto", frames=[0])
     assert summary["files_rendered"] == 1 and summary["files_cached"] == 1  # the new reference only
+    # The old references are gone, frame 1's too (outside this job's frames, but no frame has them now);
+    # frame 1's noisy file stays for the job that renders frame 1, and the user's file stays.
+    assert summary["files_removed"] == 2
+    assert sorted(p.name for p in raw.glob("*.exr")) == [
+        "fog_objects-0000-f0000-00002spp.exr",
+        "fog_objects-0000-f0000-00006spp.exr",
+        "fog_objects-0000-f0001-00002spp.exr",
+        "mine-f0000-00004spp.exr",
+    ]
+    assert sorted(p.name for p in (raw / "manifest").iterdir()) == [
+        "fog_objects-0000-f0000-00002spp.exr.json",
+        "fog_objects-0000-f0000-00006spp.exr.json",
+        "fog_objects-0000-f0001-00002spp.exr.json",
+    ]
 
 
 def test_bad_subsets_are_config_errors(ds):
@@ -317,6 +332,6 @@ def test_render_stage_from_the_command_line(tmp_path):
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "render: 24 files (0 cached)" in result.stdout and "M samples/s" in result.stdout
-    raw = tmp_path / "volumetric" / "raw"
+    raw = tmp_path / "volumetric" / "smoke" / "raw"
     assert len(list(raw.glob("*-f000[01]-*spp.exr"))) == 24
-    assert (tmp_path / "volumetric" / "render_summary.json").is_file()
+    assert (tmp_path / "volumetric" / "smoke" / "render_summary.json").is_file()

@@ -276,7 +276,7 @@ def test_render_and_preprocess_from_the_command_line(tmp_path):
         result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
         assert result.returncode == 0, result.stderr[-3000:]
         assert expect in result.stdout, result.stdout[-2000:]
-    prepared = tmp_path / "volumetric" / "prepared"
+    prepared = tmp_path / "volumetric" / "smoke" / "prepared"
     item = next(iter(SequencePatchDataset(prepared, "train")))
     assert item["radiance_in"].shape == (2, 62, 8, 8)
     assert len(SequenceDataset(prepared, "test")) == 2
@@ -310,7 +310,7 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     summary = preprocess(cfg)
     assert summary["samples"] == {"train": 6, "val": 6} and summary["settings"]["sequence_frames"] == 2
     assert "preprocess: 3 noisy sequences: 6 train / 6 val samples of 2 frames" in capsys.readouterr().out
-    prepared = tmp_path / "data" / "volumetric" / "prepared"
+    prepared = tmp_path / "data" / "volumetric" / "smoke" / "prepared"
     assert (prepared / "preprocess_provenance.json").is_file()
     assert next(iter(SequencePatchDataset(prepared, "train")))["radiance_in"].shape == (2, 62, 8, 8)
     preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
@@ -322,6 +322,36 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
         _stage_config(tmp_path, *o, dataset="procedural") for o in ([], ["task.preprocess.sequence_frames=5"])
     ]
     assert preprocess_key(still[0], prepared) == preprocess_key(still[1], prepared)
+
+
+def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_path):
+    """A stage that reads `paths.prepared` without preprocessing first stops with one line when the folder
+    was made with other preprocessing settings or from other raw data (src/data/prepared_check.py)."""
+    from src.data.volume_buffers import write_volume_exr
+    from src.stages import preprocess, task_of
+
+    mine = f"paths.raw={tmp_path}/my_sequences"  # a user's own raw folder, named at preprocess time only
+    made = _stage_config(tmp_path, mine)
+    _write_raw(made)
+    preprocess(made)
+    cfg = _stage_config(tmp_path)
+    for stage in ("train", "eval", "select_features"):
+        task_of(cfg).check_stages([stage], cfg)  # same settings, the raw data it was made from
+    task_of(cfg).check_stages(
+        ["train"], _stage_config(tmp_path, "task.preprocess.eps_albedo=0.5")
+    )  # still-only
+    other = _stage_config(tmp_path, "task.preprocess.sequence_frames=1")
+    with pytest.raises(ConfigError) as excinfo:
+        task_of(other).check_stages(["train"], other)
+    one_line_error(
+        excinfo, f"{made.paths.prepared}:", "task.preprocess", "my_sequences", "run stage=preprocess"
+    )
+    task_of(other).check_stages(["preprocess", "train"], other)  # the job makes them again first
+    task_of(other).check_stages(["render"], other)  # reads no prepared data
+    # the raw data changed since (one more sequence)
+    write_volume_exr(tmp_path / "my_sequences" / "d-0000-f0000-00002spp.exr", synthetic_frame("d-0000", 0, 2))
+    with pytest.raises(ConfigError):
+        task_of(cfg).check_stages(["eval"], cfg)
 
 
 @pytest.mark.parametrize("stage", ["train", "eval", "all"])

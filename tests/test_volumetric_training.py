@@ -35,8 +35,8 @@ FAST_METRICS = ["metrics.lpips.enabled=false", "metrics.flip.enabled=false"]
 def vol_data(tmp_path_factory):
     """<data>/volumetric/{raw,prepared} of four synthetic 4-frame scenes (2 train, 1 val, 1 test)."""
     data = tmp_path_factory.mktemp("voldata")
-    raw = _raw(data / "volumetric" / "raw")
-    _preprocess(raw, data / "volumetric" / "prepared", patch_size=8)
+    raw = _raw(data / "volumetric" / "smoke" / "raw")
+    _preprocess(raw, data / "volumetric" / "smoke" / "prepared", patch_size=8)
     return data
 
 
@@ -206,7 +206,7 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     rows = summary["rows"]
     assert [r["round"] for r in rows] == [0, 1, 2, 3, 4] and rows[0]["features"] == ["color", "color.var"]
     assert sorted(r["added"] for r in rows[1:]) == ["albedo", "depth", "motion", "transmittance"]
-    out = vol_data / "volumetric" / "feature_selection"
+    out = vol_data / "volumetric" / "smoke" / "feature_selection"
     table = pd.read_csv(out / "selection.csv")
     assert list(table["rank"]) == [0, 1, 2, 3, 4] and (out / "selection_curve.png").is_file()
     assert (out / "probe" / "checkpoints" / "final.pt").is_file()

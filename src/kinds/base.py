@@ -38,6 +38,11 @@ class DataKind:
     def check_stage(self, stage: str, cfg: DictConfig) -> None:
         """A one-line ConfigError when this data cannot serve `stage` with `cfg` (job start)."""
 
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        """`check_stage` of each of a job's stages, and what depends on the job's stages together."""
+        for stage in stages:
+            self.check_stage(stage, cfg)
+
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
         """Settle, in place, config values that depend on another stage's output (see `Task`)."""
 

@@ -12,6 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.data.prepared_check import check_prepared_is_current, reads_prepared_only
 from src.errors import ConfigError
 from src.io.atomic import atomic_directory
 from src.kinds.base import DataKind
@@ -76,6 +77,18 @@ class DenoisingKind(DataKind):
             )
         if stage == "eval" and held_out_index(cfg).is_file():
             self._check_held_out_inputs(cfg)
+
+    def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
+        """Besides each stage's checks: a job that reads the prepared folder without preprocessing first
+        refuses one made with other settings or raw data (`src.data.prepared_check`)."""
+        super().check_stages(stages, cfg)
+        if reads_prepared_only(stages):
+            record = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
+            check_prepared_is_current(stages, record, lambda raw: self.preprocess_key(cfg, raw))
+
+    def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
+        """The cache key `preprocess` gives the prepared folder for this config and the raw data `raw`."""
+        raise NotImplementedError
 
     def _check_held_out_inputs(self, cfg: DictConfig) -> None:
         """The one-line error of a method that needs a buffer the prepared items lack (e.g. a GP filter's

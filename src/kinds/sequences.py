@@ -85,17 +85,23 @@ class RenderedSequences(DenoisingKind):
             volume_feature_channels(features)
             cfg.task.volume_features = features
 
+    def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
+        """The settings, the repair policy, the raw data and the stored channels."""
+        from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
+        from src.data.volume_shards import SEQUENCE_KEYS
+
+        repair = OmegaConf.to_container(cfg.task.preprocess.repair, resolve=True)
+        settings = {**preprocess_settings(cfg), "repair": repair}
+        return cache_key(settings, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
+
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """The sequences into k-frame samples (train/val) and whole sequences (val/test)
         (`src.data.volume_shards`); skipped when made from the same settings, repair policy and raw data."""
         from src.data.volume_buffers import load_volume_exr
-        from src.data.volume_features import VOLUME_CANDIDATE_CHANNELS
-        from src.data.volume_shards import SEQUENCE_KEYS, preprocess_volume_dataset
+        from src.data.volume_shards import preprocess_volume_dataset
 
-        repair = OmegaConf.to_container(cfg.task.preprocess.repair, resolve=True)
         settings = preprocess_settings(cfg)
-        stored = (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS)
-        key = cache_key({**settings, "repair": repair}, self.raw_dir(cfg), stored)
+        key = self.preprocess_key(cfg, self.raw_dir(cfg))
 
         def build(raw: Path, tmp: Path, load) -> dict[str, Any]:
             return preprocess_volume_dataset(raw, tmp, **settings, load_fn=load)

@@ -48,6 +48,9 @@ class RenderedStills(DenoisingKind):
         summary = render_denoise_dataset(ds, raw, cfg.render.variant)
         return summary, Path(cfg.paths.dataset) / "render_summary.json"
 
+    def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
+        return preprocess_key(cfg, raw)
+
     def check_stage(self, stage: str, cfg: DictConfig) -> None:
         """Besides the shared checks: feature selection chooses among the sequences' candidates."""
         super().check_stage(stage, cfg)
@@ -90,7 +93,7 @@ class RenderedStills(DenoisingKind):
                 load_fn=load,
             )
 
-        summary, made = self.prepare(cfg, preprocess_key(cfg, self.raw_dir(cfg)), load_kpcn_exr, build)
+        summary, made = self.prepare(cfg, self.preprocess_key(cfg, self.raw_dir(cfg)), load_kpcn_exr, build)
         if made:
             print(
                 f"preprocess: {summary['noisy_images']} images, {summary['patches']} patches"

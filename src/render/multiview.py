@@ -31,6 +31,7 @@ from src.render.multiview_scenes import SCENE_BUILDERS, build_scene
 from src.render.multiview_seeds import SPLIT_IDS, SPLITS, scene_seed
 from src.render.multiview_views import encode_rgba8, make_sensor, render_view
 from src.render.render_dataset import split_passes
+from src.render.stale_renders import remove_stale_scenes
 
 
 def validate_config(ds: Mapping) -> None:
@@ -85,8 +86,9 @@ def render_scene(ds: Mapping, name: str, tmp_dir: Path, progress: tqdm | None = 
 def render_multiview_dataset(ds: Mapping, out_dir: Path, variant: str = "auto") -> dict:
     """Render every scene of ``ds['scenes']`` into ``out_dir/<scene>`` in the Blender format.
 
-    Scenes whose render key is unchanged are skipped. Returns counts, render seconds (``mi.render``
-    only) and throughput in camera rays (pixel samples) per second.
+    Scenes whose render key is unchanged are skipped; scene folders we rendered that ``dataset.scenes``
+    no longer lists are deleted (``remove_stale_scenes``: a user's own scene folders stay). Returns
+    counts, render seconds (``mi.render`` only) and throughput in camera rays (pixel samples) per second.
     """
     from src.render.backend import set_mitsuba_variant
 
@@ -102,6 +104,7 @@ def render_multiview_dataset(ds: Mapping, out_dir: Path, variant: str = "auto") 
     variant = set_mitsuba_variant(variant)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    removed = remove_stale_scenes(out_dir, KEY_FILE, names)
     keys = {name: render_key(ds, name) for name in names}
     todo = [name for name in names if not is_current(out_dir / name, keys[name])]
     per_view = sum(int(ds["views"][s]) for s in SPLITS)
@@ -121,6 +124,7 @@ def render_multiview_dataset(ds: Mapping, out_dir: Path, variant: str = "auto") 
         "scenes": len(names),
         "scenes_rendered": len(todo),
         "scenes_cached": len(names) - len(todo),
+        "scenes_removed": len(removed),
         "views_rendered": sum(s["views"] for s in per_scene.values()),
         "rays": rays,
         "render_seconds": round(seconds, 3),

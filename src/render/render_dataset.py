@@ -23,9 +23,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from src.data.splits import exr_name
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from src.render.moments import MomentAccumulator, variance_of_mean
+from src.render.stale_renders import remove_stale_files
 
 ROLE_IDS = {"noisy": 1, "reference": 2}
 
@@ -193,7 +195,9 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     """Render every scene at every noisy spp and the reference into ``raw_dir``; returns a summary.
 
     Files whose render key (scene, size, spp, seeds, integrator) matches ``manifest.json`` are kept,
-    so re-running with the same config renders nothing and a changed config renders only what changed.
+    so re-running with the same config renders nothing and a changed config renders only what changed;
+    files the manifest lists that the config no longer makes (another spp, a dropped scene) are deleted
+    first (``remove_stale_files``: a user's own EXRs, which it does not list, stay).
     """
     import mitsuba as mi
 
@@ -203,12 +207,13 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
     variant = set_mitsuba_variant(variant)
     integrator = mi.load_dict({"type": "kpcn_aov", **dict(ds["integrator"])})
     raw_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
+    sources = scene_sources(ds)
+    removed = remove_stale_files(raw_dir, {exr_name(s.name, spp) for s in sources for spp, _ in jobs})
     manifest_path = raw_dir / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
-    jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
 
     totals = RenderTotals()
-    sources = scene_sources(ds)
     for source in tqdm(sources, desc=f"render [{variant}]", unit="scene"):
         render_scene_files(source, ds, jobs, integrator, raw_dir, manifest, totals)
     return {
@@ -216,6 +221,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
         "scenes": len(sources),
         "files_rendered": totals.rendered,
         "files_cached": totals.skipped,
+        "files_removed": len(removed),
         "samples": totals.samples,
         "render_seconds": round(totals.seconds, 3),
         "samples_per_second": totals.samples / totals.seconds if totals.seconds > 0 else None,
@@ -249,7 +255,6 @@ def render_scene_files(
     """Render the (spp, role) ``jobs`` of one scene whose file is not current, each written as its EXR and
     recorded in ``manifest`` (saved after every file); the scene is loaded only if something renders."""
     from src.data.kpcn_buffers import write_kpcn_exr
-    from src.data.splits import exr_name
 
     pixels = int(ds["width"]) * int(ds["height"])
     scene = sensor = None

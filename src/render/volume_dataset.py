@@ -41,6 +41,7 @@ from src.render.render_dataset import (
     split_passes,
     spp_counts,
 )
+from src.render.stale_renders import remove_stale_entries
 from src.render.volume_scenes import Camera, camera_at, motion_vectors
 
 #: The integrator plugin every volumetric file is rendered with (``src.render.volpath_integrator``).
@@ -196,7 +197,9 @@ def render_volumetric_dataset(
 
     ``scenes`` (scene names, e.g. ``cloud-0000``) and ``frames`` (frame indices) select a subset, None: all
     of them; subsets rendered by separate (even concurrent) jobs compose to the files of one full run.
-    Files whose manifest entry holds the current render key are kept.
+    Files whose manifest entry holds the current render key are kept; files with an entry that the whole
+    dataset (every scene and frame, whatever the subset) no longer has are deleted first
+    (``remove_stale_entries``: files without an entry, a user's own, stay).
     """
     import mitsuba as mi
 
@@ -212,6 +215,13 @@ def render_volumetric_dataset(
     integrator = mi.load_dict({"type": INTEGRATOR, **dict(ds["integrator"])})
     raw_dir.mkdir(parents=True, exist_ok=True)
     jobs = [(spp, "noisy") for spp in noisy] + [(reference, "reference")]
+    every_file = {
+        volume_exr_name(s.name, f, spp)
+        for s in scene_sources(ds)
+        for f in range(int(ds["frames"]))
+        for spp, _ in jobs
+    }
+    removed = remove_stale_entries(raw_dir, MANIFEST_DIR, every_file)
 
     totals, build_seconds = RenderTotals(), 0.0
     units = [(source, frame) for source in sources for frame in frame_list]
@@ -223,6 +233,7 @@ def render_volumetric_dataset(
         "frames": frame_list,
         "files_rendered": totals.rendered,
         "files_cached": totals.skipped,
+        "files_removed": len(removed),
         "samples": totals.samples,
         "render_seconds": round(totals.seconds, 3),
         "scene_build_seconds": round(build_seconds, 3),

@@ -51,8 +51,8 @@ class Task:
         """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
         before any stage runs): the data kind's refusals."""
         kind = self.kind(cfg)
-        for stage in stages if kind is not None else ():
-            kind.check_stage(stage, cfg)
+        if kind is not None:
+            kind.check_stages(stages, cfg)
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""

@@ -1,0 +1,46 @@
+"""Is a prepared folder the one this config would make? A stage that reads `paths.prepared` without
+preprocessing first (`stage=train`, `eval`, `select_features`, `search`) checks, when its job starts, that
+the folder's recorded cache key equals the key `stage=preprocess` would give it now. Otherwise it would
+train or score on data made with other `task.preprocess` settings (a `stage=preprocess
+task.preprocess.patch_size=16` before a plain `stage=train`) or from other raw data, while its run
+records this config. Why at job start: before any run is opened or file written (the README's rule for bad
+input)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from src.errors import ConfigError
+
+#: The stages that read the prepared folder.
+READERS = frozenset({"train", "eval", "select_features", "search"})
+
+
+def reads_prepared_only(stages: Iterable[str]) -> bool:
+    """Whether a job with these stages reads the prepared folder without preprocessing first."""
+    stages = set(stages)
+    return "preprocess" not in stages and bool(READERS & stages)
+
+
+def check_prepared_is_current(
+    stages: Iterable[str], record_file: Path, key_of: Callable[[Path], str]
+) -> None:
+    """A one-line ConfigError unless the cache key in `record_file` (the prepared folder's provenance)
+    equals `key_of(raw)`, the current config's key for the raw data the folder was made from (`paths.raw`
+    as that preprocess run had it, so a user's KPCN folder need not be named again). Nothing to check when
+    the job preprocesses first, reads no prepared data, or finds no record (the stage's `inputs` then
+    names the stage that makes it)."""
+    if not reads_prepared_only(stages):
+        return
+    try:
+        record = json.loads(record_file.read_text())
+        raw = Path(record["config"]["paths"]["raw"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    if record.get("cache_key") != key_of(raw):
+        raise ConfigError(
+            f"{record_file.parent}: made by stage=preprocess with other task.preprocess settings or from "
+            f"other raw data ({raw}) than this config's; run stage=preprocess (or dvc repro) first"
+        )
