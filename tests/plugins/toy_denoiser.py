@@ -1,7 +1,8 @@
-"""A denoiser from outside `src/`, as a user would write one (README, "Add your own method"): per branch,
-a two-layer 1x1-convolution network from the 28 KPCN inputs to the transformed colour. Its config is
-`tests/conf/model/toy.yaml`; the tests run it through training, evaluation, the report and a multirun
-without any edit under `src/`."""
+"""A denoiser from outside `src/`, as a user would write one (README, "Add your own method"): per branch of
+the data (still images: diffuse and specular; sequences: radiance), a two-layer 1x1-convolution network
+from the branch's inputs to its transformed colour. Its config is `tests/conf/model/toy.yaml`; the tests
+run it through training, evaluation, the report and a multirun, on still images and on a toy kind of
+sequences (`tests/plugins/toy_kind.py`), without any edit under `src/`."""
 
 import torch
 from torch import nn
@@ -12,12 +13,13 @@ from src.models.denoise.base import Denoiser
 class ToyDenoiser(Denoiser):
     learned = True
 
-    def __init__(self, in_channels: int, hidden: int) -> None:
+    def __init__(self, in_channels: int, hidden: int, branches: list[str]) -> None:
         super().__init__()
+        self.branches = tuple(branches)
         self.nets = nn.ModuleDict(
             {
                 branch: nn.Sequential(nn.Conv2d(in_channels, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 3, 1))
-                for branch in ("diffuse", "specular")
+                for branch in self.branches
             }
         )
 
@@ -31,9 +33,11 @@ class ToyDenoiser(Denoiser):
 
 class ToyColorDenoiser(Denoiser):
     """One branch, predicting linear colour directly (no diffuse/specular pair): the noisy colour plus
-    a per-pixel correction from the configured features. Config: `tests/conf/model/toy_color.yaml`."""
+    a per-pixel correction from the configured features. Config: `tests/conf/model/toy_color.yaml`.
+    It reads the still images' diffuse inputs, so a kind of data without them refuses it in one line."""
 
     learned = True
+    branches = ("diffuse",)
 
     def __init__(self, in_channels: int, hidden: int) -> None:
         super().__init__()

@@ -1,0 +1,98 @@
+"""A user's own kind of data (tests/plugins/toy_kind.py, tests/conf/dataset/toy_sequence.yaml): small
+analytic image sequences, rendered, prepared, trained on and evaluated by the one denoising trainer and
+evaluation without any edit under `src/` (issue 31's proof that a data kind is one class and one YAML)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from src.errors import ConfigError
+from tests.conftest import ROOT, one_line_error, smoke_config
+from tests.plugins.toy_kind import clean_frames, split_of
+
+SEARCH = f"hydra.searchpath=[file://{ROOT}/tests/conf]"
+FAST = ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"]
+
+
+def _cfg(tmp_path, *overrides):
+    return smoke_config(tmp_path, tmp_path / "run", [SEARCH, "dataset=toy_sequence", *FAST, *overrides])
+
+
+def test_the_toy_frames_are_the_analytic_pattern_and_the_noise_shrinks_with_spp(tmp_path):
+    from src.stages import render
+
+    cfg = _cfg(tmp_path)
+    render(cfg)
+    scene = torch.load(tmp_path / "toy_sequence" / "smoke" / "raw" / "scene002.pt", weights_only=True)
+    clean = clean_frames(2, 4, 32, 48)  # the smoke profile's 48 x 32 frames
+    assert np.array_equal(scene["clean"].numpy(), clean) and clean.min() >= 0.1 - 1e-6
+    std = {spp: float((scene["noisy"][str(spp)] - scene["clean"]).std()) for spp in (4, 16)}
+    assert std[4] == pytest.approx(0.3 / 2, rel=0.05) and std[16] == pytest.approx(0.3 / 4, rel=0.05)
+    assert [split_of(s, 8) for s in range(8)] == ["train"] * 4 + ["val"] * 2 + ["test"] * 2
+
+
+def test_a_toy_denoiser_trains_and_is_evaluated_on_the_toy_sequences_with_flicker(tmp_path):
+    """Render, preprocess, train (reconstruction + temporal loss) and evaluate in-process; the held-out
+    rows have the sequences' frame count and flicker, the curves the kind's loss terms."""
+    from src.stages import evaluate, preprocess, render, train
+    from src.tracking.tracker import Tracker
+
+    cfg = _cfg(tmp_path, "model=toy")
+    render(cfg)
+    assert preprocess(cfg)["samples"] == {"train": 12 * 2, "val": 6 * 2}  # 3 windows x 2 spp per scene
+    summary = train(cfg, Tracker())
+    assert summary["steps"] > 0 and {"train_loss_color", "train_loss_temporal", "val_loss_total"} <= set(
+        summary
+    )
+    result = evaluate(cfg, Tracker())
+    rows = pd.read_csv(tmp_path / "run" / "eval" / "per_image.csv")
+    assert len(rows) == 4 and set(rows["frames"]) == {4} and rows["temporal"].notna().all()
+    assert result["mean"]["psnr"] > 0 and "noisy_temporal" in result["mean"]
+    pngs = {p.name for p in (tmp_path / "run" / "eval" / "png").glob("*.png")}
+    assert "scene006-f0000-00004spp-denoised.png" in pngs  # frames named as sequences
+
+
+def test_dpcn_builds_one_radiance_branch_over_the_toy_inputs_and_the_toy_colour_model_is_refused(tmp_path):
+    from src.schema.run import validate_run
+    from src.tasks.denoise import DenoiseTask
+
+    values = validate_run(_cfg(tmp_path, "model=dpcn"))
+    assert values["model"]["branches"] == ["radiance"] and values["model"]["in_channels"] == 4
+    cfg = _cfg(tmp_path, "model=toy_color")
+    with pytest.raises(ConfigError) as excinfo:
+        DenoiseTask().check_stages(["train"], cfg)
+    one_line_error(excinfo, "model=toy_color", "diffuse branch", "dataset=toy_sequence", "radiance")
+
+
+@pytest.mark.slow
+def test_a_smoke_multirun_trains_evaluates_and_reports_the_toy_denoiser_and_dpcn_on_the_toy_kind(tmp_path):
+    """One command, as a user would run it: both models trained and evaluated on the toy sequences, one
+    report of their own (reports/denoise-toy/) with the flicker column."""
+    import os
+    import subprocess
+    import sys
+
+    env = {
+        **os.environ,
+        "NRBENCH_DATA_DIR": str(tmp_path / "data"),
+        "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/m.db",
+    }
+    cmd = [
+        sys.executable, "-m", "src.run", "-m", "model=toy,dpcn", "dataset=toy_sequence",
+        "hydra.searchpath=[file://tests/conf]", "profile=smoke", *FAST, f"hydra.sweep.dir={tmp_path}/sweep",
+        f"tracking.artifact_root={tmp_path}/mlartifacts", f"report.out_dir={tmp_path}/reports",
+    ]  # fmt: skip
+    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    table = pd.read_csv(tmp_path / "reports" / "denoise-toy" / "comparison.csv", comment="#", index_col=0)
+    assert sorted(table.index) == ["dpcn", "toy"] and (table["PSNR"] > 0).all()
+    assert any("flicker" in c.lower() for c in table.columns), list(table.columns)
+    for job in ("0", "1"):
+        metrics = json.loads((tmp_path / "sweep" / job / "eval" / "metrics.json").read_text())
+        assert metrics["images"] == 4 and metrics["mean"]["temporal"] > 0
+        assert set(pd.read_csv(tmp_path / "sweep" / job / "eval" / "per_image.csv")["frames"]) == {4}
