@@ -196,6 +196,13 @@ class DenoisingKind(DataKind):
 
     def training_data(self, cfg: DictConfig, features: list[str] | None) -> tuple[Any, Any]:
         """The training (shuffled per epoch) and validation datasets: items of k frames."""
+        return (
+            self.samples(cfg, "train", features, shuffle=True),
+            self.samples(cfg, "val", features, shuffle=False),
+        )
+
+    def samples(self, cfg: DictConfig, split: str, features: list[str] | None, shuffle: bool):
+        """The prepared training samples of `split` (`training_data`), seeded by `seed`."""
         raise NotImplementedError
 
     def build_context(self, cfg: DictConfig, train_data) -> dict[str, Any]:

@@ -136,15 +136,12 @@ class RenderedSequences(DenoisingKind):
     def color_space(self, cfg: DictConfig) -> RadianceTransform:
         return RadianceTransform(cfg.task.preprocess.volume_transform)
 
-    def training_data(self, cfg: DictConfig, features) -> tuple[Any, Any]:
-        """k-frame samples of the train and val splits (`SequencePatchDataset`)."""
+    def samples(self, cfg: DictConfig, split: str, features, shuffle: bool):
+        """k-frame samples of `split` (`SequencePatchDataset`)."""
         from src.data.sequence_dataset import SequencePatchDataset
 
-        data = {"seed": int(cfg.seed), "features": features}
-        prepared = Path(cfg.paths.prepared)
-        return (
-            SequencePatchDataset(prepared, "train", shuffle=True, **data),
-            SequencePatchDataset(prepared, "val", shuffle=False, **data),
+        return SequencePatchDataset(
+            cfg.paths.prepared, split, seed=int(cfg.seed), shuffle=shuffle, features=features
         )
 
     def schedule(self, cfg: DictConfig):

@@ -113,16 +113,14 @@ class RenderedStills(DenoisingKind):
     def color_space(self, cfg: DictConfig) -> KpcnSplit:
         return KpcnSplit(cfg.task.preprocess.eps_albedo)
 
-    def training_data(self, cfg: DictConfig, features) -> tuple[FramesOfOne, FramesOfOne]:
-        """Patches of the train and val splits (`PatchShardDataset`), as samples of one frame."""
+    def samples(self, cfg: DictConfig, split: str, features, shuffle: bool) -> FramesOfOne:
+        """Patches of `split` (`PatchShardDataset`), as samples of one frame."""
         from src.data.denoise_dataset import PatchShardDataset
 
-        data = {"seed": int(cfg.seed), "features": features}
-        prepared = Path(cfg.paths.prepared)
-        return (
-            FramesOfOne(PatchShardDataset(prepared, "train", shuffle=True, **data)),
-            FramesOfOne(PatchShardDataset(prepared, "val", shuffle=False, **data)),
+        data = PatchShardDataset(
+            cfg.paths.prepared, split, seed=int(cfg.seed), shuffle=shuffle, features=features
         )
+        return FramesOfOne(data)
 
     def build_context(self, cfg: DictConfig, train_data: FramesOfOne) -> dict[str, Any]:
         """The whitening statistics of the selected inputs, for a model that whitens (an ablation)."""
