@@ -6,8 +6,9 @@ seeded; random inputs: speed does not depend on the values) and prints, in one r
   `apply_kernel` ("at equal backbone, KPCN costs <= ~1.2x": the Bako et al. 2017 claim that applying the
   kernel is cheap; a per-pixel Python loop in the seed thesis took 140 s per frame);
 - OIDN on the same frame, if `pyoidn` works here;
-- the U-Net KPCN of the volumetric frame batches (`unet_kpcn`, timed on a random frame batch with its
-  profile's `in_channels`) against KPCN and OIDN (the targets: >= 10x faster than KPCN, within 2x of OIDN);
+- the U-Net KPCN of the sequences' radiance branch (`unet_kpcn`, timed on a random batch of that branch
+  with its profile's `in_channels`) against KPCN and OIDN (the targets: >= 10x faster than KPCN, within
+  2x of OIDN);
 - a plain `F.conv2d` (100 -> 100 channels, 5x5, the DPCN hidden layer) on the same frame, as the
   achievable conv throughput of this device.
 

@@ -48,7 +48,7 @@ def data_kind(cfg: DictConfig) -> Any:
 
 
 def flatten_frames(batch: Batch) -> dict[str, torch.Tensor]:
-    """(N, k, C, H, W) sample tensors as one (N*k, C, H, W) frame batch."""
+    """(N, k, C, H, W) sample tensors as one (N*k, C, H, W) batch of frames."""
     return {k: v.flatten(0, 1) for k, v in batch.items() if k not in _SAMPLE_META}
 
 
