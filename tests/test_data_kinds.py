@@ -153,3 +153,13 @@ def test_stage_summary_runs_on_every_denoising_kind(tmp_path, capsys, dataset, m
     out = capsys.readouterr().out
     assert "FLOPs per pixel" in out
     assert ("input features" not in out) if line is None else (line in out)
+
+
+def test_the_benchmark_composes_a_model_with_the_data_whose_branches_it_reads():
+    """`python -m src.bench denoise` times the U-Net KPCN with the sequences' 62 inputs (its data), the
+    KPCN family with the default still images' 28 per branch."""
+    from src.bench.model_configs import load_model_config
+
+    assert load_model_config("unet_kpcn", "paper")["in_channels"] == 62
+    kpcn = load_model_config("kpcn", "paper")
+    assert kpcn["in_channels"] == 28 and kpcn["branches"] == ["diffuse", "specular"]
