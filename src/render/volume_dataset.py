@@ -42,7 +42,8 @@ from src.render.render_dataset import (
     spp_counts,
 )
 from src.render.stale_renders import remove_stale_entries
-from src.render.volume_scenes import Camera, camera_at, motion_vectors
+from src.render.volume_camera import Camera, motion_vectors
+from src.render.volume_scenes import camera_at
 
 #: The integrator plugin every volumetric file is rendered with (``src.render.volpath_integrator``).
 INTEGRATOR = "nrbench_volpath"
