@@ -105,7 +105,7 @@ def test_a_shard_stream_yields_each_shards_rows_in_its_own_permutation():
     from src.data.denoise_dataset import ShardStream, worker_shard_order
 
     class Stream(ShardStream):
-        def __init__(self, shuffle):
+        def __init__(self, shuffle):  # no index file: the shards as ShardStream.__init__ would set them
             self.shards, self.seed, self.shuffle, self.epoch = [{}, {}, {}], 7, shuffle, 0
 
         def _load_shard(self, i):

@@ -95,15 +95,23 @@ class ShardStream(IterableDataset):
     `worker_shard_order`), and the rows of each shard are permuted with (seed, epoch, shard). So every row
     comes exactly once per epoch, whatever the number of workers. Call `set_epoch` before iterating a
     DataLoader each epoch (with `persistent_workers=False`, the default, workers get a fresh copy of the
-    dataset per epoch). A subclass sets `shards` (the index entries), `seed`, `shuffle` and `epoch`, and
-    loads one shard's tensors, rows first, with `color` among them (`_load_shard`): the still images'
-    patches and the sequences' samples stream alike.
+    dataset per epoch). The split's shards are listed in `<prepared>/patches/<split>/index.json`, each
+    entry with its row count under `rows_key`; a subclass loads one shard's tensors, rows first, with
+    `color` among them (`_load_shard`): the still images' patches and the sequences' samples stream alike.
     """
 
-    shards: list[dict[str, Any]]
-    seed: int
-    shuffle: bool
-    epoch: int
+    rows_key: str
+
+    def __init__(self, prepared: str | os.PathLike[str], split: str, seed: int, shuffle: bool) -> None:
+        super().__init__()
+        self.root = Path(prepared) / "patches" / split
+        self.index = read_index(self.root)
+        self.shards = self.index["shards"]
+        self.patch_size = self.index["patch_size"]
+        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+
+    def __len__(self) -> int:
+        return sum(s[self.rows_key] for s in self.shards)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = int(epoch)
@@ -130,6 +138,8 @@ class PatchShardDataset(ShardStream):
     whitening.json (of all stored channels), applied to the selected diffuse_in / specular_in.
     """
 
+    rows_key = "n_patches"
+
     def __init__(
         self,
         shard_dir: str | os.PathLike[str],
@@ -140,18 +150,10 @@ class PatchShardDataset(ShardStream):
         whitening: Whitening = None,
         features: Features = PAPER_FEATURES,
     ) -> None:
-        super().__init__()
-        self.root = Path(shard_dir) / "patches" / split
-        self.index = read_index(self.root)
-        self.shards = self.index["shards"]
-        self.patch_size = self.index["patch_size"]
-        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+        super().__init__(shard_dir, split, seed, shuffle)
         self.select = input_selection(self.index, features, self.root)
         self.whitening = selected_whitening(whitening, self.select)
         self.guides = guide_selection(self.index)
-
-    def __len__(self) -> int:
-        return sum(s["n_patches"] for s in self.shards)
 
     def _load_shard(self, i: int) -> dict[str, torch.Tensor]:
         return _prepare(

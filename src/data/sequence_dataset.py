@@ -84,6 +84,8 @@ class SequencePatchDataset(ShardStream):
     of whitening.json (of all stored channels), applied to the selected `inputs`.
     """
 
+    rows_key = "n_samples"
+
     def __init__(
         self,
         prepared: str | os.PathLike[str],
@@ -94,17 +96,10 @@ class SequencePatchDataset(ShardStream):
         shuffle: bool = True,
         whitening: Whitening = None,
     ) -> None:
-        super().__init__()
-        self.root = Path(prepared) / "patches" / split
-        self.index = read_index(self.root)
-        self.shards = self.index["shards"]
-        self.patch_size, self.frames = self.index["patch_size"], self.index["sequence_frames"]
+        super().__init__(prepared, split, seed, shuffle)
+        self.frames = self.index["sequence_frames"]
         self.volume_transform = self.index["volume_transform"]
         self.selection = _Selection(self.index, features, whitening, self.root)
-        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
-
-    def __len__(self) -> int:
-        return sum(s["n_samples"] for s in self.shards)
 
     def _load_shard(self, i: int) -> dict[str, torch.Tensor]:
         raw = load_tensors(self.root / self.shards[i]["file"])
