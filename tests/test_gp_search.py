@@ -109,6 +109,25 @@ def test_each_mutation_keeps_types_and_the_length_limit(kind):
     assert changed > 0
 
 
+def test_a_child_over_max_length_is_replaced_by_its_parent(monkeypatch):
+    """`Variation` (as `GPSearch` builds it from `SearchParams`): a mutation or crossover child of exactly
+    `max_length` nodes is kept, one node more and its parent comes back (`gp.staticLimit`)."""
+    import src.gp.variation as variation_module
+
+    pset, book = _pset_book()
+    parent = Individual(parse(SEED, pset))
+    grown = Individual(parse(f"({SEED}) * 2.0", pset))
+    monkeypatch.setattr(variation_module, "mut_insert", lambda ind, *args: (Individual(grown),))
+    monkeypatch.setattr(variation_module, "cx_one_point", lambda a, b: (Individual(grown), Individual(grown)))
+    for limit, kept in ((len(grown), True), (len(grown) - 1, False)):
+        params = SearchParams(max_length=limit, mutation_kinds={"insert": 1.0})
+        search = GPSearch(_TextFitness(), SEED, params, pset, book)
+        want = str(grown) if kept else str(parent)
+        (child,) = search.variation.mutate(Individual(parent))
+        assert str(child) == want
+        assert [str(c) for c in search.variation.mate(Individual(parent), Individual(parent))] == [want, want]
+
+
 def test_delete_at_a_vector_replaces_its_vector_operator():
     pset, _ = _pset_book()
     random.seed(0)
