@@ -1,5 +1,5 @@
-"""The GP search (src/gp/search.py, Davletaliyev 2016 Sec. 3.2) on tiny synthetic images, and
-`task=filter_search` end to end (slow)."""
+"""The GP search (src/gp/search.py, its operators src/gp/variation.py and fitness src/gp/fitness.py;
+Davletaliyev 2016 Sec. 3.2) on tiny synthetic images, and `task=filter_search` end to end (slow)."""
 
 import json
 import os
@@ -14,27 +14,20 @@ import pytest
 import torch
 
 from src.errors import DataError
+from src.gp.fitness import WORST, Fitness, relative_error
 from src.gp.grammar import GRAMMAR_VECTORS, Vector
 from src.gp.published import bilateral_expression
-from src.gp.search import (
-    WORST,
-    Fitness,
-    GPSearch,
-    Individual,
-    SearchParams,
+from src.gp.search import GPSearch, Individual, SearchParams, load_state, save_state, search_pset
+from src.gp.text import parse
+from src.gp.variation import (
     codebook,
     cx_one_point,
     kernel_expressions,
-    load_state,
     mut_delete,
     mut_insert,
     mut_replace,
     mut_swap,
-    relative_error,
-    save_state,
-    search_pset,
 )
-from src.gp.text import parse
 from src.metrics.image import relmse_spp
 from tests.conftest import ROOT
 
@@ -114,6 +107,25 @@ def test_each_mutation_keeps_types_and_the_length_limit(kind):
         assert _typed_ok(out)
         changed += str(out) != str(ind)
     assert changed > 0
+
+
+def test_a_child_over_max_length_is_replaced_by_its_parent(monkeypatch):
+    """`Variation` (as `GPSearch` builds it from `SearchParams`): a mutation or crossover child of exactly
+    `max_length` nodes is kept, one node more and its parent comes back (`gp.staticLimit`)."""
+    import src.gp.variation as variation_module
+
+    pset, book = _pset_book()
+    parent = Individual(parse(SEED, pset))
+    grown = Individual(parse(f"({SEED}) * 2.0", pset))
+    monkeypatch.setattr(variation_module, "mut_insert", lambda ind, *args: (Individual(grown),))
+    monkeypatch.setattr(variation_module, "cx_one_point", lambda a, b: (Individual(grown), Individual(grown)))
+    for limit, kept in ((len(grown), True), (len(grown) - 1, False)):
+        params = SearchParams(max_length=limit, mutation_kinds={"insert": 1.0})
+        search = GPSearch(_TextFitness(), SEED, params, pset, book)
+        want = str(grown) if kept else str(parent)
+        (child,) = search.variation.mutate(Individual(parent))
+        assert str(child) == want
+        assert [str(c) for c in search.variation.mate(Individual(parent), Individual(parent))] == [want, want]
 
 
 def test_delete_at_a_vector_replaces_its_vector_operator():
@@ -465,7 +477,7 @@ def test_tournament_of_8_picks_the_lowest_fitness_of_its_draws():
 def test_mutation_kinds_are_drawn_with_their_weights(monkeypatch, kinds):
     """`Variation.mutate` draws one kind per call with `random.choices` weighted by `mutation_kinds` (the
     CURRENT rule), and runs that kind's operator; 3000 draws."""
-    import src.gp.search as search_module
+    import src.gp.variation as variation_module
 
     counts = dict.fromkeys(("insert", "replace", "swap", "delete"), 0)
 
@@ -477,7 +489,7 @@ def test_mutation_kinds_are_drawn_with_their_weights(monkeypatch, kinds):
         return run
 
     for kind in counts:
-        monkeypatch.setattr(search_module, f"mut_{kind}", operator(kind))
+        monkeypatch.setattr(variation_module, f"mut_{kind}", operator(kind))
     search = GPSearch(_TextFitness(), SEED, SearchParams(mutation_kinds=kinds), *_pset_book())
     random.seed(2)
     ind, draws = Individual(parse("1.0 * 2.0")), 3000
@@ -742,7 +754,7 @@ def test_crossover_draws_the_common_type_then_a_point_of_it_in_each():
 
 
 def test_parent_is_the_nearest_node_above_whose_subtree_holds_the_index():
-    from src.gp.search import _parent
+    from src.gp.variation import _parent
 
     for text in (SEED, "exp(-distance2(normal, normal))", "mitchell(distance1(depth, texture)) * 0.3"):
         tree = parse(text)
@@ -916,7 +928,8 @@ def test_a_defined_expression_whose_error_overflows_gets_the_worst_fitness():
     assert Fitness({}, color, ref, radius=1)([tree]) == [WORST]
 
 
-# Surviving mutants of src/gp/search.py (bash scripts/mutation.sh gp), all equivalent here:
+# Surviving mutants of src/gp/search.py (bash scripts/mutation.sh gp; run before the operators and the
+# fitness moved to src/gp/variation.py and src/gp/fitness.py, unchanged), all equivalent here:
 # - the search's grammar dropped where a tree is parsed or a constant made (codebook, GPSearch.__init__,
 #   load_state: `parse(text, )`; mut_delete: `constant(1.0, )`): the full grammar `PSET` gives the same
 #   nodes by name as its deep copy `search_pset(...)`, so the same texts and trees; `gp.mutUniform(...,

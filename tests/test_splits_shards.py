@@ -96,6 +96,50 @@ def test_shards_stream_every_patch_once_per_epoch_with_two_workers(tmp_path):
     assert orders[0] != orders[1]
 
 
+def test_a_shard_stream_yields_each_shards_rows_in_its_own_permutation():
+    """`ShardStream` (one worker): the shards in `worker_shard_order`, and the rows of shard i in the order
+    of `default_rng([seed, epoch, i]).permutation`, so two equal-sized shards are shuffled differently;
+    without `shuffle`, shards and rows in stored order."""
+    import numpy as np
+
+    from src.data.denoise_dataset import ShardStream, worker_shard_order
+
+    class Stream(ShardStream):
+        def __init__(self, shuffle):  # no index file: the shards as ShardStream.__init__ would set them
+            self.shards, self.seed, self.shuffle, self.epoch = [{}, {}, {}], 7, shuffle, 0
+
+        def _load_shard(self, i):
+            return {"color": torch.arange(5) + 10 * int(i)}
+
+    stream = Stream(shuffle=True)
+    stream.set_epoch(3)
+    want = [
+        10 * int(i) + j
+        for i in worker_shard_order(3, 7, 3, True)
+        for j in np.random.default_rng([7, 3, int(i)]).permutation(5)
+    ]
+    got = [int(row["color"]) for row in stream]
+    assert got == want
+    assert [g % 10 for g in got[:5]] != [g % 10 for g in got[5:10]]
+    assert [int(row["color"]) for row in Stream(shuffle=False)] == [
+        0,
+        1,
+        2,
+        3,
+        4,
+        10,
+        11,
+        12,
+        13,
+        14,
+        20,
+        21,
+        22,
+        23,
+        24,
+    ]
+
+
 def synthetic_image(scene, spp, h=24, w=40):
     """Buffers for a scene (fixed per scene) with noise shrinking with spp; deterministic."""
     base = np.random.default_rng(sum(map(ord, scene)))

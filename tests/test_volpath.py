@@ -134,7 +134,7 @@ def ours(mi, **props):
 
 
 def render(mi, scene, spp, seed=0, **props):
-    from src.render.volpath_integrator import render_volume_buffers
+    from src.render.volume_film import render_volume_buffers
 
     return render_volume_buffers(scene, ours(mi, **props), spp, seeds=[seed])
 
@@ -182,7 +182,7 @@ def assert_mean_close(buffers, name, expected, z=5.0, atol=1e-6):
 
 
 def test_channel_layout_matches_the_film(mi):
-    from src.render.volpath_integrator import CHANNEL_COUNT, VOLUME_BUFFERS, volume_channel_names
+    from src.render.volume_film import CHANNEL_COUNT, VOLUME_BUFFERS, volume_channel_names
 
     buffers = render(mi, slab(mi, homogeneous(), res=4), spp=2)
     assert list(VOLUME_BUFFERS) == list(CHANNEL_COUNT)[1:]
@@ -197,7 +197,7 @@ def test_split_film_reads_each_buffer_and_its_square_by_channel_name(mi):
     """A synthetic film whose every channel holds its own index: each buffer's mean is read from the
     channels named ``<buffer>.<i>`` (the film's RGB first for ``color``) and its second moment from
     ``<buffer>_sq.<i>``, located by name here, not by the offsets ``split_film`` computes."""
-    from src.render.volpath_integrator import CHANNEL_COUNT, split_film, volume_channel_names
+    from src.render.volume_film import CHANNEL_COUNT, split_film, volume_channel_names
 
     names = ["color.0", "color.1", "color.2", *volume_channel_names()]
     img = np.broadcast_to(np.arange(len(names), dtype=np.float64), (2, 3, len(names)))

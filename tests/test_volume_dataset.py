@@ -161,8 +161,8 @@ def test_loader_rejects_a_file_missing_a_buffer(tmp_path):
 
 
 def test_frame_motion_conventions():
+    from src.render.volume_camera import Camera, look_at, motion_vectors
     from src.render.volume_dataset import frame_motion
-    from src.render.volume_scenes import Camera, look_at, motion_vectors
 
     cam_t = Camera(look_at([0.0, 1.0, 5.0], [0.0, 0.0, 0.0]), 40.0)
     cam_t1 = Camera(look_at([0.3, 1.0, 5.0], [0.0, 0.0, 0.0]), 40.0)

@@ -224,7 +224,7 @@ def test_thick_and_thin_media(mitsuba_variant, ds):
 def test_projection_matches_mitsubas_perspective_camera(mitsuba_variant):
     import mitsuba as mi
 
-    from src.render.volume_scenes import Camera, look_at, project
+    from src.render.volume_camera import Camera, look_at, project
 
     width, height = 12, 8  # non-square
     camera = Camera(look_at([1.0, 2.0, 3.0], [0.2, 0.5, -0.4]), 50.0)
@@ -250,7 +250,7 @@ def _plane_positions(camera, width, height, depth):
 
 
 def test_motion_vectors_of_a_camera_translation_are_the_closed_form():
-    from src.render.volume_scenes import Camera, look_at, motion_vectors
+    from src.render.volume_camera import Camera, look_at, motion_vectors
 
     width, height, depth = 16, 10, 5.0
     cam_t = Camera(look_at([0, 0, 0], [0, 0, 1]), 45.0)  # +x world is the image's left
@@ -265,7 +265,7 @@ def test_motion_vectors_of_a_camera_translation_are_the_closed_form():
 
 
 def test_motion_vectors_of_a_camera_pan_are_the_rotation_homography():
-    from src.render.volume_scenes import Camera, look_at, motion_vectors
+    from src.render.volume_camera import Camera, look_at, motion_vectors
 
     width, height, theta = 20, 12, np.radians(3.0)
     cam_t = Camera(look_at([0, 0, 0], [0, 0, 1]), 60.0)
@@ -281,7 +281,7 @@ def test_motion_vectors_of_a_camera_pan_are_the_rotation_homography():
 
 
 def test_motion_vectors_are_nan_without_a_surface_or_behind_the_camera():
-    from src.render.volume_scenes import Camera, look_at, motion_vectors
+    from src.render.volume_camera import Camera, look_at, motion_vectors
 
     cam = Camera(look_at([0, 0, 0], [0, 0, 1]), 45.0)
     positions, _ = _plane_positions(cam, 4, 3, 2.0)

@@ -17,7 +17,6 @@ from src.data.volume_buffers import parse_volume_exr_name
 from src.data.volume_features import VALUE_KINDS, VOLUME_FEATURE_BUFFERS
 from src.data.volume_shards import (
     SEQUENCE_CHANNELS,
-    frame_importance,
     inverse_volume_transform,
     preprocess_volume_dataset,
     sequence_arrays,
@@ -198,19 +197,19 @@ def test_malformed_sequences_are_one_line_data_errors():
     one_line_error(err, "task.preprocess.volume_transform='log'")
 
 
-def test_frame_importance_is_the_thesis_map_or_the_monte_carlo_variance_map():
-    from src.data.patch_sampling import importance_map, thesis_importance_map
+def test_a_frames_importance_is_the_thesis_map_or_the_monte_carlo_variance_map():
+    from src.data.patch_sampling import configured_importance_map, importance_map, thesis_importance_map
 
     frame = synthetic_frame("a-0000", 0, 2, H, W)
     thesis = {"importance": "thesis", "importance_window": 1.5, "patch_size": 4}
     np.testing.assert_array_equal(  # 1.5 patches of 4 = 6 pixels -> the odd 7
-        frame_importance(frame, thesis), thesis_importance_map(frame["color"], frame["normal"], 7)
+        configured_importance_map(frame, thesis), thesis_importance_map(frame["color"], frame["normal"], 7)
     )
     mc = {"importance": "mc_variance", "importance_percentile": 80.0}
     want = importance_map(frame["colorVariance"], frame["normalVariance"], percentile=80.0)
-    np.testing.assert_array_equal(frame_importance(frame, mc), want)
+    np.testing.assert_array_equal(configured_importance_map(frame, mc), want)
     assert not np.array_equal(want, importance_map(frame["colorVariance"], frame["normalVariance"]))
-    assert not np.allclose(want, frame_importance(frame, thesis))
+    assert not np.allclose(want, configured_importance_map(frame, thesis))
 
 
 # --- the prepared folder ----------------------------------------------------------------------------------

@@ -81,9 +81,11 @@ def frame_lines(args: argparse.Namespace, device: torch.device) -> list[str]:
 
 
 def run_filter(args: argparse.Namespace) -> str:
+    from src.gp.fitness import Fitness
     from src.gp.grammar import GRAMMAR_VECTORS, VARIABLES, VECTORS
     from src.gp.published import bilateral_expression
-    from src.gp.search import Fitness, GPSearch, SearchParams, codebook, kernel_expressions, search_pset
+    from src.gp.search import GPSearch, SearchParams, search_pset
+    from src.gp.variation import codebook, kernel_expressions
 
     device = pick_device(args.device)
     features, color, reference = _synthetic(args.images, args.height, args.width, device, args.seed)

@@ -87,17 +87,58 @@ def worker_shard_order(n_shards: int, seed: int, epoch: int, shuffle: bool) -> n
     return order if info is None else order[info.id :: info.num_workers]
 
 
-class PatchShardDataset(IterableDataset):
-    """Patches of one split from `<shard_dir>/patches/<split>/` (`shard_dir` = preprocess output dir).
+class ShardStream(IterableDataset):
+    """The rows of one split's shards, streamed one shard at a time (memory bounded by the largest shard).
 
     Each epoch: the shard order is permuted with a generator seeded by (seed, epoch); worker k of n
-    takes shards k, k + n, ... of that order (all workers compute the same permutation), and the
-    patches of each shard are permuted with (seed, epoch, shard). So every patch comes exactly once per
-    epoch, whatever the number of workers. Call `set_epoch` before iterating a DataLoader each epoch
-    (with `persistent_workers=False`, the default, workers get a fresh copy of the dataset per epoch).
-    `whitening`: stats dict or path to whitening.json (of all stored channels), applied to the selected
-    diffuse_in / specular_in.
+    takes shards k, k + n, ... of that order (all workers compute the same permutation,
+    `worker_shard_order`), and the rows of each shard are permuted with (seed, epoch, shard). So every row
+    comes exactly once per epoch, whatever the number of workers. Call `set_epoch` before iterating a
+    DataLoader each epoch (with `persistent_workers=False`, the default, workers get a fresh copy of the
+    dataset per epoch). The split's shards are listed in `<prepared>/patches/<split>/index.json`, each
+    entry with its row count under `rows_key`; a subclass loads one shard's tensors, rows first, with
+    `color` among them (`_load_shard`): the still images' patches and the sequences' samples stream alike.
     """
+
+    rows_key: str
+
+    def __init__(self, prepared: str | os.PathLike[str], split: str, seed: int, shuffle: bool) -> None:
+        super().__init__()
+        self.root = Path(prepared) / "patches" / split
+        self.index = read_index(self.root)
+        self.shards = self.index["shards"]
+        self.patch_size = self.index["patch_size"]
+        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+
+    def __len__(self) -> int:
+        return sum(s[self.rows_key] for s in self.shards)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def _my_shards(self) -> np.ndarray:
+        return worker_shard_order(len(self.shards), self.seed, self.epoch, self.shuffle)
+
+    def _load_shard(self, i: int) -> dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        for i in self._my_shards():
+            data = self._load_shard(i)
+            n = data["color"].shape[0]
+            rng = np.random.default_rng([self.seed, self.epoch, int(i)])
+            for j in rng.permutation(n) if self.shuffle else range(n):
+                yield {k: v[j] for k, v in data.items()}
+            del data
+
+
+class PatchShardDataset(ShardStream):
+    """Patches of one split from `<shard_dir>/patches/<split>/` (`shard_dir` = preprocess output dir),
+    streamed and shuffled per epoch as `ShardStream` says. `whitening`: stats dict or path to
+    whitening.json (of all stored channels), applied to the selected diffuse_in / specular_in.
+    """
+
+    rows_key = "n_patches"
 
     def __init__(
         self,
@@ -109,39 +150,19 @@ class PatchShardDataset(IterableDataset):
         whitening: Whitening = None,
         features: Features = PAPER_FEATURES,
     ) -> None:
-        super().__init__()
-        self.root = Path(shard_dir) / "patches" / split
-        self.index = read_index(self.root)
-        self.shards = self.index["shards"]
-        self.patch_size = self.index["patch_size"]
-        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
+        super().__init__(shard_dir, split, seed, shuffle)
         self.select = input_selection(self.index, features, self.root)
         self.whitening = selected_whitening(whitening, self.select)
         self.guides = guide_selection(self.index)
 
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def __len__(self) -> int:
-        return sum(s["n_patches"] for s in self.shards)
-
-    def _my_shards(self) -> np.ndarray:
-        return worker_shard_order(len(self.shards), self.seed, self.epoch, self.shuffle)
-
-    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        for i in self._my_shards():
-            data = _prepare(
-                load_tensors(self.root / self.shards[i]["file"]),
-                self.select,
-                self.whitening,
-                channel_axis=1,
-                guides=self.guides,
-            )
-            n = data["color"].shape[0]
-            rng = np.random.default_rng([self.seed, self.epoch, int(i)])
-            for j in rng.permutation(n) if self.shuffle else range(n):
-                yield {k: v[j] for k, v in data.items()}
-            del data
+    def _load_shard(self, i: int) -> dict[str, torch.Tensor]:
+        return _prepare(
+            load_tensors(self.root / self.shards[i]["file"]),
+            self.select,
+            self.whitening,
+            channel_axis=1,
+            guides=self.guides,
+        )
 
 
 class FullImageDataset(Dataset):

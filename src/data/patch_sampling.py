@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -112,6 +114,28 @@ def window_pixels(window: float, patch_size: int) -> int:
     (a centred window), at least 1."""
     px = max(1, round(float(window) * int(patch_size)))
     return px if px % 2 else px + 1
+
+
+def check_importance(importance: str) -> None:
+    """A one-line ConfigError unless `task.preprocess.importance` names one of `IMPORTANCE_MAPS`."""
+    if importance not in IMPORTANCE_MAPS:
+        raise ConfigError(
+            f"task.preprocess.importance={importance!r}: expected one of {list(IMPORTANCE_MAPS)}"
+        )
+
+
+def configured_importance_map(noisy: Mapping[str, np.ndarray], sampling: Mapping[str, Any]) -> np.ndarray:
+    """The importance map `sampling["importance"]` names for one noisy image or frame, (H, W) in [0, 1]:
+    `thesis` (the local variance of `noisy["color"]` and `noisy["normal"]` over
+    `sampling["importance_window"]` patch sizes of `sampling["patch_size"]`) or `mc_variance` (their Monte
+    Carlo variances `colorVariance` / `normalVariance`, at `sampling["importance_percentile"]`). The still
+    images' and the volumetric sequences' preprocessing both sample by it."""
+    if sampling["importance"] == "thesis":
+        window = window_pixels(sampling["importance_window"], sampling["patch_size"])
+        return thesis_importance_map(noisy["color"], noisy["normal"], window)
+    return importance_map(
+        noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
+    )
 
 
 def local_variance(x: np.ndarray, window: int, *, relative: bool = False) -> np.ndarray:

@@ -20,15 +20,14 @@ network's output back to linear radiance.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
-from torch.utils.data import Dataset, IterableDataset
+from torch.utils.data import Dataset
 
-from src.data.denoise_dataset import worker_shard_order
+from src.data.denoise_dataset import ShardStream
 from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
 from src.data.shards import INDEX_NAME, load_tensors, read_index
 from src.data.volume_features import Features, volume_channel_indices, volume_feature_channels
@@ -76,15 +75,16 @@ class _Selection:
         return out
 
 
-class SequencePatchDataset(IterableDataset):
+class SequencePatchDataset(ShardStream):
     """Samples of one split from `<prepared>/patches/<split>/` (train, val): dicts of (k, C, P, P)
     tensors plus `start` (the first frame) and `corner` (row, col), int64.
 
-    Each epoch the shard order is permuted with (seed, epoch), worker w of n takes shards w, w + n, ...,
-    and the samples of each shard are permuted with (seed, epoch, shard): every sample exactly once per
-    epoch, whatever the number of workers. Call `set_epoch` before each epoch. `whitening`: the stats
-    dict or the path of whitening.json (of all stored channels), applied to the selected `inputs`.
+    Streamed and shuffled per epoch as `ShardStream` says (every sample exactly once per epoch, whatever
+    the number of workers; call `set_epoch` before each epoch). `whitening`: the stats dict or the path
+    of whitening.json (of all stored channels), applied to the selected `inputs`.
     """
+
+    rows_key = "n_samples"
 
     def __init__(
         self,
@@ -96,34 +96,15 @@ class SequencePatchDataset(IterableDataset):
         shuffle: bool = True,
         whitening: Whitening = None,
     ) -> None:
-        super().__init__()
-        self.root = Path(prepared) / "patches" / split
-        self.index = read_index(self.root)
-        self.shards = self.index["shards"]
-        self.patch_size, self.frames = self.index["patch_size"], self.index["sequence_frames"]
+        super().__init__(prepared, split, seed, shuffle)
+        self.frames = self.index["sequence_frames"]
         self.volume_transform = self.index["volume_transform"]
         self.selection = _Selection(self.index, features, whitening, self.root)
-        self.seed, self.shuffle, self.epoch = seed, shuffle, 0
 
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def __len__(self) -> int:
-        return sum(s["n_samples"] for s in self.shards)
-
-    def _my_shards(self) -> np.ndarray:
-        return worker_shard_order(len(self.shards), self.seed, self.epoch, self.shuffle)
-
-    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        for i in self._my_shards():
-            raw = load_tensors(self.root / self.shards[i]["file"])
-            data = self.selection.apply(raw, channel_axis=2)
-            data |= {"start": raw["starts"], "corner": raw["corners"]}
-            n = data["color"].shape[0]
-            rng = np.random.default_rng([self.seed, self.epoch, int(i)])
-            for j in rng.permutation(n) if self.shuffle else range(n):
-                yield {k: v[j] for k, v in data.items()}
-            del data, raw
+    def _load_shard(self, i: int) -> dict[str, torch.Tensor]:
+        raw = load_tensors(self.root / self.shards[i]["file"])
+        data = self.selection.apply(raw, channel_axis=2)
+        return data | {"start": raw["starts"], "corner": raw["corners"]}
 
 
 class SequenceDataset(Dataset):

@@ -46,16 +46,14 @@ from src.data.kpcn_preprocess import (
     save_whitening_stats,
 )
 from src.data.patch_sampling import (
-    IMPORTANCE_MAPS,
+    check_importance,
+    configured_importance_map,
     extract_patches,
-    importance_map,
     sample_patches,
     save_sampling_figure,
-    thesis_importance_map,
-    window_pixels,
 )
 from src.data.splits import SPLITS, group_dataset, patch_quota, split_scenes
-from src.errors import ConfigError, DataError
+from src.errors import DataError
 from src.io.atomic import atomic_path, atomic_write_json
 
 _RGB = ("r", "g", "b")
@@ -157,20 +155,10 @@ def _image_arrays(
     }
 
 
-def _importance(noisy: Mapping, sampling: Mapping[str, Any]) -> np.ndarray:
-    """The importance map `sampling["importance"]` names, (H, W) in [0, 1]."""
-    if sampling["importance"] == "thesis":
-        window = window_pixels(sampling["importance_window"], sampling["patch_size"])
-        return thesis_importance_map(noisy["color"], noisy["normal"], window)
-    return importance_map(
-        noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
-    )
-
-
 def _patches(image: dict, noisy: Mapping, rng: np.random.Generator, sampling: Mapping[str, Any], n: int):
     """(`n` patches of every array of `image`, their corners, the candidates, the importance map), sampled
     where the noisy image is hardest to denoise."""
-    imp = _importance(noisy, sampling)
+    imp = configured_importance_map(noisy, sampling)
     corners, candidates = sample_patches(
         imp,
         sampling["patch_size"],
@@ -314,10 +302,7 @@ def preprocess_dataset(
     Deterministic given the seeds. Returns (and writes to summary.json) the counts and settings;
     `patch_sampling.png` shows the sampling of the first train image (the thesis's Figs. 4.4-4.5).
     """
-    if importance not in IMPORTANCE_MAPS:
-        raise ConfigError(
-            f"task.preprocess.importance={importance!r}: expected one of {list(IMPORTANCE_MAPS)}"
-        )
+    check_importance(importance)
     settings = {
         "eps": eps,
         "patch_size": patch_size,

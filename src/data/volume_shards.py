@@ -49,7 +49,7 @@ from src.data.kpcn_preprocess import (
     log_modulus_variance,
     save_whitening_stats,
 )
-from src.data.patch_sampling import IMPORTANCE_MAPS, importance_map, thesis_importance_map, window_pixels
+from src.data.patch_sampling import check_importance, configured_importance_map
 from src.data.sequence_patches import FRAMES_KEY, extract_sequence_patches, sample_sequence_patches
 from src.data.shards import _channels_first, _image_rng, save_tensors, shard_name
 from src.data.splits import SPLITS, split_scenes
@@ -176,17 +176,6 @@ def sequence_arrays(
     return {k: np.asarray(v, dtype=np.float32) for k, v in out.items()}
 
 
-def frame_importance(noisy: Mapping[str, np.ndarray], sampling: Mapping[str, Any]) -> np.ndarray:
-    """The importance map of one noisy frame, (H, W) in [0, 1]: `thesis` (local variance of the colour
-    and the normals over `importance_window` patch sizes) or `mc_variance` (their Monte Carlo variance)."""
-    if sampling["importance"] == "thesis":
-        window = window_pixels(sampling["importance_window"], sampling["patch_size"])
-        return thesis_importance_map(noisy["color"], noisy["normal"], window)
-    return importance_map(
-        noisy["colorVariance"], noisy["normalVariance"], percentile=sampling["importance_percentile"]
-    )
-
-
 def _default_load_fn(path: Path, buffers: Sequence[str]) -> Mapping[str, np.ndarray]:
     from src.data.volume_buffers import load_volume_exr  # lazy: the EXR reader is an optional dependency
 
@@ -281,7 +270,7 @@ def _scene_sequences(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn, sett
     for spp in counts[:-1]:
         noisy = [load_fn(frames[f][spp], NOISY_BUFFERS) for f in frames]
         arrays = sequence_arrays(noisy, ref, settings["volume_transform"], f"{raw_dir}: {scene} {spp} spp")
-        imp = np.stack([frame_importance(n, settings) for n in noisy])
+        imp = np.stack([configured_importance_map(n, settings) for n in noisy])
         entry = {
             "file": shard_name(scene, spp),
             "scene": scene,
@@ -321,10 +310,7 @@ def preprocess_volume_dataset(
     sequence, from the seed, the scene and the spp). Returns (and writes to summary.json) the counts and
     the settings."""
     _check_transform(volume_transform)
-    if importance not in IMPORTANCE_MAPS:
-        raise ConfigError(
-            f"task.preprocess.importance={importance!r}: expected one of {list(IMPORTANCE_MAPS)}"
-        )
+    check_importance(importance)
     settings = {
         "patch_size": patch_size,
         "patches_per_sequence": patches_per_sequence,

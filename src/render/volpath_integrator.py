@@ -24,7 +24,8 @@ numbers differ from ``volpath``'s; the estimator is the same, so the two agree i
 
 Outputs. The film's RGB is ``color``; the AOVs follow in ``VOLUME_BUFFERS`` order and then the per-sample
 square of every buffer in ``MOMENT_BUFFERS`` (``color`` first), so ``src.render.moments`` turns the
-film's means into the variance of each pixel mean (``render_volume_buffers``).
+film's means into the variance of each pixel mean. That layout, and rendering a scene into buffers and
+variances with this integrator (``render_volume_buffers``), are ``src.render.volume_film``'s.
 
 Radiance split (per sample, exact: ``color = surface + volume`` and ``volume = volume_single +
 volume_multi`` are computed as those sums). A *real scattering vertex* is a real medium collision or a
@@ -100,15 +101,11 @@ feature work, for timing the bare path tracer).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
-from src.data.volume_aovs import CHANNEL_COUNT, MOMENT_BUFFERS, VOLUME_BUFFERS
 from src.render.aov_integrator import DEFAULT_ALBEDO_SAMPLES, KPCNAovIntegrator, hammersley_3d
-from src.render.moments import MomentAccumulator, variance_of_mean
+from src.render.volume_film import film_aovs, volume_channel_names
 
 #: Registered plugin name.
 PLUGIN_NAME = "nrbench_volpath"
@@ -126,16 +123,6 @@ _SCATTERING_LOBES = int(mi.BSDFFlags.All) & ~int(mi.BSDFFlags.Null)
 def _scatters(bsdf):
     """Per lane: the BSDF has a lobe that scatters (not only a null one)."""
     return (bsdf.flags() & _SCATTERING_LOBES) != 0
-
-
-def volume_channel_names() -> list[str]:
-    """AOV channel names in the order ``sample`` returns them: buffers, then squares."""
-    names = []
-    for buf, n in VOLUME_BUFFERS.items():
-        names += [f"{buf}.{i}" for i in range(n)]
-    for buf in MOMENT_BUFFERS:
-        names += [f"{buf}_sq.{i}" for i in range(CHANNEL_COUNT[buf])]
-    return names
 
 
 def _split_contribution(contrib, first_is_volume, single, surface, volume_single, volume_multi):
@@ -161,10 +148,6 @@ def _index_spectrum(spec, idx):
     m[idx == 1] = spec[1]
     m[idx == 2] = spec[2]
     return m
-
-
-def _channels(x, n: int) -> list:
-    return [x[i] for i in range(n)] if n > 1 else [x]
 
 
 class VolumetricAovIntegrator(mi.SamplingIntegrator):
@@ -592,58 +575,10 @@ class VolumetricAovIntegrator(mi.SamplingIntegrator):
                 "scattered": dr.select(volume_events > 0, 1.0, 0.0),
                 "volume_events": mi.Float(volume_events),
             }
-            aovs = _flatten(values)
+            aovs = film_aovs(values)
         return color, valid_ray, aovs
-
-
-def _flatten(values: dict) -> list:
-    """AOV channels in ``volume_channel_names`` order: the buffers, then the squares."""
-    aovs = []
-    for buf, n in VOLUME_BUFFERS.items():
-        aovs += _channels(values[buf], n)
-    for buf in MOMENT_BUFFERS:
-        aovs += [dr.square(c) for c in _channels(values[buf], CHANNEL_COUNT[buf])]
-    return aovs
 
 
 def register() -> None:
     """Make the integrator available as ``{"type": "nrbench_volpath"}`` (idempotent)."""
     mi.register_integrator(PLUGIN_NAME, lambda props: VolumetricAovIntegrator(props))
-
-
-def split_film(img: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """(mean, second moment) per buffer from a film image laid out as ``volume_channel_names``."""
-    out, start = {}, 0
-    offsets = {}
-    for buf, n in CHANNEL_COUNT.items():
-        offsets[buf] = (start, start + n)
-        start += n
-    for buf, n in CHANNEL_COUNT.items():
-        a, b = offsets[buf]
-        out[buf] = (img[..., a:b], img[..., start : start + n])
-        start += n
-    if start != img.shape[-1]:
-        raise ValueError(f"film has {img.shape[-1]} channels, the volumetric layout {start}")
-    return out
-
-
-def render_volume_buffers(
-    scene, integrator, spp: int, seeds: Sequence[int] = (0,), passes: Sequence[int] | None = None, sensor=None
-) -> dict[str, np.ndarray]:
-    """Render ``spp`` samples (in ``passes``, one seed each) with a ``nrbench_volpath`` integrator.
-
-    Returns each buffer's per-pixel mean (H, W, C) float32 and ``<buffer>Variance`` (H, W, 1), the
-    variance of that mean averaged over channels (``src.render.moments``; left out at 1 spp)."""
-    passes = [spp] if passes is None else list(passes)
-    if sum(passes) != spp:
-        raise ValueError(f"passes {passes} do not sum to spp={spp}")
-    acc = MomentAccumulator()
-    sensor = scene.sensors()[0] if sensor is None else sensor
-    for seed, n in zip(seeds, passes, strict=True):
-        acc.add(np.asarray(mi.render(scene, sensor=sensor, integrator=integrator, spp=n, seed=seed)), n)
-    buffers = {}
-    for buf, (mean, second) in split_film(acc.mean()).items():
-        buffers[buf] = mean.astype(np.float32)
-        if spp >= 2:
-            buffers[f"{buf}Variance"] = variance_of_mean(mean, second, spp).astype(np.float32)
-    return buffers

@@ -42,7 +42,8 @@ from src.render.render_dataset import (
     spp_counts,
 )
 from src.render.stale_renders import remove_stale_entries
-from src.render.volume_scenes import Camera, camera_at, motion_vectors
+from src.render.volume_camera import Camera, motion_vectors
+from src.render.volume_scenes import camera_at
 
 #: The integrator plugin every volumetric file is rendered with (``src.render.volpath_integrator``).
 INTEGRATOR = "nrbench_volpath"
@@ -150,7 +151,7 @@ def render_frame_files(
     """Render the (spp, role) ``jobs`` of one frame whose file is not current, each written as its EXR with
     its manifest entry after it; the frame's scene is built only if something renders. Returns the
     seconds spent building the scene (grids, Mitsuba load)."""
-    from src.render.volpath_integrator import render_volume_buffers
+    from src.render.volume_film import render_volume_buffers
 
     pixels = int(ds["width"]) * int(ds["height"])
     build_seconds, scene = 0.0, None

@@ -119,7 +119,7 @@ def available_terminals(builder, batch: dict[str, torch.Tensor]) -> list[str]:
 
 def build_fitness(cfg: DictConfig, device: torch.device):
     """(fitness, available terminals, image meta) of the search's images on `device`."""
-    from src.gp.search import Fitness
+    from src.gp.fitness import Fitness
 
     search = cfg.task.search
     batch, meta = training_images(cfg)
@@ -138,7 +138,8 @@ def build_fitness(cfg: DictConfig, device: torch.device):
 def make_search(cfg: DictConfig, fitness, available: list[str]):
     """The `GPSearch` of `task.search` over the available terminals."""
     from src.gp.grammar import GRAMMAR_VECTORS
-    from src.gp.search import GPSearch, codebook, kernel_expressions, search_pset
+    from src.gp.search import GPSearch, search_pset
+    from src.gp.variation import codebook, kernel_expressions
 
     pset = search_pset(available)
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
@@ -206,7 +207,8 @@ class FilterSearchTask(DenoiseTask):
 
         from tqdm import tqdm
 
-        from src.gp.search import WORST, load_state
+        from src.gp.fitness import WORST
+        from src.gp.search import load_state
         from src.io.atomic import atomic_write_json, atomic_write_text
         from src.train.device import pick_device
 
