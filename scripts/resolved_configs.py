@@ -22,6 +22,7 @@ python scripts/resolved_configs.py digests [--write]
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import sys
@@ -52,6 +53,7 @@ STAND_INS = [
 ]
 
 
+@functools.cache
 def _yaml(path: Path) -> dict[str, Any]:
     import yaml
 
@@ -83,6 +85,40 @@ def combinations() -> Iterator[tuple[str, list[str]]]:
                     yield " ".join(choice), choice + DATASET_OVERRIDES.get(dataset, [])
 
 
+def profile_groups() -> dict[str, str]:
+    """{group: name pattern} of conf/config.yaml's optional profile groups, e.g. {"task_profile":
+    "${task}_${profile}"}: the files a combination loads are the patterns filled with its choices."""
+    out = {}
+    for entry in _yaml(CONF / "config.yaml")["defaults"]:
+        if isinstance(entry, dict):
+            ((key, value),) = entry.items()
+            if key.startswith("optional ") and "${" in str(value):
+                out[key.removeprefix("optional ")] = value
+    return out
+
+
+def profile_files(overrides: list[str]) -> set[str]:
+    """The profile-group files (`<group>/<name>.yaml`) a combination's choices load."""
+    choices = dict(o.split("=", 1) for o in overrides if "." not in o.split("=", 1)[0])
+    names = {f"{group}/{pattern}" for group, pattern in profile_groups().items()}
+    for key, value in choices.items():
+        names = {name.replace("${" + key + "}", value) for name in names}
+    return {f"{name}.yaml" for name in names if (CONF / f"{name}.yaml").is_file()}
+
+
+def covering() -> list[str]:
+    """A few combinations that together load every profile-group file some combination loads (greedy
+    set cover, in `combinations()` order): the fast test's, the full set being slow."""
+    loads = {name: profile_files(overrides) for name, overrides in combinations()}
+    left = set().union(*loads.values())
+    chosen = []
+    while left:
+        best = max(loads, key=lambda name: len(loads[name] & left))
+        chosen.append(best)
+        left -= loads[best]
+    return chosen
+
+
 def resolved(overrides: list[str]) -> dict[str, Any]:
     """The root config these overrides compose, resolved (with the stand-in paths), or {"error": ...};
     inside `initialize_config_dir(CONF)`."""
@@ -96,14 +132,15 @@ def resolved(overrides: list[str]) -> dict[str, Any]:
         return {"error": f"{type(err).__name__}: {err}"}
 
 
-def dump() -> dict[str, dict[str, Any]]:
-    """{combination: resolved config} of every combination."""
+def dump(names: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    """{combination: resolved config} of every combination (or of these)."""
     from hydra import initialize_config_dir
 
     import src  # noqa: F401  (registers the nrbench.* resolvers)
 
+    chosen = [(n, o) for n, o in combinations() if names is None or n in names]
     with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        return {name: resolved(overrides) for name, overrides in combinations()}
+        return {name: resolved(overrides) for name, overrides in chosen}
 
 
 def digest(config: Mapping[str, Any]) -> str:
