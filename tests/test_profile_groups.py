@@ -145,4 +145,4 @@ def test_the_comparison_names_each_changed_key_and_its_combinations():
     assert resolved_configs.differences(before, before) == {}
     # A null that disappears is a difference too (scene_params: null is not the key's absence).
     gone = resolved_configs.differences({"a": {"k": None, "j": 1}}, {"a": {"j": 1}})
-    assert gone == {"a.k: None -> '<absent>'": ["a"]}
+    assert gone == {"k: None -> '<absent>'": ["a"]}
