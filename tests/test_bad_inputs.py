@@ -129,6 +129,11 @@ BAD_VALUES = [
     (["model=unet_kpcn", "model.widths=[]"], ["model.widths", "non-empty list"]),
     (["model=unet_kpcn", "model.components=diffuse"], ["model.components", "surface_volume"]),
     (["model=unet_kpcn", "model.filter_space=log"], ["model.filter_space", "'transformed'"]),
+    # A user's Blender scenes come at their own size: no profile gives them one, and none is accepted.
+    (
+        ["task=nerf", "dataset=blender", "dataset.root=/x", "+dataset.width=100"],
+        ["dataset.width: unknown key", "'downscale'"],
+    ),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}

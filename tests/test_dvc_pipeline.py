@@ -78,8 +78,8 @@ def test_dvc_repro_runs_everything_then_nothing(tmp_path):
     assert "up to date" in _dvc(repo, "status")
 
     # One model's config changes: its train/eval stages and the report rerun, no other model's.
-    profile = repo / "conf" / "model_profile" / "resnet_smoke.yaml"
-    profile.write_text(profile.read_text() + "task:\n  train:\n    lr: 2.0e-4\n")
+    budget = repo / "conf" / "model_task_profile" / "resnet_smoke.yaml"  # a model's task settings
+    budget.write_text("# @package task\ntrain:\n  lr: 2.0e-4\n")
     changed = _dvc(repo, "repro")
     ran = set(re.findall(r"Running stage '([^']+)'", changed))
     assert {"denoise_train@resnet", "denoise_eval@resnet", "denoise_report"} <= ran, ran

@@ -176,3 +176,41 @@ def test_no_two_stages_write_the_same_file():
             assert not clash, f"{stage.addressing} writes {path}, which {owner[clash[0]]} writes ({clash[0]})"
             owner[path] = stage.addressing
     assert len(owner) > 20  # every stage of the study was seen (render ... report)
+
+
+#: The config groups a stage reads, by its `stage=` (the stages that list conf files one by one; the
+#: others depend on all of `conf`): their deps must name every profile-group file that writes one of them.
+READS = {"render": {"dataset"}, "preprocess": {"dataset", "task"}}
+
+
+def _loaded_profile_files(overrides: list[str]) -> dict[str, str]:
+    """{conf-relative path: group it writes (its `# @package`)} of the profile-group files these overrides
+    load (conf/config.yaml's `optional ..._profile` entries whose file exists)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        choices = compose("config", overrides=overrides, return_hydra_config=True).hydra.runtime.choices
+    out = {}
+    for group, name in choices.items():
+        path = ROOT / "conf" / group / f"{name}.yaml"
+        if group.endswith("_profile") and path.is_file():
+            out[f"conf/{group}/{name}.yaml"] = path.read_text().splitlines()[0].removeprefix("# @package ")
+    return out
+
+
+def test_a_stage_that_lists_its_conf_files_lists_each_profile_file_it_reads():
+    """At params.yaml's profile, as DVC resolves the deps: editing conf/dataset_profile/volumetric_cpu.yaml
+    must rerun vol_render, conf/dataset_task_profile/volumetric_cpu.yaml vol_preprocess."""
+    checked = 0
+    for stage in Repo(ROOT).index.stages:
+        deps = {str(d.def_path) for d in stage.deps}
+        if "conf" in deps or not any(d.startswith("conf/") for d in deps):
+            continue
+        args = shlex.split(stage.cmd)[3:]
+        kind = next(a.split("=", 1)[1] for a in args if a.startswith("stage="))
+        overrides = [a for a in args if "=" in a and not a.startswith("hydra")]
+        loaded = _loaded_profile_files(overrides)
+        needed = {path for path, group in loaded.items() if group in READS[kind]}
+        assert needed <= deps, f"{stage.addressing}: deps lack {sorted(needed - deps)}"
+        checked += 1
+    assert checked == 5  # render, preprocess, vol_render, vol_preprocess, nerf_render

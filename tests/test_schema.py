@@ -104,8 +104,7 @@ BOUNDED: dict[Bound, str] = {
         dataset.NerfTabletop.noise_base_cells dataset.NerfProceduralDataset.width
         dataset.NerfProceduralDataset.height dataset.NerfProceduralDataset.spp
         dataset.NerfProceduralDataset.max_pass_samples dataset.BlenderDataset.downscale
-        dataset.BlenderDataset.max_images dataset.BlenderDataset.width dataset.BlenderDataset.height
-        dataset.BlenderDataset.spp
+        dataset.BlenderDataset.max_images
     """,
     POSITIVE: """
         run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps

@@ -12,7 +12,6 @@ from src.schema.types import (
     Colour,
     NonNegativeFloat,
     NonNegativeInt,
-    Open,
     PositiveFloat,
     PositiveInt,
     Probability,
@@ -473,13 +472,6 @@ class BlenderDataset(NearFar):
     scenes: Names
     downscale: PositiveInt
     max_images: PositiveInt | None
-    # Set by the nerf task's profiles for the procedural scenes (conf/task_profile/nerf_*.yaml), which
-    # apply whatever the dataset; a user's scenes come at their own size, so these are not read.
-    width: PositiveInt | None = None
-    height: PositiveInt | None = None
-    views: Views | None = None
-    spp: PositiveInt | None = None
-    scene_params: Open | None = None
 
     @field_validator("root")
     @classmethod

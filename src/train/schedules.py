@@ -16,7 +16,8 @@ def log_linear_lr(
     delay_mult + (1 - delay_mult) sin(pi/2 clip(step / delay_steps, 0, 1)). NeRF's exponential decay
     lr_init 0.1^(step / 500k) (its Blender configs' `lrate_decay = 500`, in thousands of steps; 250 is only
     nerf-pytorch's command-line default) is the same curve with lr_final = lr_init * 0.1^(max_steps / 500k):
-    5e-5 after the 500k steps of conf/model_profile/nerf_paper.yaml, 5e-6 after the 1M of nerf_thesis.yaml.
+    5e-5 after the 500k steps of conf/model_task_profile/nerf_paper.yaml, 5e-6 after the 1M of
+    nerf_thesis.yaml.
     """
     if delay_steps > 0:
         ramp = min(max(step / delay_steps, 0.0), 1.0)
