@@ -208,7 +208,8 @@ def test_nerf_bench_prints_the_refnerf_over_mipnerf_ratio(capsys):
     assert rows["refnerf-no-density-normals"]["note"].endswith("no density-gradient normals")
     assert rows["refnerf-no-density-normals"]["params"] == rows["refnerf"]["params"]
     split = next(x for x in captured.out.splitlines() if x.startswith("refnerf's density-gradient normals"))
-    normals_share, rest = (float(x) for x in re.findall(r"(\d+\.\d+)", split)[:2])
+    # Under load the share can come out below zero (timing noise): the sign is part of the number.
+    normals_share, rest = (float(x) for x in re.findall(r"(-?\d+\.\d+)", split)[:2])
     assert normals_share == pytest.approx(expected - without, abs=0.02)
     assert rest == pytest.approx(without, abs=0.01)
 
