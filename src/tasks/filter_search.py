@@ -102,10 +102,10 @@ def _crop(x: torch.Tensor, size: int | None) -> torch.Tensor:
 def available_terminals(builder, batch: dict[str, torch.Tensor]) -> list[str]:
     """The grammar's feature terminals the batch can give (`GPFilter.features` builds each or names what
     is missing): the search grammar draws only these."""
-    from src.gp.grammar import VARIABLES, VECTORS
+    from src.gp.grammar import ALL_VARIABLES, VECTORS
 
     out = []
-    for name in (*VECTORS, *VARIABLES):
+    for name in (*VECTORS, *ALL_VARIABLES):
         if name == "pixel":
             continue
         builder.needed = {name}
@@ -141,7 +141,7 @@ def make_search(cfg: DictConfig, fitness, available: list[str]):
     from src.gp.search import GPSearch, search_pset
     from src.gp.variation import codebook, kernel_expressions
 
-    pset = search_pset(available)
+    pset = search_pset(available, bool(cfg.task.search.color_variance))
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
     return GPSearch(fitness, seed_expression(cfg), search_params(cfg), pset, book), pset
 
