@@ -269,6 +269,8 @@ class FilterSearchTask(DenoiseTask):
             "best_expression": rows[0]["model"]["expression"],
             "generations": state.generation,
             "evaluations": sum(h["evaluations"] for h in state.history),
+            # expressions the fitness cache answered (counted in `evaluations`, not filtered again)
+            "cache_hits": gp_search.cache_hits,
             "seconds": seconds,
             "images": meta,
             "features": available,
@@ -277,7 +279,8 @@ class FilterSearchTask(DenoiseTask):
         seed_fitness = state.history[0]["islands"][0]["best"]
         print(
             f"search: best fitness {rows[0]['fitness']:.4f} (generation 0: {seed_fitness:.4f}"
-            f") in {seconds:.1f} s -> {out / BEST_FILE}\n  {rows[0]['model']['expression']}"
+            f") in {seconds:.1f} s ({gp_search.cache_hits} of {summary['evaluations']} evaluations from the "
+            f"fitness cache) -> {out / BEST_FILE}\n  {rows[0]['model']['expression']}"
         )
         return summary
 
