@@ -334,3 +334,41 @@ def test_a_resumed_search_starts_with_its_checkpoint_in_the_cache(tmp_path):
     search.remember(state)
     assert set(search.cache) == {str(i) for isl in state.islands for i in isl}
     assert all(search.cache[str(i)] == i.fitness.values[0] for isl in state.islands for i in isl)
+
+
+@pytest.mark.parametrize("rule, p_vector", [("thesis", 4 / 6), ("type_first", 1 / 2)])
+def test_the_search_mates_by_its_crossover_rule(rule, p_vector):
+    """`GPSearch`'s crossover follows `crossover_points`: on the two parents above, 2000 crossovers
+    exchange a vector leaf (child 1 reads color) with probability 4/6 (thesis) or 1/2 (type-first)."""
+    params = SearchParams(crossover_points=rule, max_length=200)
+    search = GPSearch(_TextFitness(), SEED, params, *_pset_book())
+    a = Individual(parse("neg(distance2(normal, depth))"))
+    b = Individual(parse("distance1(color, color) + 2.0"))
+    random.seed(8)
+    n, leaf = 2000, 0
+    for _ in range(n):
+        child, _ = search.variation.mate(Individual(a), Individual(b))
+        leaf += str(child) in ("neg(distance2(color, depth))", "neg(distance2(normal, color))")
+    assert _within(leaf, n, p_vector), leaf / n
+
+
+def test_a_checkpoint_resumes_with_the_cache_on_or_off(tmp_path):
+    """`fitness_cache` changes no result, so a checkpoint resumes under either setting."""
+    params = SearchParams(islands=2, population=6, generations=2, seed=3)
+    _search(params).run(checkpoint=tmp_path / "s.json")
+    off = SearchParams(**{**params.__dict__, "fitness_cache": False})
+    assert load_state(tmp_path / "s.json", off).generation == 2
+
+
+def test_asking_for_the_colour_variance_without_it_in_the_data_is_one_line():
+    from src.errors import ConfigError
+    from src.tasks.filter_search import make_search
+    from tests.conftest import compose_config, one_line_error
+
+    cfg = compose_config(["task=filter_search", "task.search.color_variance=true", "task.search.out_dir=x"])
+    with pytest.raises(ConfigError) as excinfo:
+        make_search(cfg, _TextFitness(), ["normal", "nVariance"])
+    one_line_error(excinfo, "task.search.color_variance=true", "'color_var'", "expected false")
+    search, pset = make_search(cfg, _TextFitness(), ["normal", "colorVariance"])
+    assert "colorVariance" in {t.name for t in pset.terminals[float]}
+    assert search.params.color_variance is True

@@ -141,6 +141,11 @@ def make_search(cfg: DictConfig, fitness, available: list[str]):
     from src.gp.search import GPSearch, search_pset
     from src.gp.variation import codebook, kernel_expressions
 
+    if cfg.task.search.color_variance and "colorVariance" not in available:
+        raise ConfigError(
+            "task.search.color_variance=true: the search images have no colour variance (batch key "
+            "'color_var'; preprocessing does not store it yet); expected false"
+        )
     pset = search_pset(available, bool(cfg.task.search.color_variance))
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
     return GPSearch(fitness, seed_expression(cfg), search_params(cfg), pset, book), pset
