@@ -372,3 +372,27 @@ def test_asking_for_the_colour_variance_without_it_in_the_data_is_one_line():
     search, pset = make_search(cfg, _TextFitness(), ["normal", "colorVariance"])
     assert "colorVariance" in {t.name for t in pset.terminals[float]}
     assert search.params.color_variance is True
+
+
+def test_a_checkpoint_from_before_the_options_resumes_under_their_defaults(tmp_path):
+    """A state.json written before these options existed holds today's rules: it loads for default
+    parameters, and is refused for a thesis rule (naming it)."""
+    import json
+
+    params = SearchParams(islands=2, population=6, generations=2, seed=3)
+    path = tmp_path / "s.json"
+    _search(params).run(checkpoint=path)
+    data = json.loads(path.read_text())
+    new = (
+        "vector_pairs",
+        "crossover_points",
+        "shares_count",
+        "max_constants",
+        "hall_of_fame",
+        "color_variance",
+    )
+    data["params"] = {k: v for k, v in data["params"].items() if k not in new + ("fitness_cache",)}
+    path.write_text(json.dumps(data))
+    assert load_state(path, params).generation == 2
+    with pytest.raises(Exception, match=r"other parameters \(vector_pairs\)"):
+        load_state(path, SearchParams(**{**params.__dict__, "vector_pairs": "same"}))
