@@ -126,6 +126,24 @@ BAD_VALUES = [
         ["task.search.tournament_size=0: expected a positive integer"],
     ),
     (["task=filter_search", "task.search.migrants=4"], ["task.search.migrants=4: expected fewer than"]),
+    (
+        ["task=filter_search", "task.search.vector_pairs=both"],
+        ["task.search.vector_pairs='both'", "'mixed'", "'same'"],
+    ),
+    (
+        ["task=filter_search", "task.search.crossover_points=uniform"],
+        ["task.search.crossover_points='uniform'", "'type_first'", "'thesis'"],
+    ),
+    (
+        ["task=filter_search", "task.search.shares_count=children"],
+        ["task.search.shares_count='children'", "'draws'", "'individuals'"],
+    ),
+    (
+        ["task=filter_search", "task.search.max_constants=4"],
+        ["task.search.max_constants=4: the seed", "has 10 constants; expected at least that many"],
+    ),
+    (["task=filter_search", "task.search.hall_of_fame=-1"], ["task.search.hall_of_fame=-1"]),
+    (["task=filter_search", "task.search.fitness_cache=maybe"], ["task.search.fitness_cache='maybe'"]),
     (["model=unet_kpcn", "model.widths=[]"], ["model.widths", "non-empty list"]),
     (["model=unet_kpcn", "model.components=diffuse"], ["model.components", "surface_volume"]),
     (["model=unet_kpcn", "model.filter_space=log"], ["model.filter_space", "'transformed'"]),

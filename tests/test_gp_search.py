@@ -117,8 +117,10 @@ def test_a_child_over_max_length_is_replaced_by_its_parent(monkeypatch):
     pset, book = _pset_book()
     parent = Individual(parse(SEED, pset))
     grown = Individual(parse(f"({SEED}) * 2.0", pset))
-    monkeypatch.setattr(variation_module, "mut_insert", lambda ind, *args: (Individual(grown),))
-    monkeypatch.setattr(variation_module, "cx_one_point", lambda a, b: (Individual(grown), Individual(grown)))
+    monkeypatch.setattr(variation_module, "mut_insert", lambda ind, *args, **kw: (Individual(grown),))
+    monkeypatch.setattr(
+        variation_module, "cx_one_point", lambda a, b, **kw: (Individual(grown), Individual(grown))
+    )
     for limit, kept in ((len(grown), True), (len(grown) - 1, False)):
         params = SearchParams(max_length=limit, mutation_kinds={"insert": 1.0})
         search = GPSearch(_TextFitness(), SEED, params, pset, book)
@@ -482,7 +484,7 @@ def test_mutation_kinds_are_drawn_with_their_weights(monkeypatch, kinds):
     counts = dict.fromkeys(("insert", "replace", "swap", "delete"), 0)
 
     def operator(kind):
-        def run(individual, *args):
+        def run(individual, *args, **kwargs):
             counts[kind] += 1
             return (individual,)
 
@@ -543,7 +545,8 @@ def test_evaluate_gives_every_unevaluated_tree_its_fitness_once():
 def test_fitness_is_recomputed_after_variation():
     """A child whose expression changed never keeps its parent's fitness: after every generation each
     individual's fitness is the fitness of its own text; the only trees evaluated are the varied children
-    (distinct texts once each), replicas keep theirs."""
+    (distinct texts once each) that the fitness cache has not seen, replicas keep theirs; `evaluations`
+    in the history counts every distinct varied text, cached or not."""
     fit = _TextFitness()
     search = GPSearch(fit, SEED, SearchParams(islands=2, population=12, seed=5), *_pset_book())
     fresh: list[list[str]] = []
@@ -567,7 +570,9 @@ def test_fitness_is_recomputed_after_variation():
                 assert ind.fitness.values == (_text_fitness(str(ind)),), str(ind)
                 changed += str(ind) not in parents
         texts = list(dict.fromkeys(t for island in fresh for t in island))
-        assert fit.calls[calls:] == ([texts] if texts else [])
+        seen = {t for call in fit.calls[:calls] for t in call}
+        new = [t for t in texts if t not in seen]
+        assert fit.calls[calls:] == ([new] if new else [])
         assert state.history[-1]["generation"] == generation and state.history[-1]["evaluations"] == len(
             texts
         )
@@ -867,9 +872,15 @@ def test_search_grammar_keeps_only_the_available_terminals_and_pixel():
     constants = {"0.1", "0.2", "0.3", "0.3333", "1.0", "2.0", "3.0", "pi", "5.0", "7.0", "11.0", "13.0"}
     assert {t.name for t in pset.terminals[float]} == constants | {"nVariance"}
     assert pset.terms_count == 2 + 13
-    assert (
-        len(PSET.terminals[Vector]) == len(VECTORS) and PSET.terms_count == len(VECTORS) + 6 + 12
-    )  # untouched
+    # untouched: Fig. 3.2's 6 variances and 12 constants, and colorVariance (which the search draws only
+    # with color_variance=True)
+    assert len(PSET.terminals[Vector]) == len(VECTORS) and PSET.terms_count == len(VECTORS) + 6 + 1 + 12
+    assert "colorVariance" not in {t.name for t in search_pset(["normal", "colorVariance"]).terminals[float]}
+    with_cv = search_pset(["normal", "colorVariance"], color_variance=True)
+    assert {t.name for t in with_cv.terminals[float]} == constants | {"colorVariance"}
+    assert "colorVariance" not in {
+        t.name for t in search_pset(["normal"], color_variance=True).terminals[float]
+    }
 
 
 def test_kernel_expressions_are_every_kernel_of_every_feature_and_the_gaussian():

@@ -131,7 +131,8 @@ BOUNDED: dict[Bound, str] = {
         run.RunSchema.seed run.RunSchema.data_seed denoise.Preprocess.split_seed
         denoise.Preprocess.sample_seed denoise.FeatureSelection.size denoise.FeatureSelection.random_seed
         denoise.Train.num_workers denoise.Eval.tile nerf.Train.precrop_iters filter_search.Search.radius
-        filter_search.Search.generations filter_search.Search.seed dataset.Integrator.rr_depth
+        filter_search.Search.generations filter_search.Search.seed filter_search.Search.max_constants
+        filter_search.Search.hall_of_fame dataset.Integrator.rr_depth
         dataset.ProceduralDataset.seed dataset.VolumeIntegrator.rr_depth dataset.VolumetricDataset.seed
         dataset.Stripes.count dataset.NerfTabletop.n_textured dataset.NerfProceduralDataset.rr_depth
         dataset.NerfProceduralDataset.seed
@@ -368,6 +369,13 @@ SEARCH = {
     "seed_copies": 0.1,
     "mutation_kinds": {"insert": 0.3, "replace": 0.3, "swap": 0.3, "delete": 0.1},
     "max_length": 75,
+    "vector_pairs": "mixed",
+    "crossover_points": "type_first",
+    "shares_count": "draws",
+    "max_constants": None,
+    "color_variance": False,
+    "hall_of_fame": 0,
+    "fitness_cache": True,
     "fitness_eps": 0.01,
     "tree_batch": 16,
     "seed": 0,
@@ -412,6 +420,10 @@ def test_the_search_probabilities_may_sit_at_their_bounds_and_migrants_stay_belo
     assert line == "task.search.mutation_kinds: the weights sum to 0; expected a positive sum"
     line = _line(Search, {**SEARCH, "mutation": 0.45 + 2e-6}, "task.search")
     assert line.startswith("task.search: replication + crossover + mutation = 1")
+    # the constant cap admits the seed: 2 constants per finite sigma (10 for five)
+    check(Search, {**SEARCH, "max_constants": 10}, "task.search")
+    line = _line(Search, {**SEARCH, "max_constants": 9}, "task.search")
+    assert line.startswith("task.search.max_constants=9: the seed") and "has 10 constants" in line
 
 
 def test_far_must_lie_beyond_near_and_a_range_may_be_a_single_value():

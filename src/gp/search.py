@@ -4,18 +4,29 @@ DEAP's operators.
     population  `islands` islands of `population` individuals each (the island model, Sec. 3.2.5), seeded
                 only from the bilateral filter: `seed_copies` (10%) copies of it, the rest one mutation
                 of it each (Sec. 3.2.5, "Initial Population")
-    generation  per island, a whole new population of the same size (Sec. 3.2.6): each new individual is
-                a replication (10%: a tournament winner, unchanged), a crossover (45%: two winners,
-                `cx_one_point`, both children kept, each then mutated with probability 0.85) or a
-                mutation (45%: one winner, `mutate`); tournaments of 8 (`tools.selTournament`; lowest
-                fitness wins); every child longer than `max_length` (75 nodes) is replaced by its parent
-                (`gp.staticLimit`)
+    generation  per island, a whole new population of the same size (Sec. 3.2.6): each draw is a
+                replication (a tournament winner, unchanged), a crossover (two winners, both children
+                kept, each then mutated with probability 0.85) or a mutation (one winner); tournaments of 8
+                (`tools.selTournament`; lowest fitness wins); every child longer than `max_length` (75
+                nodes) is replaced by its parent (`gp.staticLimit`). The 10/45/45 % shares count
+                (`shares_count`) either draws (today's default: a crossover adds two children, so the
+                individuals split 6.9/62/31 %) or individuals (the thesis's "45% of nodes are generated from
+                crossovers": the crossover draw is weighted by 1/2, so 10/45/45 % of the new individuals)
     migration   every `migration_interval` (5) generations a copy of each island's best replaces the worst
                 of the next island, i -> (i + 1) mod n (`tools.migRing`, Sec. 3.2.5)
     fitness     mean over the training images of relMSE(filtered) / relMSE(noisy), relMSE of Eq. 3.5
                 (its m/2 factor cancels in the ratio); an undefined expression (NaN/Inf weights or a zero
                 weight sum on any image) gets the worst fitness, `WORST` = the largest float (Sec. 3.2.3)
-    result      the best individual of each island (Sec. 3.2.6, "Top expressions from every island")
+    result      the best individual of each island (Sec. 3.2.6, "Top expressions from every island"): of
+                its last generation (today's default), or with `hall_of_fame` > 0 of its hall of fame
+                (DEAP's `tools.HallOfFame`, the best `hall_of_fame` distinct expressions the island ever
+                held, updated after every generation; the thesis keeps the top 10 of each island, Sec.
+                3.3.4), so a best that a later generation lost is still reported
+    cache       fitness by expression text (`fitness_cache`, on by default): an expression evaluated once
+                is never evaluated again (replicas, unchanged crossover children, mutations that give a
+                tree back); a value does not depend on what it was batched with, so the cache changes no
+                result, only skips work. `evaluations` in the history still counts the distinct new
+                expressions of a generation, cached or not; `GPSearch.cache_hits` counts the skipped ones
 
 The variation operators (the codebook, the four mutations, the typed crossover and the length limit) are
 `src.gp.variation`'s, the fitness `src.gp.fitness`'s; this module is the island model that drives them and
@@ -41,12 +52,16 @@ from deap import base, gp, tools
 
 from src.errors import DataError
 from src.gp.fitness import WORST
-from src.gp.grammar import PSET, VARIABLES, VECTORS, Vector
+from src.gp.grammar import ALL_VARIABLES, EXTRA_VARIABLES, PSET, VECTORS, Vector
 from src.gp.text import parse, to_infix
-from src.gp.variation import MUTATION_KINDS, Variation
+from src.gp.variation import CROSSOVER_RULES, MUTATION_KINDS, VECTOR_PAIRS, Variation, count_constants
 from src.io.atomic import atomic_write_json
 
 STATE_FORMAT = "nrbench-gp-search-v1"
+#: What the expansion shares count (`SearchParams.shares_count`, module docstring).
+SHARES_COUNTS = ("draws", "individuals")
+#: Parameters that change no result: a checkpoint of a search with other values of them resumes.
+RESULT_FREE = ("generations", "fitness_cache")
 
 
 class FitnessMin(base.Fitness):
@@ -83,6 +98,15 @@ class SearchParams:
     )
     max_length: int = 75
     seed: int = 0
+    # The thesis's rules as options (src.gp.variation and this module's docstrings); the defaults are
+    # today's behaviour, which differs from the thesis in each of the first three.
+    vector_pairs: str = "mixed"  # thesis: "same"
+    crossover_points: str = "type_first"  # thesis: "thesis"
+    shares_count: str = "draws"  # thesis: "individuals"
+    max_constants: int | None = None  # the thesis caps them but states no number
+    hall_of_fame: int = 0  # per island; 0: none (the result is the last generation's best); thesis: 10
+    fitness_cache: bool = True  # changes no result (not part of a checkpoint's parameters)
+    color_variance: bool = False  # colorVariance among the terminals (when the data have it)
 
     def __post_init__(self) -> None:
         total = self.replication + self.crossover + self.mutation
@@ -93,18 +117,41 @@ class SearchParams:
             raise ValueError(f"unknown mutation kind(s) {sorted(unknown)}; expected some of {MUTATION_KINDS}")
         if not sum(self.mutation_kinds.values()) > 0:
             raise ValueError("mutation_kinds: the weights must not all be 0")
+        if self.vector_pairs not in VECTOR_PAIRS:
+            raise ValueError(f"vector_pairs={self.vector_pairs!r}; expected one of {list(VECTOR_PAIRS)}")
+        if self.crossover_points not in CROSSOVER_RULES:
+            raise ValueError(
+                f"crossover_points={self.crossover_points!r}; expected one of {list(CROSSOVER_RULES)}"
+            )
+        if self.shares_count not in SHARES_COUNTS:
+            raise ValueError(f"shares_count={self.shares_count!r}; expected one of {list(SHARES_COUNTS)}")
+        if self.hall_of_fame < 0:
+            raise ValueError(f"hall_of_fame={self.hall_of_fame}; expected >= 0")
+
+    def draw_weights(self) -> tuple[float, float, float]:
+        """Per-draw probabilities of replication, crossover and mutation: the shares themselves when they
+        count draws; when they count individuals, the crossover's halved (it adds two) and all three
+        renormalised, so the expected split of the new individuals is the shares."""
+        r, c, m = self.replication, self.crossover, self.mutation
+        if self.shares_count == "individuals":
+            c = c / 2
+        total = r + c + m
+        return r / total, c / total, m / total
 
 
 # -- grammar restricted to the data ---------------------------------------------------------------------
 
 
-def search_pset(available: Iterable[str]) -> gp.PrimitiveSetTyped:
+def search_pset(available: Iterable[str], color_variance: bool = False) -> gp.PrimitiveSetTyped:
     """The grammar (`PSET`) with only the vector terminals and variables in `available` (plus `pixel`,
     always computable): the operators draw terminals from it, so no individual reads a feature the data
-    lack. Constants and operators are all kept."""
+    lack. The variables beyond Fig. 3.2 (`colorVariance`) only with `color_variance`. Constants and
+    operators are all kept."""
     keep = set(available) | {"pixel"}
+    if not color_variance:
+        keep -= set(EXTRA_VARIABLES)
     pset = copy.deepcopy(PSET)
-    drop = [n for n in (*VECTORS, *VARIABLES) if n not in keep]
+    drop = [n for n in (*VECTORS, *ALL_VARIABLES) if n not in keep]
     for type_ in (Vector, float):
         pset.terminals[type_] = [t for t in pset.terminals[type_] if t.name not in drop]
     pset.terms_count -= len(drop)
@@ -125,6 +172,7 @@ class SearchState:
     generation: int
     random_state: tuple
     history: list[dict[str, Any]]
+    halls: list[tools.HallOfFame] | None = None  # per island, with `hall_of_fame` > 0
 
 
 def island_stats(island: Sequence[Individual]) -> dict[str, Any]:
@@ -156,8 +204,22 @@ class GPSearch:
         self.seed = Individual(parse(seed_expression, pset))
         if len(self.seed) > params.max_length:
             raise ValueError(f"seed has {len(self.seed)} nodes, over max_length={params.max_length}")
-        self.variation = Variation(params.mutation_kinds, params.max_length, pset, book)
+        if params.max_constants is not None and count_constants(self.seed) > params.max_constants:
+            raise ValueError(
+                f"seed has {count_constants(self.seed)} constants, over max_constants={params.max_constants}"
+            )
+        self.variation = Variation(
+            params.mutation_kinds,
+            params.max_length,
+            pset,
+            book,
+            crossover_points=params.crossover_points,
+            vector_pairs=params.vector_pairs,
+            max_constants=params.max_constants,
+        )
         self.clone = copy.deepcopy
+        self.cache: dict[str, float] = {}
+        self.cache_hits = 0
 
     # -- pieces ------------------------------------------------------------------------------------------
     def seeded_island(self) -> list[Individual]:
@@ -176,13 +238,35 @@ class GPSearch:
         for ind in individuals:
             if not ind.fitness.valid:
                 todo.setdefault(str(ind), []).append(ind)
+        if self.params.fitness_cache:
+            for text in [t for t in todo if t in self.cache]:
+                for ind in todo.pop(text):
+                    ind.fitness.values = (self.cache[text],)
+                self.cache_hits += 1
         if not todo:
             return
         groups = list(todo.values())
         values = self.fitness([group[0] for group in groups])
-        for group, value in zip(groups, values, strict=True):
+        for (text, group), value in zip(todo.items(), values, strict=True):
             for ind in group:
                 ind.fitness.values = (value,)
+            if self.params.fitness_cache:
+                self.cache[text] = value
+
+    def remember(self, state: SearchState) -> None:
+        """Put the fitness of every individual of `state` (islands and halls of fame) in the cache: a
+        resumed search skips what its checkpoint knows."""
+        if self.params.fitness_cache:
+            for ind in [i for island in state.islands for i in island] + [
+                i for h in state.halls or [] for i in h
+            ]:
+                self.cache.setdefault(str(ind), ind.fitness.values[0])
+
+    def update_halls(self, state: SearchState) -> None:
+        """Each island's hall of fame takes its island's new individuals (with `hall_of_fame` > 0)."""
+        if state.halls is not None:
+            for hall, island in zip(state.halls, state.islands, strict=True):
+                hall.update(island)
 
     def select(self, island: Sequence[Individual]) -> Individual:
         return self.clone(tools.selTournament(island, 1, tournsize=self.params.tournament_size)[0])
@@ -190,15 +274,16 @@ class GPSearch:
     def offspring(self, island: Sequence[Individual]) -> list[Individual]:
         """A new island of the same size (Sec. 3.2.6): replication, crossover (children mutated with
         `crossover_mutation`) or mutation, per new individual."""
-        p, out = self.params, []
+        out = []
+        replication, crossover, _ = self.params.draw_weights()
         while len(out) < len(island):
             r = random.random()
-            if r < p.replication:
+            if r < replication:
                 out.append(self.select(island))
-            elif r < p.replication + p.crossover:
+            elif r < replication + crossover:
                 children = self.variation.mate(self.select(island), self.select(island))
                 for child in children:
-                    if random.random() < p.crossover_mutation:
+                    if random.random() < self.params.crossover_mutation:
                         (child,) = self.variation.mutate(child)
                     del child.fitness.values
                     out.append(child)
@@ -231,9 +316,15 @@ class GPSearch:
         random.seed(self.params.seed)
         islands = [self.seeded_island() for _ in range(self.params.islands)]
         self.evaluate([ind for island in islands for ind in island])
-        state = SearchState(islands, 0, random.getstate(), [])
+        state = SearchState(islands, 0, random.getstate(), [], self._new_halls())
+        self.update_halls(state)
         self._record(state, sum(len(i) for i in islands))
         return state
+
+    def _new_halls(self) -> list[tools.HallOfFame] | None:
+        if self.params.hall_of_fame == 0:
+            return None
+        return [tools.HallOfFame(self.params.hall_of_fame) for _ in range(self.params.islands)]
 
     def step(self, state: SearchState) -> SearchState:
         """The next generation of every island, evaluated, then migration when it is due."""
@@ -244,7 +335,8 @@ class GPSearch:
         generation = state.generation + 1
         if generation % self.params.migration_interval == 0:
             self.migrate(islands)
-        new = SearchState(islands, generation, random.getstate(), list(state.history))
+        new = SearchState(islands, generation, random.getstate(), list(state.history), state.halls)
+        self.update_halls(new)
         self._record(new, len({str(ind) for ind in fresh}))
         return new
 
@@ -255,6 +347,8 @@ class GPSearch:
         on_generation: Callable[[SearchState], None] | None = None,
     ) -> SearchState:
         """All `generations` from `state` (or from the start), saving `checkpoint` after each."""
+        if state is not None:
+            self.remember(state)
         if state is None:
             state = self.start()
             if checkpoint is not None:
@@ -271,7 +365,11 @@ class GPSearch:
 
 
 def best_per_island(state: SearchState) -> list[Individual]:
-    """Each island's best individual (Sec. 3.2.6), in island order (ties: the first)."""
+    """Each island's best individual (Sec. 3.2.6), in island order: the first of its hall of fame when
+    the search keeps one (the best it ever held), else the best of its last generation (ties: the
+    first)."""
+    if state.halls is not None:
+        return [hall[0] for hall in state.halls]
     return [min(island, key=lambda ind: ind.fitness.values[0]) for island in state.islands]
 
 
@@ -291,7 +389,12 @@ def save_state(path: str | Path, state: SearchState, params: SearchParams) -> No
             "random_state": [version, list(internal), gauss],
             "islands": [[[str(ind), ind.fitness.values[0]] for ind in island] for island in state.islands],
             "history": state.history,
-        },
+        }
+        | (
+            {}
+            if state.halls is None
+            else {"halls": [[[str(ind), ind.fitness.values[0]] for ind in hall] for hall in state.halls]}
+        ),
     )
 
 
@@ -304,18 +407,34 @@ def load_state(path: str | Path, params: SearchParams, pset: gp.PrimitiveSetType
         raise DataError(f"{path}: not a readable search checkpoint ({err})".replace("\n", " ")) from None
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise DataError(f"{path}: not a search checkpoint (format {STATE_FORMAT} expected)")
-    saved = {k: v for k, v in data["params"].items() if k not in ("generations",)}
-    wanted = {k: v for k, v in json.loads(json.dumps(asdict(params))).items() if k not in ("generations",)}
+    # A checkpoint written before a parameter existed holds that parameter's default.
+    defaults = json.loads(json.dumps(asdict(SearchParams())))
+    saved = {k: v for k, v in (defaults | data["params"]).items() if k not in RESULT_FREE}
+    wanted = {k: v for k, v in json.loads(json.dumps(asdict(params))).items() if k not in RESULT_FREE}
     if saved != wanted:
         diff = sorted(k for k in wanted if saved.get(k) != wanted[k])
         raise DataError(f"{path}: written by a search with other parameters ({', '.join(diff)})")
-    islands = []
-    for island in data["islands"]:
+
+    def individuals(rows):
         members = []
-        for text, value in island:
+        for text, value in rows:
             ind = Individual(parse(text, pset))
             ind.fitness.values = (float(value),)
             members.append(ind)
-        islands.append(members)
+        return members
+
+    islands = [individuals(island) for island in data["islands"]]
+    halls = None
+    if params.hall_of_fame > 0:
+        if "halls" not in data:
+            raise DataError(f"{path}: holds no halls of fame (hall_of_fame={params.hall_of_fame} expected)")
+        halls = []
+        for rows in data["halls"]:  # restored as saved: best first, ties in their saved order
+            hall = tools.HallOfFame(params.hall_of_fame)
+            hall.items = individuals(rows)
+            hall.keys = [ind.fitness for ind in reversed(hall.items)]
+            halls.append(hall)
     version, internal, gauss = data["random_state"]
-    return SearchState(islands, int(data["generation"]), (version, tuple(internal), gauss), data["history"])
+    return SearchState(
+        islands, int(data["generation"]), (version, tuple(internal), gauss), data["history"], halls
+    )

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 from pydantic import Field, model_validator
 
 from src.schema.denoise import DenoiseTaskSchema, Eval
-from src.schema.types import NonNegativeFloat, PositiveFloat, PositiveInt, Probability, Schema, own_error
+from src.schema.types import (
+    NonNegativeFloat,
+    NonNegativeInt,
+    PositiveFloat,
+    PositiveInt,
+    Probability,
+    Schema,
+    own_error,
+)
 
 MutationKind = Literal["insert", "replace", "swap", "delete"]
 
@@ -41,6 +50,13 @@ class Search(Schema):
     seed_copies: Probability
     mutation_kinds: dict[MutationKind, NonNegativeFloat]
     max_length: PositiveInt
+    vector_pairs: Literal["mixed", "same"]
+    crossover_points: Literal["type_first", "thesis"]
+    shares_count: Literal["draws", "individuals"]
+    max_constants: NonNegativeInt | None
+    color_variance: bool
+    hall_of_fame: NonNegativeInt
+    fitness_cache: bool
     fitness_eps: PositiveFloat
     tree_batch: PositiveInt
     seed: int = Field(ge=0)
@@ -54,6 +70,12 @@ class Search(Schema):
             raise own_error(f"task.search: replication + crossover + mutation = {total:g}; expected 1")
         if not sum(self.mutation_kinds.values()) > 0:
             raise own_error("task.search.mutation_kinds: the weights sum to 0; expected a positive sum")
+        seed_constants = 2 * sum(math.isfinite(v) for v in self.seed_sigmas.model_dump().values())
+        if self.max_constants is not None and self.max_constants < seed_constants:
+            raise own_error(
+                f"task.search.max_constants={self.max_constants}: the seed (the cross-bilateral filter of "
+                f"task.search.seed_sigmas) has {seed_constants} constants; expected at least that many"
+            )
         if self.migrants >= self.population:
             raise own_error(
                 f"task.search.migrants={self.migrants}: expected fewer than task.search.population="

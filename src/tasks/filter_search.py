@@ -102,10 +102,10 @@ def _crop(x: torch.Tensor, size: int | None) -> torch.Tensor:
 def available_terminals(builder, batch: dict[str, torch.Tensor]) -> list[str]:
     """The grammar's feature terminals the batch can give (`GPFilter.features` builds each or names what
     is missing): the search grammar draws only these."""
-    from src.gp.grammar import VARIABLES, VECTORS
+    from src.gp.grammar import ALL_VARIABLES, VECTORS
 
     out = []
-    for name in (*VECTORS, *VARIABLES):
+    for name in (*VECTORS, *ALL_VARIABLES):
         if name == "pixel":
             continue
         builder.needed = {name}
@@ -141,7 +141,12 @@ def make_search(cfg: DictConfig, fitness, available: list[str]):
     from src.gp.search import GPSearch, search_pset
     from src.gp.variation import codebook, kernel_expressions
 
-    pset = search_pset(available)
+    if cfg.task.search.color_variance and "colorVariance" not in available:
+        raise ConfigError(
+            "task.search.color_variance=true: the search images have no colour variance (batch key "
+            "'color_var'; preprocessing does not store it yet); expected false"
+        )
+    pset = search_pset(available, bool(cfg.task.search.color_variance))
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
     return GPSearch(fitness, seed_expression(cfg), search_params(cfg), pset, book), pset
 
@@ -269,6 +274,8 @@ class FilterSearchTask(DenoiseTask):
             "best_expression": rows[0]["model"]["expression"],
             "generations": state.generation,
             "evaluations": sum(h["evaluations"] for h in state.history),
+            # expressions the fitness cache answered (counted in `evaluations`, not filtered again)
+            "cache_hits": gp_search.cache_hits,
             "seconds": seconds,
             "images": meta,
             "features": available,
@@ -277,7 +284,8 @@ class FilterSearchTask(DenoiseTask):
         seed_fitness = state.history[0]["islands"][0]["best"]
         print(
             f"search: best fitness {rows[0]['fitness']:.4f} (generation 0: {seed_fitness:.4f}"
-            f") in {seconds:.1f} s -> {out / BEST_FILE}\n  {rows[0]['model']['expression']}"
+            f") in {seconds:.1f} s ({gp_search.cache_hits} of {summary['evaluations']} evaluations from the "
+            f"fitness cache) -> {out / BEST_FILE}\n  {rows[0]['model']['expression']}"
         )
         return summary
 

@@ -55,6 +55,7 @@ VARIANCE_OF = {
     "secTexVariance": "secondaryTexture",
     "dovVariance": "depth",
     "diVariance": "directIllumination",
+    "colorVariance": "color",  # batch key color_var; the colour is not normalised, nor is its variance
 }
 #: Features that are not normalised: the filtered colour itself and the pixel coordinates.
 UNNORMALIZED = ("color", "pixel")
