@@ -163,3 +163,21 @@ def test_the_benchmark_composes_a_model_with_the_data_whose_branches_it_reads():
     assert load_model_config("unet_kpcn", "paper")["in_channels"] == 62
     kpcn = load_model_config("kpcn", "paper")
     assert kpcn["in_channels"] == 28 and kpcn["branches"] == ["diffuse", "specular"]
+
+
+def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_kind():
+    from src.errors import DataError
+    from src.kinds.sequences import RenderedSequences
+    from src.kinds.stills import RenderedStills
+
+    sequences = RenderedSequences()
+    sequences.check_trained_features({"features": ["color", "albedo"]}, ["color", "albedo"], "a.pt")
+    sequences.check_trained_features({}, ["color"], "a.pt")  # a checkpoint that records none
+    with pytest.raises(DataError) as excinfo:
+        sequences.check_trained_features({"features": None}, ["color", "albedo"], "a.pt")
+    one_line_error(excinfo, "a.pt", "task.volume_features=None", "['color', 'albedo']")
+    stills = RenderedStills()
+    stills.check_trained_features({"features": ["color", "normal"]}, ["color", "normal"], "b.pt")
+    with pytest.raises(DataError) as excinfo:
+        stills.check_trained_features({"features": ["color", "normal"]}, ["color", "depth"], "b.pt")
+    one_line_error(excinfo, "b.pt", "task.features=[color,normal]", "[color,depth]")
