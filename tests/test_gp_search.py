@@ -292,9 +292,11 @@ def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
 
 @pytest.mark.slow
 def test_filter_search_task_end_to_end(smoke_data, tmp_path):
-    """render + preprocess (the denoise task's, up to date from the fixture), search 2 islands x 4 for 2
-    generations, eval of the best expression as gp_filter; then a resumed search continues its state."""
+    """render + preprocess (on a copy of the fixture's data: this task's smoke split differs), search 2
+    islands x 4 for 2 generations, eval of the best expression as gp_filter; then a resumed search
+    continues its state."""
     import json
+    import shutil
 
     import yaml
 
@@ -303,8 +305,12 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     from src.tracking.tracker import Tracker
     from tests.conftest import smoke_config
 
+    # Its own copy of the shared smoke data: task=filter_search renders two scenes per base at this profile
+    # and splits them by base (conf/task/filter_search.yaml), which must not change the shared folder.
+    data = tmp_path / "data"
+    shutil.copytree(smoke_data, data)
     overrides = ["task=filter_search", "task.search.islands=2", "task.search.population=4"]
-    cfg = smoke_config(smoke_data, tmp_path / "run", [*overrides, "task.search.generations=2"])
+    cfg = smoke_config(data, tmp_path / "run", [*overrides, "task.search.generations=2"])
     validate_run(cfg)
     stages.render(cfg)
     stages.preprocess(cfg)
