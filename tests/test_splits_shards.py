@@ -425,3 +425,22 @@ def test_filter_search_holds_out_scenes_of_at_least_two_base_scenes(dataset, pro
     held_out = splits[cfg.task.eval.split]
     assert len({base_scene(n) for n in held_out}) >= 2, (dataset, profile, held_out)
     assert cfg.task.search.split != cfg.task.eval.split
+
+
+def test_split_by_base_off_keeps_the_prepared_cache_key_and_on_changes_it(tmp_path):
+    """Folders the denoise task prepared before the option existed stay valid (its key without the key
+    equals its key with `false`); the filter search's `true` makes its own."""
+    from omegaconf import OmegaConf, open_dict
+
+    from src.kinds.stills import preprocess_key
+    from tests.conftest import compose_config
+
+    cfg = compose_config([])
+    assert cfg.task.preprocess.split_by_base is False
+    off = preprocess_key(cfg, tmp_path)
+    before = cfg.copy()
+    with open_dict(before.task.preprocess):
+        del before.task.preprocess["split_by_base"]
+    assert preprocess_key(before, tmp_path) == off
+    OmegaConf.update(cfg, "task.preprocess.split_by_base", True)
+    assert preprocess_key(cfg, tmp_path) != off
