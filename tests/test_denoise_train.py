@@ -60,6 +60,8 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
         "eval_noisy_relmse",
         "eval_ms_per_mpixel",
         "eval_relmse_spp4",
+        "eval_energy_spp4",
+        "eval_noisy_energy",
     ):
         assert key in run.data.metrics, key
     history = [m.value for m in client.get_metric_history(run_id, "train_loss_diffuse")]
@@ -84,7 +86,7 @@ def _check_eval_values(cfg, eval_dir, logged):
     means = json.loads((eval_dir / "metrics.json").read_text())["mean"]
     rows = pd.read_csv(eval_dir / "per_image.csv")
     assert len(rows) == len(FullImageDataset(cfg.paths.prepared, "test")) > 1
-    for key in ("psnr", "ssim", "relmse", "smape", "noisy_relmse", "ms_per_mpixel"):
+    for key in ("psnr", "ssim", "relmse", "smape", "energy", "noisy_energy", "noisy_relmse", "ms_per_mpixel"):
         assert means[key] == pytest.approx(rows[key].mean(), rel=1e-12), key
         assert logged[f"eval_{key}"] == pytest.approx(means[key], rel=1e-12), key
     assert (rows["relmse"] != rows["noisy_relmse"]).all() and (rows["psnr"] != rows["noisy_psnr"]).all()
@@ -95,6 +97,7 @@ def _check_eval_values(cfg, eval_dir, logged):
     reference = item["reference"].permute(1, 2, 0).numpy()
     row = rows[(rows["scene"] == item["scene"]) & (rows["spp"] == int(item["spp"]))].iloc[0]
     assert relmse(denoised, reference, cfg.metrics.relmse_eps) == pytest.approx(row["relmse"], rel=1e-6)
+    assert denoised.mean() / reference.mean() == pytest.approx(row["energy"], rel=1e-6)
     noisy = item["color"].permute(1, 2, 0).numpy()
     assert relmse(noisy, reference, cfg.metrics.relmse_eps) == pytest.approx(row["noisy_relmse"], rel=1e-6)
     # The GP thesis's convention (Eq. 3.5) on the same images: 1.5 spp times Bako's, and its fitness ratio.

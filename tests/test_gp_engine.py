@@ -750,3 +750,55 @@ def test_cuda_evaluation_equals_cpu():
 # - Plan._add: a `_Node`'s `key` None (the dict key is used, the field never read), a variable's or a
 #   constant's `children` None or a constant's `name` None (static nodes: neither is read), `"binary"`
 #   misspelt (`_apply` only tests `kind == "unary"`).
+
+
+def _flat_features(n=1, h=24, w=24, wp_step=0.0, seed=0):
+    """Constant guides (normal +z, texture and depth 0.5, visibility 1), noisy grey colour, and a world
+    position that changes `wp_step` per pixel (0: constant)."""
+    g = torch.Generator().manual_seed(seed)
+    yy, xx = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
+    color = 0.5 + 0.05 * torch.randn(n, 3, h, w, generator=g)
+    return {
+        "color": color,
+        "normal": torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(n, 3, h, w).clone(),
+        "texture": torch.full((n, 3, h, w), 0.5),
+        "depth": torch.full((n, 1, h, w), 0.5),
+        "worldPosition": torch.stack([xx * wp_step, yy * wp_step, torch.zeros_like(xx)])
+        .expand(n, 3, h, w)
+        .clone(),
+        "directIllumination": torch.ones(n, 1, h, w),
+        "wpGradient": torch.zeros(n, 3, h, w),
+        "wpVariance": torch.zeros(n, 1, h, w),
+    }
+
+
+def _centre_over_4_neighbours(expression, features, radius=3):
+    weights = window_weights(parse(expression), features, features["color"], radius)[0]
+    h, w = weights.shape[-2:]
+    grid = weights[:, h // 2, w // 2].view(2 * radius + 1, 2 * radius + 1)
+    r = radius
+    return float(grid[r, r] / ((grid[r - 1, r] + grid[r + 1, r] + grid[r, r - 1] + grid[r, r + 1]) / 4))
+
+
+def test_expr3_gives_the_centre_about_one_percent_of_its_neighbours_weight_where_world_position_varies():
+    """The property gp_expr3.yaml states: ||wp||^0.002 is ~1 for any neighbour, sinc(1) = 0, so e^(e^sinc)
+    is e there and e^e at the centre; with a constant world position the centre weighs as much as (more
+    than) its neighbours."""
+    assert 0.005 < _centre_over_4_neighbours(EXPR3, _flat_features(wp_step=0.01)) < 0.02
+    assert _centre_over_4_neighbours(EXPR3, _flat_features(wp_step=0.0)) > 1.0
+
+
+def test_expr2_weighs_bright_neighbours_less_and_darkens_a_step():
+    """The property gp_expr2.yaml states: exp(-atan(c_i . c_j)) is a dot product of the noisy colours, so
+    on a 0.2 / 0.8 step with flat guides the output keeps less of the mean (0.98) than gp_expr1 (0.999)."""
+    features = _flat_features(wp_step=0.01)
+    n, _, h, w = features["color"].shape
+    step = torch.full((n, 3, h, w), 0.2)
+    step[..., w // 2 :] = 0.8
+    step = step + 0.05 * torch.randn(n, 3, h, w, generator=torch.Generator().manual_seed(1))
+    features["color"] = step
+    out = filter_images([parse(EXPR2), parse(EXPR1)], features, step, 3).color
+    energy2, energy1 = (float(o.mean() / step.mean()) for o in out)
+    assert energy2 < 0.99 and energy1 > 0.995

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from src.errors import DataError
+from src.errors import ConfigError, DataError
 from src.gp.fitness import WORST, Fitness, relative_error
 from src.gp.grammar import GRAMMAR_VECTORS, Vector
 from src.gp.published import bilateral_expression
@@ -29,7 +29,7 @@ from src.gp.variation import (
     mut_swap,
 )
 from src.metrics.image import relmse_spp
-from tests.conftest import ROOT
+from tests.conftest import ROOT, compose_config, one_line_error
 
 AVAILABLE = ["color", "normal", "texture", "depth", "nGradient"]
 SEED = bilateral_expression(5.0, 0.5, 0.3, 0.1, 0.05)
@@ -292,9 +292,11 @@ def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
 
 @pytest.mark.slow
 def test_filter_search_task_end_to_end(smoke_data, tmp_path):
-    """render + preprocess (the denoise task's, up to date from the fixture), search 2 islands x 4 for 2
-    generations, eval of the best expression as gp_filter; then a resumed search continues its state."""
+    """render + preprocess (on a copy of the fixture's data: this task's smoke split differs), search 2
+    islands x 4 for 2 generations, eval of the best expression as gp_filter; then a resumed search
+    continues its state."""
     import json
+    import shutil
 
     import yaml
 
@@ -303,8 +305,12 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     from src.tracking.tracker import Tracker
     from tests.conftest import smoke_config
 
+    # Its own copy of the shared smoke data: task=filter_search renders two scenes per base at this profile
+    # and splits them by base (conf/task/filter_search.yaml), which must not change the shared folder.
+    data = tmp_path / "data"
+    shutil.copytree(smoke_data, data)
     overrides = ["task=filter_search", "task.search.islands=2", "task.search.population=4"]
-    cfg = smoke_config(smoke_data, tmp_path / "run", [*overrides, "task.search.generations=2"])
+    cfg = smoke_config(data, tmp_path / "run", [*overrides, "task.search.generations=2"])
     validate_run(cfg)
     stages.render(cfg)
     stages.preprocess(cfg)
@@ -696,6 +702,56 @@ def test_fitness_is_the_mean_of_per_image_ratios_on_images_of_unequal_noise():
     box2 = _box_np(c, 2)
     value2 = Fitness(feats, color, ref, radius=2)([parse("2.0")])[0]
     assert value2 == pytest.approx(float((_relmse_np(box2, y) / _relmse_np(c, y)).mean()), rel=1e-12)
+
+
+def test_bias_guard_adds_its_weight_times_each_images_energy_change_against_the_noisy_input():
+    """fitness = mean_i [relMSE ratio_i + w |mean(filtered_i) / mean(noisy_i) - 1|], means over pixels and
+    channels; w = 0 (the default, the thesis) is the plain fitness. Two filters move each image's mean by
+    a different amount, one up, one down (the guard takes the absolute value); the box filter keeps the
+    mean, so the guard leaves it alone."""
+    from src.gp.evaluate import filter_images
+
+    feats, color, ref = _unequal_noise_images()
+    # brightens both images a little (+0.05 %, +0.7 %), darkens both (-0.002 %, -0.13 %), keeps the mean
+    trees = [parse(e) for e in ("distance2(color, color)", "exp(neg(distance2(color, color)))", "2.0")]
+    trees.append(parse("sqrt(neg(2.0))"))
+    plain = Fitness(feats, color, ref, radius=1)(trees)
+    guarded = Fitness(feats, color, ref, radius=1, bias_guard=10.0)(trees)
+    c, y = color.numpy(), ref.numpy()
+    for k, sign in ((0, 1), (1, -1)):
+        x = filter_images(trees[k : k + 1], feats, color, 1).color[0].numpy()
+        ratios = _relmse_np(x, y) / _relmse_np(c, y)
+        bias = x.reshape(2, -1).mean(1) / c.reshape(2, -1).mean(1) - 1
+        assert (sign * bias > 1e-5).all() and abs(bias[1]) > 2 * abs(bias[0])  # the fixture bites
+        assert plain[k] == pytest.approx(float(ratios.mean()), rel=1e-9)
+        assert guarded[k] == pytest.approx(float((ratios + 10.0 * np.abs(bias)).mean()), rel=1e-9)
+        assert guarded[k] > plain[k] + 1e-3
+    assert guarded[2] == pytest.approx(plain[2], rel=1e-12)  # the box filter keeps each image's mean
+    assert guarded[3] == WORST  # undefined stays undefined
+    assert Fitness(feats, color, ref, radius=1, bias_guard=0.0)(trees) == plain
+    with pytest.raises(ValueError, match="bias_guard=-1"):
+        Fitness(feats, color, ref, radius=1, bias_guard=-1.0)
+    dark = color.clone()
+    dark[1] = -dark[1].abs()  # a noisy image whose mean is negative: the ratio means nothing
+    with pytest.raises(DataError, match="bias_guard"):
+        Fitness(feats, dark, ref, radius=1, bias_guard=1.0)
+    Fitness(feats, dark, ref, radius=1)  # without the guard it is not needed
+
+
+def test_bias_guard_is_a_search_setting_off_by_default_and_a_negative_weight_is_one_line():
+    from omegaconf import OmegaConf
+
+    from src.schema.checks import check
+    from src.schema.filter_search import Search
+
+    cfg = compose_config(["task=filter_search"])
+    assert cfg.task.search.bias_guard == 0.0
+    values = OmegaConf.to_container(cfg.task.search) | {"fitness_eps": 0.01, "seed": 0, "out_dir": "search"}
+    check(Search, values, "task.search")  # today's values pass
+    values["bias_guard"] = -0.5
+    with pytest.raises(ConfigError) as excinfo:
+        check(Search, values, "task.search")
+    one_line_error(excinfo, "task.search.bias_guard", "-0.5")
 
 
 def test_fitness_refuses_a_training_image_without_noise():

@@ -10,6 +10,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from src.errors import ConfigError, DataError
 from src.metrics.flip import flip
 from src.metrics.image import (
+    energy,
     image_metrics,
     lpips_model,
     lpips_variant,
@@ -155,7 +156,8 @@ def test_image_metrics_from_the_real_config():
     reference = rng.uniform(0, 3, (24, 32, 3))  # HDR: clip_gamma clips values above 1
     denoised = reference * 1.05
     m = image_metrics(denoised, reference, cfg)
-    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse", "lpips", "flip"}
+    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse", "energy", "lpips", "flip"}
+    assert m["energy"] == pytest.approx(1.05)
     x_ldr, y_ldr = tonemap(denoised, cfg.tonemap, cfg.gamma), tonemap(reference, cfg.tonemap, cfg.gamma)
     assert m["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((x_ldr - y_ldr) ** 2)))
     assert m["ssim"] == pytest.approx(reference_ssim(x_ldr, y_ldr))
@@ -164,6 +166,28 @@ def test_image_metrics_from_the_real_config():
     same = image_metrics(reference, reference, cfg)
     assert same["psnr"] == float("inf") and same["ssim"] == pytest.approx(1.0)
     assert same["relmse"] == same["smape"] == same["mse"] == 0.0
+    assert same["energy"] == 1.0
+
+
+def test_energy_by_value():
+    """mean(output) / mean(reference) over pixels and channels: a scaled reference gives the scale, the
+    truth 1.0; unequal images by hand (a per-pixel or per-channel mean of ratios would differ)."""
+    rng = np.random.default_rng(5)
+    reference = rng.uniform(0.1, 4.0, (12, 10, 3))
+    assert energy(reference, reference) == 1.0
+    assert energy(0.895 * reference, reference) == pytest.approx(0.895)
+    y = np.array([[[1.0, 1.0, 1.0], [3.0, 3.0, 3.0]]])  # mean 2
+    x = np.array([[[2.0, 0.0, 1.0], [0.0, 0.0, 0.0]]])  # mean 0.5; mean of per-pixel ratios: 1/2
+    assert energy(x, y) == pytest.approx(0.25)
+    assert energy(-x, y) == pytest.approx(-0.25)  # a negative output mean is reported as it is
+    with pytest.raises(DataError) as excinfo:
+        energy(x, -y)
+    one_line_error(excinfo, "energy", "-2", "positive")
+    with pytest.raises(DataError) as excinfo:
+        energy(x, np.zeros_like(y))
+    one_line_error(excinfo, "energy", "positive")
+    with pytest.raises(DataError):
+        energy(x, y[:, :1])
 
 
 # --- mutation-testing additions (scripts/mutation.sh): every setting must reach the number it changes ---
@@ -246,6 +270,7 @@ def test_image_metrics_passes_every_setting_through():
     assert m["relmse"] == pytest.approx(relmse(x, y, 0.5, 1))
     assert m["smape"] == pytest.approx(smape(x, y, 0.3))
     assert m["mse"] == pytest.approx(mse(x, y))
+    assert m["energy"] == pytest.approx(energy(x, y)) and m["energy"] != 1.0
     assert m["lpips"] == pytest.approx(lpips_distance(lpips_model(cfg["lpips"]), x_ldr, y_ldr))
     assert m["flip"] == pytest.approx(flip(x_ldr, y_ldr, "ldr"))
     hdr = image_metrics(x, y, metrics_dict(flip={"enabled": True, "mode": "hdr"}, lpips={"enabled": False}))
@@ -253,7 +278,7 @@ def test_image_metrics_passes_every_setting_through():
     assert "lpips" not in hdr
     # a section without `enabled: true` is off
     off = image_metrics(x, y, metrics_dict(flip={"mode": "hdr"}, lpips={"seed": 0}))
-    assert set(off) == {"psnr", "ssim", "relmse", "smape", "mse"}
+    assert set(off) == {"psnr", "ssim", "relmse", "smape", "mse", "energy"}
 
 
 def test_lpips_variant_names_the_model_that_is_used():

@@ -19,7 +19,7 @@ from src.errors import ConfigError, DataError
 from src.report.build import build_report
 from src.report.collect import differing_params, find_runs, keep_latest
 from src.report.figures import curve_series
-from src.report.tables import comparison_table, cost_table, to_csv, to_latex, to_markdown
+from src.report.tables import comparison_table, cost_table, select_metrics, to_csv, to_latex, to_markdown
 from tests.conftest import compose_config, one_line_error
 
 EXPERIMENT = "nrbench-denoise"
@@ -61,6 +61,7 @@ def _log_run(
         "eval_ssim": 0.8 + psnr / 1000,
         "eval_lpips": lpips,
         "eval_relmse": relmse,
+        "eval_energy": 0.9 + relmse,
         "eval_psnr_spp4": psnr - 2,
         "eval_psnr_spp16": psnr + 1,
         "param_count": 1000.0 * len(model),
@@ -94,6 +95,21 @@ def _log_run(
         for kind, image in (("noisy", noisy), ("denoised", denoised), ("reference", reference)):
             Image.fromarray(image).save(png_dir / f"{name}-{kind}.png")
     client.log_artifacts(run_id, str(png_dir), "eval/png")
+    # per_image.csv as DenoiseEvaluation writes it: image 0 carries the run's relMSE, image 1 twice it
+    per_image = tmp / f"per_image-{run_id}" / "per_image.csv"
+    per_image.parent.mkdir()
+    pd.DataFrame(
+        {
+            "scene": ["scene0", "scene1"],
+            "spp": [4, 4],
+            "psnr": [psnr, psnr - 1],
+            "relmse": [relmse, 2 * relmse],
+            "energy": [0.9 + 0.02 * seed, 1.0],
+            "noisy_energy": [1.01, 0.99],
+            "relmse_ratio": [0.1, 0.3 + seed],
+        }
+    ).to_csv(per_image, index=False)
+    client.log_artifact(run_id, str(per_image), "eval")
     client.set_terminated(run_id, status)
     return run_id
 
@@ -196,6 +212,7 @@ def test_comparison_table_aggregates_seeds_and_renders(store):
         "SSIM",
         lpips,
         "relMSE (Bako)",
+        "Energy",
         "runs",
     ]
     assert table.loc["kpcn", "PSNR"] == pytest.approx(30.5)
@@ -207,6 +224,8 @@ def test_comparison_table_aggregates_seeds_and_renders(store):
     assert "| kpcn | 30.50 ± 0.71 |" in md
     assert "**32.00**" in md  # best PSNR: resnet
     assert "**0.0150**" not in md and "**0.015**" in md  # best relMSE (lower is better), {:.4g}
+    assert table.loc["dpcn", "Energy"] == pytest.approx(0.93) and "Energy |" in md  # no arrow: 1 is best
+    assert "**0.9" not in md  # nor a bold energy
     assert f"{lpips} ↓" in md and "PSNR ↑" in md
 
     tex = to_latex(table)
@@ -244,7 +263,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert any("task.train.lr" in r.getMessage() for r in caplog.records)
     assert len(summary["warnings"]) == 1 and "task.train.lr" in summary["warnings"][0]
     names = {p.name for p in out.iterdir()}
-    for stem in ("comparison", "cost", "comparison_per_spp", "losses"):
+    for stem in ("comparison", "cost", "comparison_per_spp", "losses", "per_image"):
         assert {f"{stem}.md", f"{stem}.tex", f"{stem}.csv"} <= names
     assert {"learning_curves.png", "image_grid.png", "index.html"} <= names
     assert not {"feature_usage.csv", "search_curves.png"} & names  # no filter search among the runs
@@ -253,6 +272,16 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
         assert "task.train.lr" in (out / name).read_text(), name  # the warning is visible everywhere
     csv = pd.read_csv(out / "comparison.csv", comment="#")
     assert len(csv) == 3
+    # per image: rows model x image, each image's scores averaged over the row's runs (kpcn: seeds 0, 1)
+    images = pd.read_csv(out / "per_image.csv", comment="#").set_index(["model", "image"])
+    assert list(images.index) == [(m, f"scene{i} 4spp") for m in ("kpcn", "dpcn", "resnet") for i in (0, 1)]
+    assert images.loc[("kpcn", "scene0 4spp"), "Energy"] == pytest.approx(0.91)
+    assert images.loc[("kpcn", "scene1 4spp"), "relMSE / noisy"] == pytest.approx(0.8)
+    assert images.loc[("kpcn", "scene1 4spp"), "relMSE (Bako)"] == pytest.approx(0.03)
+    assert images.loc[("dpcn", "scene1 4spp"), "noisy Energy"] == pytest.approx(0.99)
+    assert images.loc[("resnet", "scene0 4spp"), "PSNR"] == pytest.approx(32.0)
+    assert list(images["runs"]) == [2, 2, 1, 1, 1, 1]
+    assert "Quality per held-out image" in (out / "index.html").read_text()
     # Final (step 30) losses, mean over kpcn's two seeds: 1 / (30 + seed + 1) (twice that for validation);
     # validation columns first.
     losses = pd.read_csv(out / "losses.csv", comment="#", index_col=0)
@@ -441,6 +470,15 @@ def test_filter_search_runs_report_fitness_search_curves_and_feature_usage(gp_ru
     page = (out / "index.html").read_text()
     assert "Features of the best expressions" in page and "best fitness per generation" in page
     assert len(_embedded_pngs(page)) == 1  # the search curves; no loss curves, no images
+
+
+def test_energy_joins_the_denoising_tables_only():
+    """Energy is a column of the denoise and filter_search reports (all logged metrics); NeRF's report
+    names its columns, so its tables keep the ones they had before energy was logged."""
+    assert "Energy" in select_metrics(compose_config().report.metrics)
+    assert "Energy" in select_metrics(compose_config(["task=filter_search"]).report.metrics)
+    nerf = select_metrics(compose_config(["task=nerf"]).report.metrics)
+    assert list(nerf) == ["PSNR", "SSIM", "LPIPS", "relMSE (Bako)", "FLIP"]
 
 
 def test_each_data_kind_and_task_reports_under_its_own_name():

@@ -156,7 +156,7 @@ BOUNDED: dict[Bound, str] = {
         dataset.PlumeMedium.source_jitter dataset.PlumeMedium.spread dataset.PlumeMedium.sway
         dataset.Cloud.sky_scale dataset.Godrays.sky_scale dataset.Stripes.intensity
         dataset.StudioSun.intensity dataset.StudioEnv.scale dataset.DirectionalSun.irradiance
-        dataset.Busy.ambient
+        dataset.Busy.ambient filter_search.Search.bias_guard
     """,
     PERCENTILE: """
         denoise.Preprocess.importance_percentile
@@ -377,6 +377,7 @@ SEARCH = {
     "hall_of_fame": 0,
     "fitness_cache": True,
     "fitness_eps": 0.01,
+    "bias_guard": 0.0,
     "tree_batch": 16,
     "seed": 0,
     "resume": None,

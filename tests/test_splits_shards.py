@@ -21,7 +21,7 @@ from src.data.shards import (
     read_index,
     save_tensors,
 )
-from src.data.splits import group_dataset, parse_exr_name, patch_quota, split_scenes
+from src.data.splits import base_scene, group_dataset, parse_exr_name, patch_quota, split_scenes
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from tests.conftest import one_line_error
@@ -362,3 +362,85 @@ def test_preprocess_stores_the_gp_features_when_the_raw_files_have_them(tmp_path
     with pytest.raises(DataError) as excinfo:
         _preprocess(raw, tmp_path / "mixed", mixed)
     one_line_error(excinfo, "GP features", "in all its noisy files or in none")
+
+
+def test_split_by_base_deals_held_out_scenes_over_the_base_scenes():
+    """The plain shuffle of 12 scenes (3 bases x 4, seed 0) puts both test scenes in `outdoor`; dealt
+    round-robin over the bases, val keeps its two scenes and test holds two bases. By value, so that a
+    change of either rule shows."""
+    names = [f"{b}-{i:04d}" for b in ("cornell", "outdoor", "tabletop") for i in range(4)]
+    fractions = {"train": 0.7, "val": 0.15, "test": 0.15}
+    plain = split_scenes(names, fractions, 0)
+    assert plain["val"] == ["cornell-0002", "tabletop-0001"]
+    assert plain["test"] == ["outdoor-0000", "outdoor-0003"]  # today's split: one base scene
+    dealt = split_scenes(names, fractions, 0, by_base=True)
+    assert dealt["val"] == ["cornell-0002", "tabletop-0001"]
+    assert dealt["test"] == ["outdoor-0003", "tabletop-0003"]
+    assert sorted(sum(dealt.values(), [])) == sorted(names)
+    # a user scene file (no -NNNN suffix) is its own base; with more held-out scenes than bases every
+    # base appears
+    many = split_scenes([*names, "my-scene"], {"train": 0.4, "val": 0.3, "test": 0.3}, 1, by_base=True)
+    assert len(many["test"]) == 4 and {n.split("-")[0] for n in many["test"]} >= {
+        "cornell",
+        "outdoor",
+        "tabletop",
+    }
+    assert base_scene("my-scene") == "my-scene" and base_scene("fog_objects-0012") == "fog_objects"
+
+
+def _filter_search_profiles():
+    """(dataset, profile) of every task=filter_search combination scripts/resolved_configs.py checks."""
+    import importlib.util
+
+    from tests.conftest import ROOT
+
+    spec = importlib.util.spec_from_file_location(
+        "resolved_configs", ROOT / "scripts" / "resolved_configs.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    pairs = []
+    for _, overrides in module.combinations():
+        choice = dict(o.split("=", 1) for o in overrides[:4])
+        if choice["task"] == "filter_search" and (choice["dataset"], choice["profile"]) not in pairs:
+            pairs.append((choice["dataset"], choice["profile"]))
+    return pairs
+
+
+@pytest.mark.parametrize(("dataset", "profile"), _filter_search_profiles())
+def test_filter_search_holds_out_scenes_of_at_least_two_base_scenes(dataset, profile):
+    """The filter studies' held-out split (task.eval.split of task=filter_search) at every dataset and
+    profile: its scenes, as the config's dataset names them and its preprocess splits them, come from
+    two base scenes or more, so one image cannot carry a held-out result (issue 32)."""
+    from omegaconf import OmegaConf
+
+    from src.render.render_dataset import scene_sources
+    from tests.conftest import compose_config
+
+    cfg = compose_config(["task=filter_search", f"dataset={dataset}", f"profile={profile}"])
+    ds = OmegaConf.to_container(cfg.dataset) | {"seed": 0}  # names do not depend on the seed
+    names = [s.name for s in scene_sources(ds)]
+    p = cfg.task.preprocess
+    splits = split_scenes(names, dict(p.split), 0, bool(p.split_by_base))  # data_seed's default
+    held_out = splits[cfg.task.eval.split]
+    assert len({base_scene(n) for n in held_out}) >= 2, (dataset, profile, held_out)
+    assert cfg.task.search.split != cfg.task.eval.split
+
+
+def test_split_by_base_off_keeps_the_prepared_cache_key_and_on_changes_it(tmp_path):
+    """Folders the denoise task prepared before the option existed stay valid (its key without the key
+    equals its key with `false`); the filter search's `true` makes its own."""
+    from omegaconf import OmegaConf, open_dict
+
+    from src.kinds.stills import preprocess_key
+    from tests.conftest import compose_config
+
+    cfg = compose_config([])
+    assert cfg.task.preprocess.split_by_base is False
+    off = preprocess_key(cfg, tmp_path)
+    before = cfg.copy()
+    with open_dict(before.task.preprocess):
+        del before.task.preprocess["split_by_base"]
+    assert preprocess_key(before, tmp_path) == off
+    OmegaConf.update(cfg, "task.preprocess.split_by_base", True)
+    assert preprocess_key(cfg, tmp_path) != off

@@ -284,6 +284,7 @@ def preprocess_dataset(
     min_distance: float | None,
     whiten_eps: float,
     load_fn: Callable[[Path], Mapping[str, np.ndarray]] | None = None,
+    split_by_base: bool = False,
     importance: str = "thesis",
     importance_window: float = 1.0,
     importance_percentile: float = 99.0,
@@ -292,11 +293,11 @@ def preprocess_dataset(
 ) -> dict[str, Any]:
     """Raw `<scene>-<NNNNN>spp.exr` files -> splits, patch shards, full images, whitening stats.
 
-    Scenes are split (by scene) with `split_fractions` / `split_seed`. For every scene the highest spp is
-    the reference and each lower spp a noisy input: train and val images give importance-sampled patch
-    shards (`patches_per_image` each, or `patches_per_split[split]` spread evenly over the split),
-    following the `importance` map: `thesis`, the local variance over `importance_window` patch sizes,
-    or `mc_variance` (see `patch_sampling.py`); val and test images are also stored whole, for
+    Scenes are split (by scene) with `split_fractions` / `split_seed` / `split_by_base`. For every scene the
+    highest spp is the reference and each lower spp a noisy input: train and val images give
+    importance-sampled patch shards (`patches_per_image` each, or `patches_per_split[split]` spread evenly
+    over the split), following the `importance` map: `thesis`, the local variance over `importance_window`
+    patch sizes, or `mc_variance` (see `patch_sampling.py`); val and test images are also stored whole, for
     full-image validation and evaluation. Whitening statistics come from the train patches only.
     `load_fn` maps a path to a buffer dict (default: `load_kpcn_exr(path)[0]`, imported lazily).
     Deterministic given the seeds. Returns (and writes to summary.json) the counts and settings;
@@ -320,10 +321,12 @@ def preprocess_dataset(
         "importance_percentile": importance_percentile,
         "specular_variance": specular_variance,
     }
+    if split_by_base:  # absent when off: the summaries of folders made before the option stay the same
+        settings["split_by_base"] = True
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
     groups = group_dataset(raw_dir)
-    splits = split_scenes(groups, split_fractions, split_seed)
+    splits = split_scenes(groups, split_fractions, split_seed, split_by_base)
     writer = _ShardWriter(out_dir, settings)
     n_images = sum(len(groups[sc]) - 1 for sc in groups)
     bar = tqdm(total=n_images, desc="preprocess", unit="img", disable=not progress)

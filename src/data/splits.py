@@ -61,14 +61,34 @@ def group_dataset(raw_dir: str | os.PathLike[str]) -> dict[str, dict[int, Path]]
 SPLIT_KEY = "task.preprocess.split"
 
 
+def base_scene(scene: str) -> str:
+    """The base scene of a procedural scene name `<base>-<NNNN>` (`cornell-0003` -> `cornell`); a name
+    without such a suffix (a user scene file) is its own base."""
+    base, _, index = scene.rpartition("-")
+    return base if base and index.isdigit() else scene
+
+
+def _interleave_bases(order: list[str]) -> list[str]:
+    """`order` regrouped round-robin over the base scenes: the first scene of each base (bases in order of
+    first appearance), then the second of each, ...; within a base the order is kept."""
+    by_base: dict[str, list[str]] = {}
+    for name in order:
+        by_base.setdefault(base_scene(name), []).append(name)
+    rounds = max(len(v) for v in by_base.values())
+    return [names[r] for r in range(rounds) for names in by_base.values() if r < len(names)]
+
+
 def split_scenes(
-    scene_names: Iterable[str], fractions: Mapping[str, float], seed: int
+    scene_names: Iterable[str], fractions: Mapping[str, float], seed: int, by_base: bool = False
 ) -> dict[str, list[str]]:
     """Partition scenes into train/val/test with the given fractions (normalised to sum 1).
 
     Deterministic: the names are sorted, then shuffled by a seeded generator. Counts are rounded, with
     at least one scene per split (so >= 3 scenes are needed); train gets the remainder. Each list is
-    returned sorted.
+    returned sorted. `by_base` (`task.preprocess.split_by_base`) deals the shuffled scenes round-robin
+    over their base scenes before val and test take theirs, so a held-out split of k scenes holds
+    min(k, bases) base scenes (with the plain shuffle two held-out scenes can share one base, and one
+    image can carry a result); with False the split is the plain shuffle's.
     """
     names = sorted(set(scene_names))
     if set(fractions) != set(SPLITS):
@@ -89,6 +109,8 @@ def split_scenes(
         else:
             n_test -= 1
     order = [names[i] for i in np.random.default_rng(seed).permutation(n)]
+    if by_base:
+        order = _interleave_bases(order)
     parts = {"val": order[:n_val], "test": order[n_val : n_val + n_test], "train": order[n_val + n_test :]}
     return {s: sorted(parts[s]) for s in SPLITS}
 

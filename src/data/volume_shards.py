@@ -301,6 +301,7 @@ def preprocess_volume_dataset(
     whiten_eps: float = 1e-6,
     load_fn: LoadFn | None = None,
     progress: bool = True,
+    split_by_base: bool = False,
 ) -> dict[str, Any]:
     """Rendered volumetric sequences -> splits, sequence-sample shards, whole sequences, whitening stats
     (module docstring). `patches_per_sequence` samples of `sequence_frames` frames of `patch_size`^2 per
@@ -327,6 +328,8 @@ def preprocess_volume_dataset(
         "importance_percentile": importance_percentile,
         "whiten_eps": whiten_eps,
     }
+    if split_by_base:  # absent when off: the summaries of folders made before the option stay the same
+        settings["split_by_base"] = True
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
     start = time.perf_counter()
@@ -337,7 +340,7 @@ def preprocess_volume_dataset(
         raise ConfigError(
             f"{FRAMES_KEY}={sequence_frames} is more than the {n} frame(s) of scene {scene!r} in {raw_dir}"
         )
-    splits = split_scenes(groups, split_fractions, split_seed)
+    splits = split_scenes(groups, split_fractions, split_seed, split_by_base)
     writer = _SequenceWriter(out_dir, settings)
     n_sequences = sum(len(next(iter(fr.values()))) - 1 for fr in groups.values())
     bar = tqdm(total=n_sequences, desc="preprocess volumetric", unit="seq", disable=not progress)

@@ -41,7 +41,19 @@ log = logging.getLogger(__name__)
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
 #: (flicker) only where there are sequences.
-SCORES = ("psnr", "ssim", "relmse", "relmse_spp", "relmse_ratio", "smape", "mse", "lpips", "flip", "temporal")
+SCORES = (
+    "psnr",
+    "ssim",
+    "relmse",
+    "relmse_spp",
+    "relmse_ratio",
+    "smape",
+    "mse",
+    "energy",
+    "lpips",
+    "flip",
+    "temporal",
+)
 
 
 @torch.no_grad()

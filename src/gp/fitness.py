@@ -2,6 +2,13 @@
 training images of relMSE(filtered) / relMSE(noisy), relMSE of Eq. 3.5 (its m/2 factor cancels in the
 ratio); an undefined expression (NaN/Inf weights or a zero weight sum on any image) gets the worst
 fitness, `WORST` = the largest float. Expressions are filtered in batches by `src.gp.evaluate`.
+
+An optional bias guard (`bias_guard`, weight w >= 0; 0, the default, is off, as in the thesis, which has
+no such term) adds w * |mean(filtered) / mean(noisy) - 1| to each image's term before the mean over the
+images, means over pixels and channels. relMSE weighs an error by 1 / (reference^2 + eps), so a filter
+that darkens bright pixels towards their dark neighbours can lower it while losing energy (issue 32: the
+cpu search's best kept 0.895 / 0.923 of the reference's mean). The guard compares with the noisy input,
+an unbiased estimate of the reference the search may read, not with the reference itself.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ def relative_error(x: torch.Tensor, y: torch.Tensor, eps: float) -> torch.Tensor
 
 class Fitness:
     """The thesis's fitness (Sec. 3.2.3) of many trees on fixed training images, `tree_batch` trees per
-    `filter_images` call (they share features and common sub-expressions).
+    `filter_images` call (they share features and common sub-expressions), plus the optional bias guard.
 
     `features`: terminal -> (N, C, H, W) as `src.gp.evaluate.filter_images` takes them; `color`,
     `reference`: (N, 3, H, W) linear HDR."""
@@ -41,12 +48,21 @@ class Fitness:
         radius: int,
         eps: float = 0.01,
         tree_batch: int = 16,
+        bias_guard: float = 0.0,
     ) -> None:
         self.features, self.color, self.reference = dict(features), color, reference
         self.radius, self.eps, self.tree_batch = int(radius), float(eps), int(tree_batch)
+        self.bias_guard = float(bias_guard)
+        if not self.bias_guard >= 0.0:
+            raise ValueError(f"Fitness: bias_guard={bias_guard}; expected a weight >= 0")
         self.noisy = relative_error(color, reference, self.eps)
         if not bool((self.noisy > 0).all()):
             raise DataError("search: a training image's noisy colour equals its reference (relMSE 0)")
+        self.noisy_mean = color.flatten(1).mean(1)  # (N,): mean over pixels and channels
+        if self.bias_guard > 0 and not bool((self.noisy_mean > 0).all()):
+            raise DataError(
+                "search: task.search.bias_guard > 0 but a training image's noisy mean is not positive"
+            )
         self.evaluations = 0
 
     def __call__(self, trees: Sequence[gp.PrimitiveTree]) -> list[float]:
@@ -55,7 +71,12 @@ class Fitness:
             chunk = trees[start : start + self.tree_batch]
             result = filter_images(chunk, self.features, self.color, self.radius)
             for filtered, valid in zip(result.color, result.valid, strict=True):
-                value = float((relative_error(filtered, self.reference, self.eps) / self.noisy).mean())
+                terms = relative_error(filtered, self.reference, self.eps) / self.noisy
+                if self.bias_guard > 0:
+                    terms = (
+                        terms + self.bias_guard * (filtered.flatten(1).mean(1) / self.noisy_mean - 1).abs()
+                    )
+                value = float(terms.mean())
                 out.append(value if bool(valid.all()) and math.isfinite(value) else WORST)
         self.evaluations += len(trees)
         return out

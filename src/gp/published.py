@@ -13,7 +13,8 @@ one that falls with the spatial distance and the feature differences, is taken; 
   B = ||p||_L1 - atan(-||n||_L1): the two parenthesised factors are a product (a quotient would let the
   weight grow with the spatial distance).
 - Eq. 4.4: power = 2 + biweight(sqrt(||wpg||_L2 ||p||_L2 / (0.01 + ||wp||_L1))), the square root over the
-  whole fraction.
+  whole fraction. The other reading (the typeset brackets closing biweight after 0.01, then
+  "+ ||wp||_L1" added to the power) is written out in conf/model/gp_expr2.yaml; the text does not decide.
 - Eq. 4.6: exp(-(||p||_L1 + 2 + e^(e^(sinc(||wp||^0.002)))) / (2 asin(biweight(((||n|| / 2)^power1)^power2))))
   with the "2 asin(...)" under the fraction bar (as a factor it would make opposite normals weigh *more*), and
   "||n||_{L2} 2" as ||n|| / 2 (every squared norm in the thesis prints its exponent before the subscript).

@@ -33,6 +33,8 @@ def preprocess_settings(cfg: DictConfig) -> dict[str, Any]:
         **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
         "min_distance": p["min_distance"] * p["patch_size"],
         **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
+        # only when on: the cache keys of folders made before the option stay the same
+        **({"split_by_base": True} if p.get("split_by_base") else {}),
     }
 
 

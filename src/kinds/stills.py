@@ -30,6 +30,8 @@ def preprocess_key(cfg: DictConfig, raw: Path) -> str:
     were added rebuild)."""
     settings = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
     settings = {k: v for k, v in settings.items() if k not in SEQUENCE_ONLY_KEYS}
+    if not settings.get("split_by_base"):  # off: the keys of folders made before the option stay the same
+        settings.pop("split_by_base", None)
     from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
 
     return cache_key(settings, raw, (*CANDIDATE_CHANNELS, *SHARD_CHANNEL_NAMES))
@@ -81,6 +83,7 @@ class RenderedStills(DenoisingKind):
                 patches_per_split=OmegaConf.to_container(p, resolve=True)["patches_per_split"],
                 split_fractions=dict(p.split),
                 split_seed=p.split_seed,
+                split_by_base=bool(p.split_by_base),
                 sample_seed=p.sample_seed,
                 candidates_factor=p.candidates_factor,
                 min_keep_prob=p.min_keep_prob,

@@ -2,7 +2,7 @@
 
 Conventions (the `metrics:` section of conf/config.yaml; defaults here mirror it):
 - HDR colour is tone-mapped (`tonemap`) before the LDR metrics PSNR and SSIM, with data range 1.
-- relMSE, SMAPE and MSE are computed on linear HDR values.
+- relMSE, SMAPE, MSE and energy are computed on linear HDR values.
 - Per-channel errors are averaged over all pixels and channels (no luminance weighting).
 - SSIM follows dm_pix / TensorFlow: 11x11 Gaussian window with sigma 1.5, K1 = 0.01, K2 = 0.03,
   population (not sample) covariance, "valid" window positions only, mean over channels.
@@ -161,6 +161,19 @@ def smape(x: np.ndarray, y: np.ndarray, eps: float = 0.01) -> float:
     return float(np.mean(np.abs(x - y) / (np.abs(x) + np.abs(y) + eps)))
 
 
+def energy(x: np.ndarray, y: np.ndarray) -> float:
+    """Energy mean(x) / mean(y) over all pixels and channels, on linear HDR, y the reference: 1.0 for the
+    truth, below 1 for an output that darkens the image. relMSE and PSNR can reward a filter that darkens
+    (a dark output sits close to the reference's dark, noisy-to-estimate pixels), so the GP filter studies
+    report it beside them. Refused (DataError) when the reference's mean is not positive, where the ratio
+    has no meaning; an output with a negative mean gives a negative energy, reported as it is."""
+    x, y = _check_pair(x, y)
+    reference_mean = float(np.mean(y))
+    if not reference_mean > 0.0:
+        raise DataError(f"energy: the reference's mean is {reference_mean:.6g}; expected a positive mean")
+    return float(np.mean(x)) / reference_mean
+
+
 def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
     return require(cfg, key, prefix)
 
@@ -199,8 +212,8 @@ def lpips_variant(metrics_cfg: Mapping[str, Any]) -> str | None:
 def image_metrics(
     denoised: np.ndarray, reference: np.ndarray, metrics_cfg: Mapping[str, Any]
 ) -> dict[str, float]:
-    """psnr, ssim (both on tone-mapped values), relmse, smape, mse (linear HDR) of one image pair, plus
-    lpips (tone-mapped) and flip (per `metrics.flip.mode`) when enabled.
+    """psnr, ssim (both on tone-mapped values), relmse, smape, mse, energy (linear HDR) of one image pair,
+    plus lpips (tone-mapped) and flip (per `metrics.flip.mode`) when enabled.
 
     `metrics_cfg` is the `metrics:` config section (DictConfig or dict): tonemap, gamma, relmse_eps,
     relmse_crop, smape_eps, ssim {win_size, sigma, k1, k2}, optionally lpips {enabled, trunk_weights,
@@ -218,6 +231,7 @@ def image_metrics(
         "relmse": relmse(x, y, eps, crop),
         "smape": smape(x, y, smape_eps),
         "mse": mse(x, y),
+        "energy": energy(x, y),
     }
     lpips_cfg = _enabled(metrics_cfg, "lpips")
     if lpips_cfg is not None:

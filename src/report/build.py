@@ -6,6 +6,8 @@ selects, written to `<report.out_dir>/<report.name>/`:
     comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
     cost.{md,tex,csv}                 parameters, training time, iterations, inference time
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
+    per_image.{md,tex,csv}            relMSE, relMSE / noisy, energy, PSNR per row and held-out image
+                                      (the runs' eval/per_image.csv; denoising and filter evaluations)
     feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
     learning_curves.png, image_grid.png, index.html (self-contained)
     search_curves.png                 task=filter_search: best fitness per generation, one curve per run
@@ -26,7 +28,14 @@ import mlflow
 
 from src.io.atomic import atomic_write_text
 from src.multirun import quiet_mlflow_logs
-from src.report.collect import DEFAULT_AXES, config_value, differing_params, find_runs, param_column
+from src.report.collect import (
+    DEFAULT_AXES,
+    config_value,
+    differing_params,
+    find_runs,
+    param_column,
+    per_image_rows,
+)
 from src.report.figures import DEFAULT_CROP, image_grid, learning_curves, run_labels, search_curves
 from src.report.html import render_html
 from src.report.tables import (
@@ -36,6 +45,7 @@ from src.report.tables import (
     cost_table,
     feature_usage_table,
     loss_table,
+    per_image_table,
     per_value_table,
     select_metrics,
     to_csv,
@@ -51,6 +61,7 @@ TABLE_HEADINGS = {
     "comparison_per_spp": "Quality per spp",
     "cost": "Cost",
     "losses": "Final losses (validation, then training)",
+    "per_image": "Quality per held-out image",
     "feature_usage": "Features of the best expressions (occurrences)",
 }
 SEARCH_HEADING = "Filter search: best fitness per generation"
@@ -103,6 +114,8 @@ def build_report(cfg: Any) -> dict[str, Any]:
     metrics = select_metrics(config_value(rc, "metrics"))
     tables = _tables(runs, axes, row_keys, columns_by, metrics)
     tables |= _tables_by_value(runs, axes, tables_by, metrics)
+    if (per_image := per_image_table(per_image_rows(runs), axes)) is not None:
+        tables["per_image"] = per_image
 
     name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
     out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name

@@ -231,3 +231,32 @@ def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
         if runs[column].fillna(UNSET).astype(str).nunique() > 1:
             out.append(key)
     return sorted(out)
+
+
+PER_IMAGE_ARTIFACT = "eval/per_image.csv"
+
+
+def per_image_rows(runs: pd.DataFrame, required: str = "relmse_ratio") -> pd.DataFrame:
+    """The rows of every run's `eval/per_image.csv` artifact that has column `required` (the denoising
+    evaluations write `relmse_ratio`; NeRF's do not), each row extended with its run's columns (`params.*`,
+    `run_id`) and its scores renamed `metrics.<score>`, so the report's tables can aggregate images as they
+    aggregate runs. Runs without the artifact (or an unreachable store) are left out, logged."""
+    import tempfile
+
+    parts = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (_, run) in enumerate(runs.iterrows()):
+            try:
+                local = mlflow.artifacts.download_artifacts(
+                    run_id=run["run_id"], artifact_path=PER_IMAGE_ARTIFACT, dst_path=f"{tmp}/{i}"
+                )
+            except Exception as err:  # no such artifact (a search-only run), or the store is unreachable
+                log.info("report: run %s has no %s (%s)", run["run_id"], PER_IMAGE_ARTIFACT, err)
+                continue
+            images = pd.read_csv(local)
+            if required not in images:
+                continue
+            scores = images.rename(columns={c: f"metrics.{c}" for c in images if c not in ("scene", "spp")})
+            context = {c: run[c] for c in runs.columns if c.startswith("params.") or c == "run_id"}
+            parts.append(scores.assign(**context))
+    return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()

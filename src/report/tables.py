@@ -33,6 +33,9 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     "relMSE (Eq. 3.5)": ("eval_relmse_spp", False, "{:.4g}"),  # GP thesis: RGB sum x spp/2 (denoising)
     "relMSE / noisy": ("eval_relmse_ratio", False, "{:.4g}"),  # the GP thesis's fitness term
     "FLIP": ("eval_flip", False, "{:.4f}"),
+    # mean(output) / mean(reference) on linear HDR, the truth 1.0 (src/metrics/image.py::energy): a filter
+    # that darkens the image can still lower relMSE (issue 32); neither higher nor lower is better.
+    "Energy": ("eval_energy", None, "{:.4f}"),
     # Sequences (dataset=volumetric): mean |Δt output - Δt reference|, tone-mapped (src/metrics/temporal.py)
     "Flicker": ("eval_temporal", False, "{:.4g}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
@@ -198,6 +201,30 @@ def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.Data
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training time, iterations and inference time (per image and per megapixel)."""
     return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
+
+
+#: The columns of the per-image table (`per_image_table`): the scores of `eval/per_image.csv` by label.
+PER_IMAGE_METRICS: dict[str, MetricSpec] = {
+    "relMSE (Bako)": ("relmse", False, "{:.4g}"),
+    "relMSE / noisy": ("relmse_ratio", False, "{:.4g}"),
+    "Energy": ("energy", None, "{:.4f}"),
+    "noisy Energy": ("noisy_energy", None, "{:.4f}"),
+    "PSNR": ("psnr", True, "{:.2f}"),
+}
+IMAGE_AXIS = "image"
+
+
+def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame | None:
+    """Scores per compared row and held-out image (`<scene> <spp>spp`), mean ± std over the runs (seeds)
+    of that row, from the rows of the runs' `eval/per_image.csv` (`collect.per_image_rows`): a mean over
+    two test images can rest on one of them (issue 32), so the denoisers' and filters' reports show each
+    image's relMSE and energy beside the means of the comparison table. None when no run has the file."""
+    if images.empty:
+        return None
+    images = images.assign(
+        **{param_column(IMAGE_AXIS): images["scene"].astype(str) + " " + images["spp"].astype(str) + "spp"}
+    )
+    return _aggregate(images, [*(axes or DEFAULT_AXES), IMAGE_AXIS], PER_IMAGE_METRICS)
 
 
 BEST_EXPRESSION_TAG = "tags.search.best_expression"

@@ -61,6 +61,7 @@ class Preprocess(Schema):
     importance_percentile: Percentile
     split: Split
     split_seed: NonNegativeInt
+    split_by_base: bool
     sample_seed: NonNegativeInt
     whiten_eps: PositiveFloat
     repair: Repair

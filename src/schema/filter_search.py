@@ -58,6 +58,7 @@ class Search(Schema):
     hall_of_fame: NonNegativeInt
     fitness_cache: bool
     fitness_eps: PositiveFloat
+    bias_guard: NonNegativeFloat
     tree_batch: PositiveInt
     seed: int = Field(ge=0)
     resume: str | None

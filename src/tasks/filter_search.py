@@ -130,7 +130,13 @@ def build_fitness(cfg: DictConfig, device: torch.device):
     color = _crop(batch["color"], search.crop).to(device)
     reference = _crop(batch["reference"], search.crop).to(device)
     fitness = Fitness(
-        features, color, reference, int(search.radius), float(search.fitness_eps), int(search.tree_batch)
+        features,
+        color,
+        reference,
+        int(search.radius),
+        float(search.fitness_eps),
+        int(search.tree_batch),
+        bias_guard=float(search.bias_guard),
     )
     return fitness, available, meta
 
