@@ -165,13 +165,12 @@ def energy(x: np.ndarray, y: np.ndarray) -> float:
     """Energy mean(x) / mean(y) over all pixels and channels, on linear HDR, y the reference: 1.0 for the
     truth, below 1 for an output that darkens the image. relMSE and PSNR can reward a filter that darkens
     (a dark output sits close to the reference's dark, noisy-to-estimate pixels), so the GP filter studies
-    report it beside them. Refused (DataError) when the reference's mean is not positive, where the ratio
-    has no meaning; an output with a negative mean gives a negative energy, reported as it is."""
+    report it beside them. NaN where the reference's mean is not positive (an all-black frame): the ratio
+    has no meaning there, and one such frame must not stop a whole evaluation; an output with a negative
+    mean gives a negative energy, reported as it is."""
     x, y = _check_pair(x, y)
     reference_mean = float(np.mean(y))
-    if not reference_mean > 0.0:
-        raise DataError(f"energy: the reference's mean is {reference_mean:.6g}; expected a positive mean")
-    return float(np.mean(x)) / reference_mean
+    return float(np.mean(x)) / reference_mean if reference_mean > 0.0 else float("nan")
 
 
 def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
