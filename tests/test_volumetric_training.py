@@ -182,6 +182,27 @@ def _trainer(data, run_dir, weight, probe=False, *overrides):
     return DenoiserTrainer(cfg, Tracker(), probe=probe)
 
 
+def test_the_sequences_train_on_their_own_schedule_else_the_tasks(vol_data, tmp_path):
+    """`task.train.volumetric.schedule` (the talk's decay) replaces `task.train.schedule` on the sequences;
+    null falls back to it (`RenderedSequences.schedule`)."""
+    from src.train.schedules import log_linear_lr
+
+    own = "{_target_: src.train.schedules.log_linear_lr, _partial_: true, lr_final: 1.0e-6}"
+    task = "{_target_: src.train.schedules.log_linear_lr, _partial_: true, lr_final: 0.5}"
+    schedules = {"task.train.volumetric.schedule": own, "task.train.schedule": task}
+    trainer = _trainer(vol_data, tmp_path / "own", 0.5, False, *(f"{k}={v}" for k, v in schedules.items()))
+    assert trainer.schedule(5, lr_init=1.0, max_steps=10) == pytest.approx(log_linear_lr(5, 1.0, 1e-6, 10))
+    fallback = _trainer(
+        vol_data,
+        tmp_path / "task",
+        0.5,
+        False,
+        "task.train.volumetric.schedule=null",
+        f"task.train.schedule={task}",
+    )
+    assert fallback.schedule(5, lr_init=1.0, max_steps=10) == pytest.approx(log_linear_lr(5, 1.0, 0.5, 10))
+
+
 def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(vol_data, tmp_path):
     trainer = _trainer(vol_data, tmp_path, 0.5, True, "task.feature_selection.dropout=1.0")
     inputs = torch.rand((6, 62, 8, 8)) + 2.0  # no stored value is a neutral value

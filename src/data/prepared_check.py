@@ -24,16 +24,12 @@ def reads_prepared_only(stages: Iterable[str]) -> bool:
     return "preprocess" not in stages and bool(READERS & stages)
 
 
-def check_prepared_is_current(
-    stages: Iterable[str], record_file: Path, key_of: Callable[[Path], str]
-) -> None:
+def check_prepared_is_current(record_file: Path, key_of: Callable[[Path], str]) -> None:
     """A one-line ConfigError unless the cache key in `record_file` (the prepared folder's provenance)
     equals `key_of(raw)`, the current config's key for the raw data the folder was made from (`paths.raw`
-    as that preprocess run had it, so a user's KPCN folder need not be named again). Nothing to check when
-    the job preprocesses first, reads no prepared data, or finds no record (the stage's `inputs` then
+    as that preprocess run had it, so a user's KPCN folder need not be named again). For a job whose
+    stages `reads_prepared_only`; nothing to check when there is no record (the stage's `inputs` then
     names the stage that makes it)."""
-    if not reads_prepared_only(stages):
-        return
     try:
         record = json.loads(record_file.read_text())
         raw = Path(record["config"]["paths"]["raw"])

@@ -87,13 +87,17 @@ class TrainingLoop:
         self.model = build_method(self.model_cfg, **build_context).to(self.device)
         self.lr = float(self.t[self.lr_key])
         self.optimizer = build_optimizer(self.t.optimizer, self.model.parameters(), self.lr)
-        self.schedule = build_schedule(self.t.get("schedule"))
+        self.schedule = build_schedule(self.schedule_config())
         self.pos = Position()
         self.checkpoint_dir = Path(self.t.checkpoint_dir)
         self.train_seconds = 0.0
         self.curves: list[dict[str, float]] = []  # what curves.csv holds: one row per validation
 
     # -- what a task supplies -------------------------------------------------------------------------
+    def schedule_config(self) -> DictConfig | None:
+        """The learning-rate schedule's config (`task.train.schedule`; None: a constant rate)."""
+        return self.t.get("schedule")
+
     def batches(self, epoch: int, skip: int) -> Iterator[Any]:
         """The batches of `epoch` after the first `skip`, in an order fixed by (seed, epoch)."""
         raise NotImplementedError

@@ -34,7 +34,7 @@ from src.models.instantiate import resolve_target
 from src.train import feature_selection as fs
 from src.train.curves import write_curves
 from src.train.device import autocast, autocast_dtype
-from src.train.loop import Means, OnStep, TrainingLoop, build_schedule, run_training
+from src.train.loop import Means, OnStep, TrainingLoop, run_training
 
 log = logging.getLogger(__name__)
 
@@ -71,10 +71,13 @@ class DenoiserTrainer(TrainingLoop):
         self.features = self.kind.features(cfg)
         self.train_data, self.val_data = self.kind.training_data(cfg, self.features)
         super().__init__(cfg, tracker, on_step, **self.kind.build_context(cfg, self.train_data))
-        self.schedule = build_schedule(self.kind.schedule(cfg))
         self.terms = self.kind.loss_terms(cfg, self.train_data)
         self.dropout = _FeatureDropout(cfg, self.features, self.kind.probe_key) if probe else None
         self.history: dict[str, float] = {}  # the last completed epoch's train/val losses
+
+    def schedule_config(self):
+        """The data kind's schedule (the sequences' own decay, else `task.train.schedule`)."""
+        return self.kind.schedule(self.cfg)
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         """Every logged loss of one batch of n samples of k frames."""
