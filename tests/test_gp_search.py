@@ -118,9 +118,8 @@ def test_a_child_over_max_length_is_replaced_by_its_parent(monkeypatch):
     parent = Individual(parse(SEED, pset))
     grown = Individual(parse(f"({SEED}) * 2.0", pset))
     monkeypatch.setattr(variation_module, "mut_insert", lambda ind, *args, **kw: (Individual(grown),))
-    monkeypatch.setattr(
-        variation_module, "cx_one_point", lambda a, b, **kw: (Individual(grown), Individual(grown))
-    )
+    for rule in ("cx_one_point", "cx_thesis"):
+        monkeypatch.setattr(variation_module, rule, lambda a, b, **kw: (Individual(grown), Individual(grown)))
     for limit, kept in ((len(grown), True), (len(grown) - 1, False)):
         params = SearchParams(max_length=limit, mutation_kinds={"insert": 1.0})
         search = GPSearch(_TextFitness(), SEED, params, pset, book)
@@ -382,14 +381,16 @@ def _within(count, n, p, sigmas=4.0):
     return abs(count - n * p) <= sigmas * (n * p * (1 - p)) ** 0.5
 
 
-def test_offspring_operator_mix_is_the_current_per_draw_rule(monkeypatch):
-    """The CURRENT rule of `GPSearch.offspring` (a later issue changes it to the thesis's): per draw of
+def test_offspring_operator_mix_under_the_per_draw_rule(monkeypatch):
+    """`GPSearch.offspring` with `shares_count: draws` (the ablation; the thesis's per-individual rule is
+    tested in test_gp_thesis_rules.py): per draw of
     r = random.random(), r < replication (0.10) adds one replica (a tournament winner, unchanged, fitness
     kept), r < replication + crossover (0.55) one crossover adding BOTH its children, each then mutated with
     probability crossover_mutation (0.85), else one mutant of a winner; the shares are per draw, not per
     individual (a crossover adds two), draws stop once the island is full, and a second crossover child
     beyond its size is cut. Every call to select / mate / mutate is logged; ~1400 draws over 40 islands."""
-    search = GPSearch(_TextFitness(), SEED, SearchParams(islands=1, population=50), *_pset_book())
+    params = SearchParams(islands=1, population=50, shares_count="draws")
+    search = GPSearch(_TextFitness(), SEED, params, *_pset_book())
     events: list[str] = []
     select = search.select
 

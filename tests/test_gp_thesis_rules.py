@@ -47,10 +47,10 @@ def _vector_ops(trees):
 
 def test_same_pairs_leave_no_mixed_pair_in_a_large_seeded_population():
     """Under `same` no operator makes a mixed pair: 0 in 2 x 150 individuals after 6 generations of every
-    mutation kind and crossover; under `mixed` (today's default) the same search has many."""
+    mutation kind and crossover; under `mixed` (the ablation) the same search has many."""
     base = SearchParams(islands=2, population=150)
-    same = _population(SearchParams(**{**base.__dict__, "vector_pairs": "same"}))
-    mixed = _population(base)
+    same = _population(base)  # the default
+    mixed = _population(SearchParams(**{**base.__dict__, "vector_pairs": "mixed"}))
     assert _vector_ops(same) > 1000  # the population is full of vector operators
     assert sum(mixed_pairs(t) for t in same) == 0
     share = sum(mixed_pairs(t) for t in mixed) / _vector_ops(mixed)
@@ -207,8 +207,8 @@ def test_expansion_split_counts_draws_or_individuals(monkeypatch):
 
 
 def test_draw_weights_by_value():
-    assert SearchParams().draw_weights() == (0.10, 0.45, 0.45)
-    r, c, m = SearchParams(shares_count="individuals").draw_weights()
+    assert SearchParams(shares_count="draws").draw_weights() == (0.10, 0.45, 0.45)
+    r, c, m = SearchParams().draw_weights()  # the default: individuals
     assert (r, c, m) == pytest.approx((0.1 / 0.775, 0.225 / 0.775, 0.45 / 0.775))
     with pytest.raises(ValueError, match="shares_count='children'"):
         SearchParams(shares_count="children")
@@ -276,6 +276,37 @@ def test_hall_of_fame_best_is_the_best_over_the_history_and_is_reported():
     assert last.halls is None and _texts(last) == _texts(state)  # the hall changes no population
 
 
+def test_best_expressions_lists_each_islands_hall_of_fame_best_first():
+    """best_expressions.yaml's rows (`best_expressions`): islands ordered by their best, each row's model
+    the first of its hall, its `top` the whole hall in order (fitness and infix text); without a hall,
+    `top` is the island's one best."""
+    from src.gp.text import to_infix
+    from src.tasks.filter_search import best_expressions
+    from tests.conftest import compose_config
+
+    cfg = compose_config(["task=filter_search", "task.search.radius=3"])
+    params = SearchParams(islands=3, population=12, generations=4, hall_of_fame=4, seed=2)
+    state = GPSearch(_TextFitness(), SEED, params, *_pset_book()).run()
+    rows = best_expressions(state, cfg)
+    assert [r["fitness"] for r in rows] == sorted(h[0].fitness.values[0] for h in state.halls)
+    for row in rows:
+        hall = state.halls[row["island"]]
+        assert row["top"] == [{"fitness": i.fitness.values[0], "expression": to_infix(i)} for i in hall]
+        assert row["model"] == {
+            "name": "gp_filter",
+            "expression": to_infix(hall[0]),
+            "radius": 3,
+            "normalize": True,
+        }
+    plain = GPSearch(
+        _TextFitness(), SEED, SearchParams(**{**params.__dict__, "hall_of_fame": 0}), *_pset_book()
+    )
+    last = plain.run()
+    for row in best_expressions(last, cfg):
+        best = min(last.islands[row["island"]], key=lambda i: i.fitness.values[0])
+        assert row["top"] == [{"fitness": best.fitness.values[0], "expression": to_infix(best)}]
+
+
 def test_resume_with_a_hall_of_fame_gives_the_same_halls_and_populations(tmp_path):
     params = SearchParams(
         islands=2, population=8, generations=6, migration_interval=2, seed=3, hall_of_fame=4
@@ -326,21 +357,25 @@ def test_fitness_cache_changes_no_result_and_skips_repeated_expressions():
 
 
 def test_a_resumed_search_starts_with_its_checkpoint_in_the_cache(tmp_path):
+    """The cache holds every island member and every hall-of-fame member of the checkpoint."""
     fit = _TextFitness()
     params = SearchParams(islands=2, population=6, generations=2, seed=3)
     _search(params).run(checkpoint=tmp_path / "s.json")
     state = load_state(tmp_path / "s.json", params)
     search = GPSearch(fit, SEED, params, *_pset_book())
     search.remember(state)
-    assert set(search.cache) == {str(i) for isl in state.islands for i in isl}
-    assert all(search.cache[str(i)] == i.fitness.values[0] for isl in state.islands for i in isl)
+    members = [i for isl in state.islands for i in isl] + [i for hall in state.halls for i in hall]
+    assert {str(i) for i in members} - {str(i) for isl in state.islands for i in isl}  # the halls add some
+    assert set(search.cache) == {str(i) for i in members}
+    assert all(search.cache[str(i)] == i.fitness.values[0] for i in members)
 
 
 @pytest.mark.parametrize("rule, p_vector", [("thesis", 4 / 6), ("type_first", 1 / 2)])
 def test_the_search_mates_by_its_crossover_rule(rule, p_vector):
     """`GPSearch`'s crossover follows `crossover_points`: on the two parents above, 2000 crossovers
-    exchange a vector leaf (child 1 reads color) with probability 4/6 (thesis) or 1/2 (type-first)."""
-    params = SearchParams(crossover_points=rule, max_length=200)
+    exchange a vector leaf (child 1 reads color) with probability 4/6 (thesis) or 1/2 (type-first).
+    Mixed pairs, so that a leaf exchange leaves its sibling as it is."""
+    params = SearchParams(crossover_points=rule, max_length=200, vector_pairs="mixed")
     search = GPSearch(_TextFitness(), SEED, params, *_pset_book())
     a = Individual(parse("neg(distance2(normal, depth))"))
     b = Individual(parse("distance1(color, color) + 2.0"))
@@ -368,18 +403,21 @@ def test_asking_for_the_colour_variance_without_it_in_the_data_is_one_line():
     cfg = compose_config(["task=filter_search", "task.search.color_variance=true", "task.search.out_dir=x"])
     with pytest.raises(ConfigError) as excinfo:
         make_search(cfg, _TextFitness(), ["normal", "nVariance"])
-    one_line_error(excinfo, "task.search.color_variance=true", "'color_var'", "expected false")
+    one_line_error(excinfo, "task.search.color_variance=true", "'color_var'", "stage=preprocess again")
     search, pset = make_search(cfg, _TextFitness(), ["normal", "colorVariance"])
     assert "colorVariance" in {t.name for t in pset.terminals[float]}
     assert search.params.color_variance is True
 
 
 def test_a_checkpoint_from_before_the_options_resumes_under_their_defaults(tmp_path):
-    """A state.json written before these options existed holds today's rules: it loads for default
-    parameters, and is refused for a thesis rule (naming it)."""
+    """A state.json written before these options existed holds the rules of then (mixed pairs,
+    type-first crossover, per-draw shares, no hall of fame, no colour variance): it loads for those, and
+    is refused for today's defaults, the thesis's rules (naming them)."""
     import json
 
-    params = SearchParams(islands=2, population=6, generations=2, seed=3)
+    from src.gp.search import PRE_OPTION_RULES
+
+    params = SearchParams(islands=2, population=6, generations=2, seed=3, **PRE_OPTION_RULES)
     path = tmp_path / "s.json"
     _search(params).run(checkpoint=path)
     data = json.loads(path.read_text())
@@ -396,3 +434,6 @@ def test_a_checkpoint_from_before_the_options_resumes_under_their_defaults(tmp_p
     assert load_state(path, params).generation == 2
     with pytest.raises(Exception, match=r"other parameters \(vector_pairs\)"):
         load_state(path, SearchParams(**{**params.__dict__, "vector_pairs": "same"}))
+    today = "color_variance, crossover_points, hall_of_fame, shares_count, vector_pairs"
+    with pytest.raises(Exception, match=rf"other parameters \({today}\)"):
+        load_state(path, SearchParams(islands=2, population=6, generations=2, seed=3))

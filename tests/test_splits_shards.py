@@ -337,6 +337,10 @@ def test_preprocess_stores_the_gp_features_when_the_raw_files_have_them(tmp_path
         item["secondary_albedo_var"].numpy(), np.moveaxis(expected["secondary_albedoVariance"], -1, 0)
     )
     assert item["position_var"].shape == (1, *item["color"].shape[1:])
+    # the noisy colour's variance of the pixel mean as rendered (linear; the GP terminal colorVariance),
+    # not the diffuse branch's transformed `color_var` input channel
+    np.testing.assert_array_equal(item["color_var"].numpy(), np.moveaxis(expected["colorVariance"], -1, 0))
+    assert expected["colorVariance"].std() > 0
     stored = full.index["channels"]["diffuse_in"]
     for key in ("visibility", "normal_var", "albedo_var", "depth_var", "visibility_var"):
         torch.testing.assert_close(
@@ -352,7 +356,7 @@ def test_preprocess_stores_the_gp_features_when_the_raw_files_have_them(tmp_path
     plain = _preprocess(raw, tmp_path / "plain", _load_synthetic)
     assert plain["gp_features"] == []
     item = FullImageDataset(tmp_path / "plain", "test")[0]
-    assert not set(GP_SHARD_KEYS) & set(item) and "visibility" in item
+    assert not set(GP_SHARD_KEYS) & set(item) and "visibility" in item and "color_var" in item
     assert "position" not in read_index(tmp_path / "plain" / "full" / "test")["channels"]
 
     def mixed(path):

@@ -67,6 +67,7 @@ SHARD_CHANNELS: dict[str, tuple[str, ...]] = {
     "normal": ("x", "y", "z"),  # noisy shading normal (guide of the cross-bilateral / OIDN baselines)
     "depth": ("z",),  # depth normalised to [0, 1] per image (same as the input channel)
     "color": _RGB,  # noisy colour (baselines, metrics)
+    "color_var": ("var",),  # its variance of the pixel mean, linear (the GP filters' colorVariance)
     "reference": _RGB,  # reference colour
     # Optional (`GP_SHARD_KEYS`): the GP filters' features, when the raw files have them.
     "position": ("x", "y", "z"),  # world position of the first hit (0 on escape)
@@ -150,6 +151,7 @@ def _image_arrays(
         "normal": inputs["normal"],
         "depth": inputs["depth"],
         "color": color,
+        "color_var": np.asarray(noisy["colorVariance"], dtype=np.float32),
         "reference": ref_color,
         **gp_feature_arrays(noisy, str(noisy_path)),
     }

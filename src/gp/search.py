@@ -9,19 +9,20 @@ DEAP's operators.
                 kept, each then mutated with probability 0.85) or a mutation (one winner); tournaments of 8
                 (`tools.selTournament`; lowest fitness wins); every child longer than `max_length` (75
                 nodes) is replaced by its parent (`gp.staticLimit`). The 10/45/45 % shares count
-                (`shares_count`) either draws (today's default: a crossover adds two children, so the
-                individuals split 6.9/62/31 %) or individuals (the thesis's "45% of nodes are generated from
+                (`shares_count`) individuals (the default, the thesis's "45% of nodes are generated from
                 crossovers": the crossover draw is weighted by 1/2, so 10/45/45 % of the new individuals)
+                or draws (the ablation, nrbench's first rule: a crossover adds two children, so the
+                individuals split 6.9/62/31 %)
     migration   every `migration_interval` (5) generations a copy of each island's best replaces the worst
                 of the next island, i -> (i + 1) mod n (`tools.migRing`, Sec. 3.2.5)
     fitness     mean over the training images of relMSE(filtered) / relMSE(noisy), relMSE of Eq. 3.5
                 (its m/2 factor cancels in the ratio); an undefined expression (NaN/Inf weights or a zero
                 weight sum on any image) gets the worst fitness, `WORST` = the largest float (Sec. 3.2.3)
-    result      the best individual of each island (Sec. 3.2.6, "Top expressions from every island"): of
-                its last generation (today's default), or with `hall_of_fame` > 0 of its hall of fame
-                (DEAP's `tools.HallOfFame`, the best `hall_of_fame` distinct expressions the island ever
-                held, updated after every generation; the thesis keeps the top 10 of each island, Sec.
-                3.3.4), so a best that a later generation lost is still reported
+    result      the best individual of each island (Sec. 3.2.6, "Top expressions from every island"): the
+                first of its hall of fame (DEAP's `tools.HallOfFame`, the best `hall_of_fame` distinct
+                expressions the island ever held, updated after every generation; the thesis keeps the top
+                10 of each island, Sec. 3.3.4, the default), so a best that a later generation lost is
+                still reported; with `hall_of_fame: 0` the best of its last generation
     cache       fitness by expression text (`fitness_cache`, on by default): an expression evaluated once
                 is never evaluated again (replicas, unchanged crossover children, mutations that give a
                 tree back); a value does not depend on what it was batched with, so the cache changes no
@@ -98,15 +99,15 @@ class SearchParams:
     )
     max_length: int = 75
     seed: int = 0
-    # The thesis's rules as options (src.gp.variation and this module's docstrings); the defaults are
-    # today's behaviour, which differs from the thesis in each of the first three.
-    vector_pairs: str = "mixed"  # thesis: "same"
-    crossover_points: str = "type_first"  # thesis: "thesis"
-    shares_count: str = "draws"  # thesis: "individuals"
-    max_constants: int | None = None  # the thesis caps them but states no number
-    hall_of_fame: int = 0  # per island; 0: none (the result is the last generation's best); thesis: 10
+    # The search rules (src.gp.variation and this module's docstrings): the thesis's by default; the
+    # other choices are the rules of nrbench's first searches, kept as ablations.
+    vector_pairs: str = "same"  # ablation: "mixed"
+    crossover_points: str = "thesis"  # ablation: "type_first"
+    shares_count: str = "individuals"  # ablation: "draws"
+    max_constants: int | None = None  # a cap per expression; the thesis restricts the constant set instead
+    hall_of_fame: int = 10  # per island (Sec. 3.3.4); 0: none (the result is the last generation's best)
     fitness_cache: bool = True  # changes no result (not part of a checkpoint's parameters)
-    color_variance: bool = False  # colorVariance among the terminals (when the data have it)
+    color_variance: bool = True  # colorVariance among the terminals (Sec. 3.2.1.2, Scalar Variables)
 
     def __post_init__(self) -> None:
         total = self.replication + self.crossover + self.mutation
@@ -364,13 +365,18 @@ class GPSearch:
         return state
 
 
-def best_per_island(state: SearchState) -> list[Individual]:
-    """Each island's best individual (Sec. 3.2.6), in island order: the first of its hall of fame when
-    the search keeps one (the best it ever held), else the best of its last generation (ties: the
-    first)."""
+def top_per_island(state: SearchState) -> list[list[Individual]]:
+    """Each island's top expressions (Sec. 3.3.4: "the top 10 expressions from every island"), best first,
+    in island order: its hall of fame when the search keeps one (the best it ever held), else the one best
+    of its last generation (ties: the first)."""
     if state.halls is not None:
-        return [hall[0] for hall in state.halls]
-    return [min(island, key=lambda ind: ind.fitness.values[0]) for island in state.islands]
+        return [list(hall) for hall in state.halls]
+    return [[min(island, key=lambda ind: ind.fitness.values[0])] for island in state.islands]
+
+
+def best_per_island(state: SearchState) -> list[Individual]:
+    """Each island's best individual (Sec. 3.2.6): the first of its `top_per_island`."""
+    return [top[0] for top in top_per_island(state)]
 
 
 # -- checkpoints -----------------------------------------------------------------------------------------
@@ -398,6 +404,18 @@ def save_state(path: str | Path, state: SearchState, params: SearchParams) -> No
     )
 
 
+#: The rules of the searches before `vector_pairs` ... `color_variance` existed, which their checkpoints hold
+#: (the defaults then; the thesis's rules are the defaults now).
+PRE_OPTION_RULES = {
+    "vector_pairs": "mixed",
+    "crossover_points": "type_first",
+    "shares_count": "draws",
+    "max_constants": None,
+    "hall_of_fame": 0,
+    "color_variance": False,
+}
+
+
 def load_state(path: str | Path, params: SearchParams, pset: gp.PrimitiveSetTyped = PSET) -> SearchState:
     """A state `save_state` wrote, for a search with the same `params` (a one-line DataError otherwise)."""
     path = Path(path)
@@ -407,8 +425,8 @@ def load_state(path: str | Path, params: SearchParams, pset: gp.PrimitiveSetType
         raise DataError(f"{path}: not a readable search checkpoint ({err})".replace("\n", " ")) from None
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise DataError(f"{path}: not a search checkpoint (format {STATE_FORMAT} expected)")
-    # A checkpoint written before a parameter existed holds that parameter's default.
-    defaults = json.loads(json.dumps(asdict(SearchParams())))
+    # A checkpoint written before a parameter existed searched by that parameter's first default.
+    defaults = json.loads(json.dumps(asdict(SearchParams()))) | PRE_OPTION_RULES
     saved = {k: v for k, v in (defaults | data["params"]).items() if k not in RESULT_FREE}
     wanted = {k: v for k, v in json.loads(json.dumps(asdict(params))).items() if k not in RESULT_FREE}
     if saved != wanted:

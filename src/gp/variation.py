@@ -22,22 +22,27 @@ Crossover, two rules (`crossover_points`):
                 with one change: the common types are sorted by name, since DEAP draws from a `set` of type
                 objects, whose order follows their memory addresses and so differs between processes (a
                 resumed run would diverge). Drawing the type first makes a vector-leaf exchange as likely as
-                a scalar one (about half of all crossovers swap one feature leaf). Today's default.
+                a scalar one (about half of all crossovers swap one feature leaf). nrbench's first rule,
+                kept as an ablation.
     thesis      Sec. 3.2.4: a uniform point in each parent (never the root, as DEAP), both drawn again until
-                they are "interchangeable" (both vector nodes or both scalar nodes); `cx_thesis`.
+                they are "interchangeable" (both vector nodes or both scalar nodes); `cx_thesis`. The
+                default.
 
 Vector operands (`vector_pairs`): the thesis writes every vector term as a norm of ONE feature's
 difference between the centre p and the neighbour q, ||f_p - f_q|| (Sec. 3.2.1.1, Fig. 3.2, Eq. 4.1-4.8);
-the typed grammar lets the two operands differ ("mixed": feature a at p against feature b at q, today's
-default). With "same", every operator that puts a vector terminal under a vector operator (replace, insert,
-swap, crossover) puts the same terminal in its sibling too (`pair_leaves`), so a pair of one feature stays
-one and the search never makes a mixed pair; the random draws are the same as under "mixed".
+the typed grammar lets the two operands differ ("mixed": feature a at p against feature b at q, nrbench's
+first rule, kept as an ablation). With "same" (the default), every operator that puts a vector terminal
+under a vector operator (replace, insert, swap, crossover) puts the same terminal in its sibling too
+(`pair_leaves`), so a pair of one feature stays one and the search never makes a mixed pair; the random
+draws are the same as under "mixed".
 
-Constant cap (`max_constants`): the number of constant leaves (numbers and pi) of a child; one over the cap
-is replaced by its parent, as the length limit does (`gp.staticLimit`). The thesis has "restriction on the
-number of constants" (Sec. 3.2.1.2, "Constants") but states no number, and the sentence may as well mean
-the short list of constants of Fig. 3.2 (which the grammar has); the cap is therefore a setting, off by
-default.
+Constants: the thesis restricts "the number of constants" so that the replace mutation, which draws
+variables and constants uniformly, does not mostly draw constants (Sec. 3.2.1.2, "Constants"), and names
+the representative ones in Fig. 3.2. That is a restriction of the constant SET, which the grammar follows
+with Fig. 3.2's twelve values (`src.gp.grammar.CONSTANTS`; replace draws among them and the variables
+alike). A cap per expression (`max_constants`: a child with more constant leaves, numbers and pi, is
+replaced by its parent, as the length limit does, `gp.staticLimit`) is an extra setting the thesis does
+not state, off by default.
 
 Every draw comes from Python's global `random` (as DEAP's), which the search seeds and checkpoints.
 """

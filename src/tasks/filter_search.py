@@ -150,7 +150,7 @@ def make_search(cfg: DictConfig, fitness, available: list[str]):
     if cfg.task.search.color_variance and "colorVariance" not in available:
         raise ConfigError(
             "task.search.color_variance=true: the search images have no colour variance (batch key "
-            "'color_var'; preprocessing does not store it yet); expected false"
+            "'color_var'; data prepared before it was stored: run stage=preprocess again); or set it false"
         )
     pset = search_pset(available, bool(cfg.task.search.color_variance))
     book = codebook(kernel_expressions([f for f in GRAMMAR_VECTORS if f in available]), pset)
@@ -166,23 +166,25 @@ def _with_expression(cfg: DictConfig, model: dict[str, Any]) -> DictConfig:
 
 
 def best_expressions(state, cfg: DictConfig) -> list[dict[str, Any]]:
-    """Each island's best, as `model=gp_filter` settings, best first."""
-    from src.gp.search import best_per_island
+    """Each island's best, as `model=gp_filter` settings, best first, with the island's top expressions
+    (its hall of fame, `top`: fitness and infix text, best first; the best alone without one)."""
+    from src.gp.search import top_per_island
     from src.gp.text import to_infix
 
     search = cfg.task.search
     rows = [
         {
             "island": k,
-            "fitness": float(ind.fitness.values[0]),
+            "fitness": float(top[0].fitness.values[0]),
             "model": {
                 "name": "gp_filter",
-                "expression": to_infix(ind),
+                "expression": to_infix(top[0]),
                 "radius": int(search.radius),
                 "normalize": bool(search.normalize),
             },
+            "top": [{"fitness": float(ind.fitness.values[0]), "expression": to_infix(ind)} for ind in top],
         }
-        for k, ind in enumerate(best_per_island(state))
+        for k, top in enumerate(top_per_island(state))
     ]
     return sorted(rows, key=lambda r: r["fitness"])
 
