@@ -140,3 +140,13 @@ def test_filter_bench_resolutions_without_table41_is_one_line_exit_2(capsys):
     assert bench_main(["filter", "--resolutions", "32"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "bench: --resolutions applies only with --table41"
+
+
+def test_filter_bench_table41_seconds_are_per_expression_of_the_timed_sample(capsys, monkeypatch):
+    import src.bench.filter as bench_filter
+
+    monkeypatch.setattr(bench_filter, "_timed", lambda fn, device: 0.5)  # the 2 sampled expressions: 0.5 s
+    assert bench_main(TABLE) == 0
+    ours, _, _, ratio_gpu, _, iteration = _table(capsys.readouterr().out)["32x32"]
+    assert (float(ours), float(iteration)) == (0.25, 1.0)  # 0.5 s / 2 expressions; x 4 expressions
+    assert float(ratio_gpu) == pytest.approx(0.25 / 0.002285, rel=1e-3)
