@@ -4,7 +4,8 @@ nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --c
 --micro-batch N --threads N --peer-nerf-pytorch DIR]`` and
 ``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
 and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
---sample 8 --device auto]``.
+--sample 8 --device auto]`` or ``python -m src.bench filter --table41 [--resolutions 32,128,256,512
+--population 50 ...]``.
 
 The command line: the subcommands' arguments and their checks; a bad argument, config value or model
 name is one line on stderr and exit status 2. What each subcommand measures: `src.bench.denoise`,
@@ -20,7 +21,7 @@ from collections.abc import Sequence
 from hydra.errors import HydraException
 
 from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
-from src.bench.filter import run_filter
+from src.bench.filter import THESIS_ISLANDS, THESIS_POPULATION, THESIS_TABLE41, run_filter
 from src.bench.nerf import NERF_AUTOCAST_DTYPES, run_nerf
 from src.bench.volpath import run_volpath
 from src.errors import NrbenchError, one_line
@@ -49,7 +50,27 @@ def _check_volpath(args: argparse.Namespace) -> str | None:
 
 
 def _check_filter(args: argparse.Namespace) -> str | None:
+    """Fills in the defaults that depend on `--table41` (its population and resolutions are the thesis's),
+    then checks the sizes."""
     a = args
+    if a.table41:
+        if a.width is not None or a.height is not None:
+            return "--width and --height do not apply with --table41: it times square --resolutions"
+        if a.images != 1:
+            return f"--images: --table41 times one image per expression, as Table 4.1; found {a.images}"
+        text = ",".join(map(str, THESIS_TABLE41)) if a.resolutions is None else a.resolutions
+        try:
+            a.resolutions = [int(part) for part in text.split(",") if part.strip()]
+        except ValueError:
+            return f"--resolutions: expected comma-separated sizes in pixels such as 32,128; found {text!r}"
+        if not a.resolutions or min(a.resolutions) < 1 or len(set(a.resolutions)) < len(a.resolutions):
+            return f"--resolutions: expected distinct sizes >= 1 such as 32,128; found {text!r}"
+    elif a.resolutions is not None:
+        return "--resolutions applies only with --table41"
+    a.width = 512 if a.width is None else a.width
+    a.height = 512 if a.height is None else a.height
+    if a.population is None:
+        a.population = THESIS_POPULATION if a.table41 else 100
     sizes = (a.width, a.height, a.images, a.islands, a.population, a.sample, a.tree_batch, a.frame_width)
     if min(*sizes, a.frame_height) < 1:
         return (
@@ -133,11 +154,33 @@ def _parser() -> argparse.ArgumentParser:
     v.set_defaults(run=run_volpath, check=_check_volpath)
 
     f = commands.add_parser("filter", help="expression evaluations/s and s/generation of the GP search")
-    f.add_argument("--width", type=int, default=512, help="image width (default: the thesis's 512)")
-    f.add_argument("--height", type=int, default=512, help="image height (default 512)")
+    f.add_argument(
+        "--table41",
+        action="store_true",
+        help="seconds per expression and image at each of --resolutions beside Davletaliyev 2016's Table 4.1",
+    )
+    f.add_argument(
+        "--resolutions",
+        default=None,
+        help="with --table41: comma-separated square sizes (default: Table 4.1's "
+        + ",".join(map(str, THESIS_TABLE41))
+        + ")",
+    )
+    f.add_argument("--width", type=int, default=None, help="image width (default: the thesis's 512)")
+    f.add_argument("--height", type=int, default=None, help="image height (default 512)")
     f.add_argument("--images", type=int, default=1, help="training images per evaluation (default 1)")
-    f.add_argument("--islands", type=int, default=4, help="islands (default: the thesis's 4)")
-    f.add_argument("--population", type=int, default=100, help="expressions per island (default 100)")
+    f.add_argument(
+        "--islands",
+        type=int,
+        default=THESIS_ISLANDS,
+        help=f"islands (default: the thesis's {THESIS_ISLANDS})",
+    )
+    f.add_argument(
+        "--population",
+        type=int,
+        default=None,
+        help=f"expressions per island (default 100; with --table41 the thesis's {THESIS_POPULATION})",
+    )
     f.add_argument("--radius", type=int, default=10, help="filter radius, window (2r+1)^2 (default 10)")
     f.add_argument("--sample", type=int, default=8, help="expressions timed; the rest extrapolated")
     f.add_argument("--tree-batch", type=int, default=16, help="expressions per batched call (default 16)")
