@@ -36,6 +36,8 @@ STUDIES = {
     "lr_search",
     "gp_expansion",
     "gp_population",
+    "gp_bias_guard",
+    "gp_rules",
     "unet_vs_kpcn",
     "feature_selection",
     "temporal_loss",
@@ -155,6 +157,30 @@ def test_the_gp_expansion_sweep_is_table_4_2_s_four_settings():
     assert job.task.search.islands == cfg.task.search.islands
     assert list(cfg.report.axes) == [f"task.search.{k}" for k in EXPANSION]
     assert list(cfg.report.metrics)[:2] == ["min fitness", "best fitness"] and "PSNR" in cfg.report.metrics
+
+
+def test_the_gp_bias_guard_sweep_is_the_thesis_fitness_against_one_guard_weight():
+    """Two arms (w = 0, the thesis's fitness, and 0.5) x three seeds, reported with the energy column."""
+    cfg = compose_sweep("gp_bias_guard")
+    assert cfg.task.name == "filter_search" and cfg.task.search.bias_guard == 0.0
+    params = swept(cfg)
+    assert [float(v) for v in values(params["task.search.bias_guard"])] == [0.0, 0.5]
+    assert values(params["seed"]) == ["0", "1", "2"]
+    assert list(cfg.report.axes) == ["task.search.bias_guard"] and "Energy" in cfg.report.metrics
+    assert compose_sweep("gp_bias_guard", ["task.search.bias_guard=0.5"]).task.search.bias_guard == 0.5
+
+
+def test_the_gp_rules_sweep_is_the_thesis_rules_against_the_first_ones():
+    """Two arms merged into task.search (the defaults, the thesis's, first), three seeds each."""
+    cfg = compose_sweep("gp_rules")
+    params = swept(cfg)
+    arms = [dict(d) for d in params["task.search"].sweep_iterator()]
+    rules = ("vector_pairs", "crossover_points", "shares_count", "color_variance")
+    assert arms[0] == {k: cfg.task.search[k] for k in rules}  # the thesis's rules are the defaults
+    assert arms[1] == dict(zip(rules, ("mixed", "type_first", "draws", False), strict=True))
+    assert values(params["seed"]) == ["0", "1", "2"] and "Energy" in cfg.report.metrics
+    job = compose_sweep("gp_rules", [f"task.search={list(params['task.search'].sweep_string_iterator())[1]}"])
+    assert job.task.search.vector_pairs == "mixed" and job.task.search.hall_of_fame == 10
 
 
 def test_the_gp_population_sweep_scales_with_the_profile():

@@ -39,8 +39,9 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     # Sequences (dataset=volumetric): mean |Δt output - Δt reference|, tone-mapped (src/metrics/temporal.py)
     "Flicker": ("eval_temporal", False, "{:.4g}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
-    # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best (the
-    # expression evaluated on the test split), and the minimum over all generations (its Sec. 4.2 measure).
+    # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best, and the
+    # minimum over all generations (its Sec. 4.2 measure; with a hall of fame, the default, the expression
+    # evaluated on the test split; without one, the last generation's best is).
     "best fitness": ("search_best", False, "{:.4g}"),
     "min fitness": ("search_best_so_far", False, "{:.4g}"),
 }
