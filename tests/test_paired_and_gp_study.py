@@ -1,0 +1,147 @@
+"""src/report/paired.py (the paired comparison of two study arms) against a brute-force signed-rank test,
+and scripts/gp_study.py (the filter-search studies' seed spread and paired comparisons) on a fake
+multirun folder whose numbers are known."""
+
+import importlib.util
+import itertools
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from src.errors import DataError
+from src.report.paired import paired_difference
+from tests.conftest import ROOT, one_line_error
+
+spec = importlib.util.spec_from_file_location("gp_study", ROOT / "scripts" / "gp_study.py")
+gp_study = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(gp_study)
+
+
+def _signed_rank_p(d):
+    """Two-sided exact Wilcoxon signed-rank p by enumerating all 2^n sign patterns (distinct |d|, no 0)."""
+    ranks = np.argsort(np.argsort(np.abs(d))) + 1
+    observed = ranks[np.asarray(d) > 0].sum()
+    totals = [
+        sum(r for r, s in zip(ranks, signs, strict=True) if s)
+        for signs in itertools.product((0, 1), repeat=len(d))
+    ]
+    low = sum(t <= observed for t in totals) / len(totals)
+    high = sum(t >= observed for t in totals) / len(totals)
+    return min(1.0, 2 * min(low, high))
+
+
+@pytest.mark.parametrize(
+    "d", [[1.0, 2.5, -0.5, 4.0, 3.2, 5.1], [0.3, -1.2, 0.8, -2.0, 1.5], [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+)
+def test_paired_difference_is_the_exact_signed_rank_test(d):
+    b = np.array([10.0, 20.0, 5.0, 7.0, 1.0, 3.0])[: len(d)]
+    p = paired_difference(b + np.array(d), b)
+    assert p.n == len(d) and p.mean_difference == pytest.approx(np.mean(d))
+    assert (p.a_higher, p.b_higher) == (sum(x > 0 for x in d), sum(x < 0 for x in d))
+    assert p.p_value == pytest.approx(_signed_rank_p(np.array(d)), rel=1e-9)
+    assert p.shown() == (p.p_value < 0.05)
+
+
+def test_six_pairs_all_one_way_is_the_smallest_p_and_shown():
+    p = paired_difference([2, 3, 4, 5, 6, 7], [1, 1, 1, 1, 1, 1])
+    assert p.p_value == pytest.approx(2 / 2**6) and p.shown()
+    assert not paired_difference([2, 3, 4, 5, 6], [1, 1, 1, 1, 1]).shown(alpha=0.05)  # 2/32 = 0.0625
+
+
+def test_log_differences_give_the_geometric_mean_ratio():
+    p = paired_difference([2.0, 8.0], [1.0, 2.0], log=True)
+    assert p.ratio == pytest.approx(math.sqrt(8.0)) and p.mean_difference == pytest.approx(math.log(8) / 2)
+    with pytest.raises(ValueError):
+        _ = paired_difference([2.0, 8.0], [1.0, 2.0]).ratio
+    assert math.isnan(paired_difference([1.0, 2.0], [1.0, 2.0]).p_value)
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "log", "needle"),
+    [
+        ([1, 2], [1], False, "one per item"),
+        ([1, float("nan")], [1, 2], False, "NaN"),
+        ([1, 0], [1, 2], True, "<= 0"),
+    ],
+)
+def test_bad_paired_input_is_one_line(a, b, log, needle):
+    with pytest.raises(DataError) as excinfo:
+        paired_difference(a, b, log=log)
+    one_line_error(excinfo, "paired comparison", needle)
+
+
+# -- scripts/gp_study.py --------------------------------------------------------------------------------
+
+SCENES = ("outdoor-0003", "tabletop-0003")
+
+
+def _job(folder, arm, seed, ratios, energy=1.0, fitness=(0.05, 0.04)):
+    """A finished job: `ratios[scene][spp]` held-out relMSE / noisy; psnr = 30 - 10 ratio."""
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / "search").mkdir()
+    (folder / "eval").mkdir()
+    (folder / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump([arm, f"seed={seed}", "+sweep=x"]))
+    history = [{"islands": [{"best": f}]} for f in fitness]
+    (folder / "search" / "history.json").write_text(json.dumps(history))
+    best = [{"model": {"expression": f"expr-{arm}-{seed}"}}]
+    (folder / "search" / "best_expressions.yaml").write_text(yaml.safe_dump(best))
+    rows = [
+        {"scene": s, "spp": spp, "relmse_ratio": r, "psnr": 30 - 10 * r, "energy": energy}
+        for s in SCENES
+        for spp, r in ratios[s].items()
+    ]
+    pd.DataFrame(rows).to_csv(folder / "eval" / "per_image.csv", index=False)
+
+
+def _sweep(tmp_path):
+    """Arm A (seeds 0, 1) and arm B, whose every held-out ratio is half of A's at 4 spp and equal at 16."""
+    base = {0: {"outdoor-0003": 0.2, "tabletop-0003": 0.4}, 1: {"outdoor-0003": 0.3, "tabletop-0003": 0.1}}
+    for k, (arm, seed) in enumerate(itertools.product(("a=1", "a=2"), (0, 1))):
+        half = 0.5 if arm == "a=2" else 1.0
+        ratios = {s: {4: base[seed][s] * half, 16: 0.9} for s in SCENES}
+        _job(
+            tmp_path / str(k),
+            arm,
+            seed,
+            ratios,
+            energy=0.9 if arm == "a=2" else 1.0,
+            fitness=(0.05, 0.03 + seed / 100),
+        )
+    return tmp_path
+
+
+def test_gp_study_arm_table_is_the_mean_and_spread_over_seeds(tmp_path):
+    jobs, unfinished = gp_study.load_jobs(_sweep(tmp_path))
+    assert unfinished == [] and [j["arm"] for j in jobs] == ["a=1", "a=1", "a=2", "a=2"]
+    table = gp_study.arm_table(jobs, 4).set_index("arm")
+    a = table.loc["a=1"]
+    assert a["seeds"] == 2 and a["min fitness"] == f"0.0350 ± {np.std([0.03, 0.04], ddof=1):.4f}"
+    assert a["relMSE/noisy outdoor"] == f"0.2500 ± {np.std([0.2, 0.3], ddof=1):.4f}"
+    assert a["relMSE/noisy 4 spp"] == "0.2500 ± 0.0707"  # seed means 0.3 and 0.2
+    assert a["relMSE/noisy all spp"] == f"{np.mean([0.6, 0.55]):.4f} ± {np.std([0.6, 0.55], ddof=1):.4f}"
+    assert table.loc["a=2", "energy tabletop"] == "0.900 ± 0.000"
+
+
+def test_gp_study_compares_each_arm_with_the_first_paired_by_seed_and_image(tmp_path):
+    jobs, _ = gp_study.load_jobs(_sweep(tmp_path))
+    rows = gp_study.comparisons(jobs, 4).set_index("spp")
+    at4, every = rows.loc[4], rows.loc["all"]
+    assert at4["pairs"] == 4 and at4["relMSE/noisy ratio"] == "0.500" and at4["lower/higher"] == "4/0"
+    assert at4["relMSE"] == "not shown"  # 4 pairs: the smallest two-sided p is 2/16
+    assert every["pairs"] == 8 and every["relMSE/noisy ratio"] == f"{0.5**0.5:.3f}"
+    assert at4["|energy-1| diff"] == "+0.1000"
+    text = gp_study.report(tmp_path, 4)
+    assert "expr-a=2-1" in text and "Unfinished" not in text
+
+
+def test_gp_study_leaves_out_unfinished_jobs_and_refuses_a_folder_without_jobs(tmp_path, capsys):
+    sweep = _sweep(tmp_path / "s")
+    (sweep / "4" / "search").mkdir(parents=True)  # a job still running
+    assert "Unfinished jobs left out: 4." in gp_study.report(sweep, 4)
+    assert gp_study.main([str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "nowhere" in err and "not a folder" in err
