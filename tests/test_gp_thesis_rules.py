@@ -193,8 +193,8 @@ def _origins(params, monkeypatch, n=1000, rounds=20):
 
 
 def test_expansion_split_counts_draws_or_individuals(monkeypatch):
-    """10/45/45 % per draw gives 0.10 : 0.90 : 0.45 individuals = 6.9/62.1/31.0 % (the ablation, nrbench's first rule);
-    counting individuals gives 10/45/45 % of them (20 islands of 1000; 4 sigma)."""
+    """10/45/45 % per draw gives 0.10 : 0.90 : 0.45 individuals = 6.9/62.1/31.0 % (the ablation, nrbench's
+    first rule); counting individuals gives 10/45/45 % of them (20 islands of 1000; 4 sigma)."""
     for count, shares in (
         ("draws", {"r": 0.10 / 1.45, "x": 0.90 / 1.45, "m": 0.45 / 1.45}),
         ("individuals", {"r": 0.10, "x": 0.45, "m": 0.45}),
