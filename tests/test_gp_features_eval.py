@@ -93,7 +93,9 @@ def test_gp_filter_checks_keys_as_it_reads_them():
 @pytest.mark.slow
 def test_a_gp_filter_needing_a_buffer_the_data_lack_is_one_line_through_the_cli(smoke_data, tmp_path):
     data = _data_without_world_position(smoke_data, tmp_path)
-    cmd, env = cli_job(["stage=eval", "model=gp_expr2", f"hydra.run.dir={tmp_path}/run"], data)
+    cmd, env = cli_job(
+        ["stage=eval", "profile=smoke", "model=gp_expr2", f"hydra.run.dir={tmp_path}/run"], data
+    )
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     one_line_cli_error(result, "'worldPosition'", "'position'")
     assert not (tmp_path / "run" / "eval").exists() and not (data / "mlflow.db").exists()
