@@ -145,3 +145,73 @@ def test_gp_study_leaves_out_unfinished_jobs_and_refuses_a_folder_without_jobs(t
     assert gp_study.main([str(tmp_path / "nowhere")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "nowhere" in err and "not a folder" in err
+
+
+# -- the report's paired table (src/report/tables.py::paired_table) --------------------------------------
+
+
+def _images(rows):
+    """Per-image rows as `collect.per_image_rows` gives them: model, seed, scene, spp, scores."""
+    out = []
+    for model, seed, scene, ratio, psnr in rows:
+        out.append(
+            {
+                "params.model.name": model,
+                "params.seed": str(seed),
+                "run_id": f"{model}-{seed}",
+                "scene": scene,
+                "spp": 4,
+                "metrics.relmse_ratio": ratio,
+                "metrics.psnr": psnr,
+            }
+        )
+    return pd.DataFrame(out)
+
+
+def _study():
+    """A (the best), B twice A's relMSE and 1 dB under on all 6 items (seed x scene), C within noise of A,
+    D only seed 0."""
+    base = {(s, sc): 0.1 * (1 + s) * (2 if sc == "s1" else 1) for s in range(3) for sc in ("s0", "s1")}
+    wiggle = dict(zip(sorted(base), (0.95, 1.1, 1.12, 0.93, 1.15, 0.97), strict=True))
+    rows = []
+    for (seed, scene), r in base.items():
+        psnr = 30 + seed + (scene == "s1")
+        rows += [("A", seed, scene, r, psnr), ("B", seed, scene, 2 * r, psnr - 1)]
+        rows.append(
+            ("C", seed, scene, r * wiggle[seed, scene], psnr + (0.1 if wiggle[seed, scene] < 1 else -0.2))
+        )
+        if seed == 0:
+            rows.append(("D", seed, scene, 3 * r, psnr - 2))
+    return _images(rows)
+
+
+def test_paired_table_compares_each_row_with_the_best_by_seed_and_image():
+    from src.report.tables import paired_table, to_markdown
+
+    table = paired_table(_study(), ["model.name"])
+    row = {m: table.loc[(m,)] for m in "ABCD"}
+    assert row["A"]["relMSE / noisy"] == "best" and row["A"]["PSNR"] == "best"
+    assert row["B"]["relMSE / noisy vs best (ratio)"] == pytest.approx(2.0)
+    assert row["B"]["relMSE / noisy p"] == pytest.approx(2 / 2**6) and row["B"]["relMSE / noisy"] == "shown"
+    assert row["B"]["PSNR vs best (difference)"] == pytest.approx(-1.0) and row["B"]["PSNR"] == "shown"
+    assert row["B"]["pairs"] == 6 and row["B"]["runs"] == 3
+    d = np.log([0.95, 1.1, 1.12, 0.93, 1.15, 0.97])  # C against A, in the items' sorted order
+    assert row["C"]["relMSE / noisy vs best (ratio)"] == pytest.approx(math.exp(d.mean()))
+    assert row["C"]["relMSE / noisy p"] == pytest.approx(_signed_rank_p(d))
+    assert row["C"]["relMSE / noisy"] == "not shown"
+    assert row["D"]["pairs"] == 2 and row["D"]["relMSE / noisy vs best (ratio)"] == pytest.approx(3.0)
+    assert row["D"]["relMSE / noisy"] == "not shown"  # 2 pairs: the smallest p is 0.5
+    text = to_markdown(table)
+    assert "not shown" in text and "**" not in text  # verdicts, no best-value bolding
+
+
+def test_paired_table_needs_two_rows_and_compares_differences_where_a_ratio_is_zero():
+    from src.report.tables import paired_table
+
+    study = _study()
+    assert paired_table(study[study["params.model.name"] == "A"], ["model.name"]) is None
+    assert paired_table(pd.DataFrame(), ["model.name"]) is None
+    zero = study.copy()
+    zero.loc[(zero["params.model.name"] == "A") & (zero["scene"] == "s0"), "metrics.relmse_ratio"] = 0.0
+    table = paired_table(zero, ["model.name"])
+    assert "relMSE / noisy vs best (difference)" in table and "relMSE / noisy vs best (ratio)" not in table

@@ -263,7 +263,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert any("task.train.lr" in r.getMessage() for r in caplog.records)
     assert len(summary["warnings"]) == 1 and "task.train.lr" in summary["warnings"][0]
     names = {p.name for p in out.iterdir()}
-    for stem in ("comparison", "cost", "comparison_per_spp", "losses", "per_image"):
+    for stem in ("comparison", "cost", "comparison_per_spp", "losses", "per_image", "paired"):
         assert {f"{stem}.md", f"{stem}.tex", f"{stem}.csv"} <= names
     assert {"learning_curves.png", "image_grid.png", "index.html"} <= names
     assert not {"feature_usage.csv", "search_curves.png"} & names  # no filter search among the runs
@@ -282,6 +282,15 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert images.loc[("resnet", "scene0 4spp"), "PSNR"] == pytest.approx(32.0)
     assert list(images["runs"]) == [2, 2, 1, 1, 1, 1]
     assert "Quality per held-out image" in (out / "index.html").read_text()
+    paired = pd.read_csv(out / "paired.csv", comment="#").set_index("model")
+    # relMSE / noisy is 0.1 and 0.3 + seed for every model: dpcn (seed 0) has the lowest mean; kpcn ties
+    # with it on their common items (seed 0), so no p and no finding; resnet has the best PSNR
+    assert paired.loc["dpcn", "relMSE / noisy"] == "best" and paired.loc["resnet", "PSNR"] == "best"
+    assert paired.loc["kpcn", "relMSE / noisy vs best (ratio)"] == 1.0 and paired.loc["kpcn", "pairs"] == 2
+    assert paired.loc["kpcn", "relMSE / noisy"] == "not shown" and pd.isna(
+        paired.loc["kpcn", "relMSE / noisy p"]
+    )
+    assert "paired by seed and held-out image" in (out / "index.html").read_text()
     # Final (step 30) losses, mean over kpcn's two seeds: 1 / (30 + seed + 1) (twice that for validation);
     # validation columns first.
     losses = pd.read_csv(out / "losses.csv", comment="#", index_col=0)

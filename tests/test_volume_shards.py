@@ -5,6 +5,7 @@ determinism, caching and errors; the stage from the command line (slow)."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 
 import numpy as np
@@ -348,6 +349,17 @@ def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_pat
     )
     task_of(other).check_stages(["preprocess", "train"], other)  # the job makes them again first
     task_of(other).check_stages(["render"], other)  # reads no prepared data
+    # the whole data folder moved (the record's raw path points nowhere): this config's paths.raw decides
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp_path / "my_sequences", moved / "raw")
+    shutil.copytree(str(made.paths.prepared), moved / "prepared")
+    here = _stage_config(tmp_path, f"paths.raw={moved}/raw", f"paths.prepared={moved}/prepared")
+    shutil.rmtree(tmp_path / "my_sequences")
+    task_of(here).check_stages(["train"], here)
+    elsewhere = _stage_config(tmp_path, f"paths.raw={tmp_path}/none", f"paths.prepared={moved}/prepared")
+    with pytest.raises(ConfigError):  # neither the recorded nor this config's raw data made it
+        task_of(elsewhere).check_stages(["train"], elsewhere)
+    shutil.copytree(moved / "raw", tmp_path / "my_sequences")
     # the raw data changed since (one more sequence)
     write_volume_exr(tmp_path / "my_sequences" / "d-0000-f0000-00002spp.exr", synthetic_frame("d-0000", 0, 2))
     with pytest.raises(ConfigError):

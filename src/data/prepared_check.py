@@ -24,19 +24,28 @@ def reads_prepared_only(stages: Iterable[str]) -> bool:
     return "preprocess" not in stages and bool(READERS & stages)
 
 
-def check_prepared_is_current(record_file: Path, key_of: Callable[[Path], str]) -> None:
+def check_prepared_is_current(
+    record_file: Path, key_of: Callable[[Path], str], current_raw: Path | None = None
+) -> None:
     """A one-line ConfigError unless the cache key in `record_file` (the prepared folder's provenance)
     equals `key_of(raw)`, the current config's key for the raw data the folder was made from (`paths.raw`
-    as that preprocess run had it, so a user's KPCN folder need not be named again). For a job whose
-    stages `reads_prepared_only`; nothing to check when there is no record (the stage's `inputs` then
-    names the stage that makes it)."""
+    as that preprocess run had it, so a user's KPCN folder need not be named again), or else
+    `key_of(current_raw)` (this config's `paths.raw`: a data folder made under another working directory
+    or moved, e.g. by `dvc repro` with a relative `paths.data`, records a raw path that no longer points
+    at its raw data, while `stage=preprocess` finds the folder up to date). For a job whose stages
+    `reads_prepared_only`; nothing to check when there is no record (the stage's `inputs` then names the
+    stage that makes it)."""
     try:
         record = json.loads(record_file.read_text())
         raw = Path(record["config"]["paths"]["raw"])
     except (OSError, ValueError, KeyError, TypeError):
         return
-    if record.get("cache_key") != key_of(raw):
-        raise ConfigError(
-            f"{record_file.parent}: made by stage=preprocess with other task.preprocess settings or from "
-            f"other raw data ({raw}) than this config's; run stage=preprocess (or dvc repro) first"
-        )
+    wanted = record.get("cache_key")
+    if wanted == key_of(raw):
+        return
+    if current_raw is not None and Path(current_raw) != raw and wanted == key_of(Path(current_raw)):
+        return
+    raise ConfigError(
+        f"{record_file.parent}: made by stage=preprocess with other task.preprocess settings or from "
+        f"other raw data ({raw}) than this config's; run stage=preprocess (or dvc repro) first"
+    )

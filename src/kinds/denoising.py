@@ -84,7 +84,7 @@ class DenoisingKind(DataKind):
         super().check_stages(stages, cfg)
         if reads_prepared_only(stages):
             record = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
-            check_prepared_is_current(record, lambda raw: self.preprocess_key(cfg, raw))
+            check_prepared_is_current(record, lambda raw: self.preprocess_key(cfg, raw), self.raw_dir(cfg))
 
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
         """The cache key `preprocess` gives the prepared folder for this config and the raw data `raw`."""

@@ -8,6 +8,8 @@ selects, written to `<report.out_dir>/<report.name>/`:
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
     per_image.{md,tex,csv}            relMSE, relMSE / noisy, energy, PSNR per row and held-out image
                                       (the runs' eval/per_image.csv; denoising and filter evaluations)
+    paired.{md,tex,csv}               each row against the best row per metric, paired by seed and
+                                      held-out image: ratio or difference, Wilcoxon p, shown / not shown
     feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
     learning_curves.png, image_grid.png, index.html (self-contained)
     search_curves.png                 task=filter_search: best fitness per generation, one curve per run
@@ -45,6 +47,7 @@ from src.report.tables import (
     cost_table,
     feature_usage_table,
     loss_table,
+    paired_table,
     per_image_table,
     per_value_table,
     select_metrics,
@@ -62,6 +65,7 @@ TABLE_HEADINGS = {
     "cost": "Cost",
     "losses": "Final losses (validation, then training)",
     "per_image": "Quality per held-out image",
+    "paired": "Each row against the best, paired by seed and held-out image (Wilcoxon signed-rank)",
     "feature_usage": "Features of the best expressions (occurrences)",
 }
 SEARCH_HEADING = "Filter search: best fitness per generation"
@@ -114,8 +118,11 @@ def build_report(cfg: Any) -> dict[str, Any]:
     metrics = select_metrics(config_value(rc, "metrics"))
     tables = _tables(runs, axes, row_keys, columns_by, metrics)
     tables |= _tables_by_value(runs, axes, tables_by, metrics)
-    if (per_image := per_image_table(per_image_rows(runs), axes)) is not None:
+    images = per_image_rows(runs)
+    if (per_image := per_image_table(images, axes)) is not None:
         tables["per_image"] = per_image
+    if (paired := paired_table(images, axes)) is not None:
+        tables["paired"] = paired
 
     name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
     out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name

@@ -15,6 +15,7 @@ import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 
+import numpy as np
 import pandas as pd
 
 from src.errors import ConfigError
@@ -226,6 +227,92 @@ def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> 
         **{param_column(IMAGE_AXIS): images["scene"].astype(str) + " " + images["spp"].astype(str) + "spp"}
     )
     return _aggregate(images, [*(axes or DEFAULT_AXES), IMAGE_AXIS], PER_IMAGE_METRICS)
+
+
+#: label -> (per-image score, compared as logs (a ratio metric), higher is better): the scores the paired
+#: table compares each row with the best row on (`paired_table`).
+PAIRED_METRICS: dict[str, tuple[str, bool, bool]] = {
+    "relMSE / noisy": ("relmse_ratio", True, False),
+    "PSNR": ("psnr", False, True),
+}
+#: The significance level of the paired table's verdicts (two-sided).
+PAIRED_ALPHA = 0.05
+#: What identifies an item both rows were scored on: the seed and the held-out image.
+PAIRED_ITEM = ("params.seed", "scene", "spp")
+
+
+def _item_means(images: pd.DataFrame, keys: pd.Series, row: str, column: str) -> pd.Series:
+    """One row's score per item (seed, scene, spp); the mean where a row has one item twice."""
+    part = images[keys.map(lambda k: k == row)]
+    index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in PAIRED_ITEM]
+    return pd.to_numeric(part[f"metrics.{column}"]).groupby(index).mean().dropna()
+
+
+def paired_table(
+    images: pd.DataFrame, axes: Sequence[str] | None = None, alpha: float = PAIRED_ALPHA
+) -> pd.DataFrame | None:
+    """Each compared row against the best row, paired by seed and held-out image (`src.report.paired`):
+    per metric of `PAIRED_METRICS` the row whose mean is best, then for every row the geometric-mean ratio
+    (relMSE / noisy) or mean difference (PSNR, dB) against it over their common items, the two-sided
+    Wilcoxon signed-rank p, and the verdict: `best`, `shown` (p < `alpha`) or `not shown` (the difference
+    stays inside the spread of seeds and images); `pairs` is the item count of the first metric. A table
+    of means cannot say whether a difference is a finding; this one can. None with fewer than two rows or
+    no per-image scores."""
+    from src.report.paired import paired_difference
+
+    if images.empty:
+        return None
+    labels = [axis_label(a) for a in (axes or DEFAULT_AXES)]
+    columns = [param_column(a) for a in (axes or DEFAULT_AXES)]
+    parts = [
+        images[c].fillna(MISSING).astype(str) if c in images else pd.Series(MISSING, index=images.index)
+        for c in columns
+    ]
+    keys = pd.Series(list(zip(*parts, strict=True)), index=images.index)  # one tuple per image row
+    rows = list(dict.fromkeys(keys))
+    if len(rows) < 2:
+        return None
+    table = pd.DataFrame(index=pd.MultiIndex.from_tuples(rows, names=labels))
+    specs: dict[str, MetricSpec] = {}
+    for label, (column, log_scale, higher) in PAIRED_METRICS.items():
+        if f"metrics.{column}" not in images:
+            continue
+        scores = {row: _item_means(images, keys, row, column) for row in rows}
+        log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
+        scored = [row for row in rows if len(scores[row])]
+        if not scored:
+            continue
+        means = {
+            row: float(np.log(scores[row]).mean() if log_scale else scores[row].mean()) for row in scored
+        }
+        best = (max if higher else min)(scored, key=lambda r: means[r])
+        against, p_values, verdicts, pairs = [], [], [], []
+        for row in rows:
+            common = scores[row].index.intersection(scores[best].index)
+            if row == best or len(common) < 2:
+                against.append(math.nan if row != best else (1.0 if log_scale else 0.0))
+                p_values.append(math.nan)
+                verdicts.append("best" if row == best else MISSING)
+                pairs.append(len(common))
+                continue
+            result = paired_difference(scores[row][common], scores[best][common], log=log_scale)
+            against.append(result.ratio if log_scale else result.mean_difference)
+            p_values.append(result.p_value)
+            verdicts.append("shown" if result.shown(alpha) else "not shown")
+            pairs.append(result.n)
+        name = f"{label} vs best" + (" (ratio)" if log_scale else " (difference)")
+        table[name], table[f"{label} p"], table[label] = against, p_values, verdicts
+        specs |= {name: ("", None, "{:.3f}"), f"{label} p": ("", None, "{:.3g}"), label: ("", None, "{}")}
+        if "pairs" not in table:
+            table["pairs"] = pairs
+            specs["pairs"] = ("", None, "{:,.0f}")
+    if not specs:
+        return None
+    runs = images["run_id"] if "run_id" in images else pd.Series(range(len(images)), index=images.index)
+    table[RUNS_COLUMN] = [int(runs[keys.map(lambda k, r=row: k == r)].nunique()) for row in rows]
+    table.attrs["metrics"] = specs
+    table.attrs["axes"] = labels
+    return table
 
 
 BEST_EXPRESSION_TAG = "tags.search.best_expression"
