@@ -152,6 +152,10 @@ BAD_VALUES = [
         ["task=nerf", "dataset=blender", "dataset.root=/x", "+dataset.width=100"],
         ["dataset.width: unknown key", "'downscale'"],
     ),
+    (
+        ["dataset=volumetric", "task.feature_selection.subsets=bernoulli"],
+        ["task.feature_selection.subsets='bernoulli'", "'uniform_size'", "'independent'"],
+    ),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).
 CLI_SAMPLE = {0, 11}

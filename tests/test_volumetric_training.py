@@ -204,7 +204,8 @@ def test_the_sequences_train_on_their_own_schedule_else_the_tasks(vol_data, tmp_
 
 
 def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(vol_data, tmp_path):
-    trainer = _trainer(vol_data, tmp_path, 0.5, True, "task.feature_selection.dropout=1.0")
+    overrides = ("task.feature_selection.subsets=independent", "task.feature_selection.dropout=1.0")
+    trainer = _trainer(vol_data, tmp_path, 0.5, True, *overrides)
     inputs = torch.rand((6, 62, 8, 8)) + 2.0  # no stored value is a neutral value
     dropped = trainer.dropout(inputs, 2, 3, step=0)
     names = [name for name, _ in trainer.dropout.slices]
@@ -277,6 +278,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
                     "random_seed": 0,
                     "start": ["color"],
                     "candidates": candidates,
+                    "subsets": "uniform_size",
                     "dropout": 0.5,
                     "neutral": COVER_NEUTRAL,
                     "max_size": None,

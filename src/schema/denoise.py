@@ -95,6 +95,7 @@ class FeatureSelection(Schema):
     random_seed: NonNegativeInt
     start: list[str]
     candidates: list[str] | None
+    subsets: Literal["uniform_size", "independent"]
     dropout: Probability
     neutral: dict[str, float]
     max_size: PositiveInt | None

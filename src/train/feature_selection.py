@@ -3,10 +3,19 @@
 After Zhang, Manzi, Vogels et al. 2022 (feature selection for Monte Carlo denoisers), as used for the
 volumetric denoiser of the Pixar/Disney 2023 talk "Denoising Production Volumetric Rendering":
 
-1. train one *probe* denoiser on every candidate feature (`task.volume_features`), dropping each
-   feature of each training sample independently with probability `p_drop` (`random_keep_mask`,
-   `drop_features`): a dropped feature's channels are set to its neutral value (0 by default,
-   transmittance 1: "no medium"; `neutral_values`), so the probe learns to denoise from any subset;
+1. train one *probe* denoiser on every candidate feature (`task.volume_features`), each training sample
+   keeping a random subset of the candidates (`keep_mask`, `drop_features`): a dropped feature's
+   channels are set to its neutral value (0 by default, transmittance 1: "no medium"; `neutral_values`),
+   so the probe learns to denoise from any subset. `task.feature_selection.subsets` says how a subset is
+   drawn: `uniform_size` (the default) draws the number kept, k, uniformly from 0..n (n candidates
+   besides the always-kept colour), then a uniform subset of that size (`uniform_size_keep_mask`);
+   `independent` (the ablation, and the scheme of runs before it) drops each candidate independently
+   with probability `dropout` (`random_keep_mask`). Step 2 scores the probe on subsets of every size
+   (1, 2, ... n candidates), so it must train on every size: under `independent` the count kept is
+   Binomial(n, 1 - p), and at n = 35, p = 0.5 a subset of <= 4 is drawn with probability 1.7e-6 per
+   sample, all 35 with 2.9e-11, i.e. never; the greedy curve then came out U-shaped (an untrained
+   probe's too), measuring the probe's unfamiliarity with a subset size, not the features. Under
+   `uniform_size` each size is 1 / (n + 1) of the samples, each subset of size k 1 / C(n, k) of those;
 2. greedy forward selection (`greedy_forward_selection`): starting from a start set (the colour), add
    at each round the candidate whose addition lowers the probe's validation loss most, the features
    not selected set to their neutral values (`keep_only`), with NO retraining; this gives the
@@ -41,6 +50,9 @@ FEATURE_SELECTION_KEY = "task.feature_selection"
 NEUTRAL_KEY = f"{FEATURE_SELECTION_KEY}.neutral"
 SIZE_KEY = f"{FEATURE_SELECTION_KEY}.size"
 P_DROP_KEY = "task.feature_selection.dropout"
+SUBSETS_KEY = f"{FEATURE_SELECTION_KEY}.subsets"
+#: How the probe draws a training sample's subset (`task.feature_selection.subsets`; `keep_mask`).
+SUBSETS = ("uniform_size", "independent")
 
 #: One row of the greedy selection: round, the feature added (None in round 0), the ordered selection so
 #: far (start set included) and its validation loss.
@@ -91,6 +103,47 @@ def random_keep_mask(
     keep = torch.rand((n, n_features), generator=generator) >= p_drop
     keep[:, list(always_keep)] = True
     return keep
+
+
+def uniform_size_keep_mask(
+    n: int,
+    n_features: int,
+    generator: torch.Generator | None = None,
+    always_keep: Sequence[int] = (),
+) -> torch.Tensor:
+    """A (n, n_features) bool mask, True = keep: per sample, the number of kept features besides
+    `always_keep`, k, is uniform over 0..m (m = n_features minus the always-kept ones), and which k is a
+    uniform random subset of that size (the first k of a random permutation: each subset of size k has
+    probability 1 / ((m + 1) C(m, k))). The greedy selection scores the probe on every size, so it must
+    train on every size (module docstring). The permutation ranks float64 uniforms: a tie, which would
+    favour one order, has probability ~m^2 2^-54 per sample."""
+    always = torch.zeros(n_features, dtype=torch.bool)
+    always[list(always_keep)] = True
+    free = (~always).nonzero().flatten()
+    m = len(free)
+    sizes = torch.randint(0, m + 1, (n, 1), generator=generator)
+    ranks = torch.rand((n, m), generator=generator, dtype=torch.float64).argsort(dim=1).argsort(dim=1)
+    keep = torch.ones((n, n_features), dtype=torch.bool)
+    keep[:, free] = ranks < sizes
+    return keep
+
+
+def keep_mask(
+    subsets: str,
+    n: int,
+    n_features: int,
+    p_drop: float,
+    generator: torch.Generator | None = None,
+    always_keep: Sequence[int] = (),
+) -> torch.Tensor:
+    """The probe's (n, n_features) keep mask under the scheme `subsets` (`task.feature_selection.subsets`):
+    `uniform_size` (`uniform_size_keep_mask`; `p_drop` unused) or `independent` (`random_keep_mask`);
+    another name: a one-line ConfigError."""
+    if subsets == "uniform_size":
+        return uniform_size_keep_mask(n, n_features, generator, always_keep)
+    if subsets == "independent":
+        return random_keep_mask(n, n_features, p_drop, generator, always_keep)
+    raise ConfigError(f"{SUBSETS_KEY}={subsets!r}: expected one of {list(SUBSETS)}")
 
 
 def drop_features(

@@ -9,8 +9,10 @@ batch for the model (`flatten_frames`). Per step (every `log_every`) and per epo
 validation data, each logged loss is written: `{train,val}_loss_<name>`.
 
 With `probe=True` the run is the feature-selection probe (Zhang et al. 2022, `src.train.feature_selection`):
-every sample drops each candidate feature with probability `task.feature_selection.dropout`, setting its
-channels to their neutral values, so that one network learns to denoise with any subset.
+every sample keeps a random subset of the candidate features (`task.feature_selection.subsets`:
+`uniform_size`, a uniform subset size then a uniform subset of it, or `independent`, each dropped with
+probability `task.feature_selection.dropout`), the others' channels set to their neutral values, so that
+one network learns to denoise with any subset.
 
 The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`; the
 data order of an epoch depends only on (seed, epoch), so a resumed run ends with the same weights.
@@ -169,9 +171,10 @@ class DenoiserTrainer(TrainingLoop):
 
 
 class _FeatureDropout:
-    """The probe's random feature dropout on the input group `key`: per sample (all k frames alike), each
-    candidate but the start set dropped with probability `task.feature_selection.dropout`, seeded by
-    (seed, step), so that a resumed probe sees the same masks."""
+    """The probe's random feature dropout on the input group `key`: per sample (all k frames alike), a
+    random subset of the candidates kept, the start set always (`fs.keep_mask` under
+    `task.feature_selection.subsets`), seeded by (seed, step), so that a resumed probe sees the same
+    masks."""
 
     def __init__(self, cfg: DictConfig, features: list[str] | None, key: str) -> None:
         sel = cfg.task.feature_selection
@@ -182,11 +185,11 @@ class _FeatureDropout:
         # keep_only: a one-line ConfigError if the start set names a feature the probe does not read.
         self.always = fs.keep_only(sel.start, names).nonzero().flatten().tolist()
         self.neutral = fs.neutral_values(features, OmegaConf.to_container(sel.neutral, resolve=True))
-        self.p, self.seed = float(sel.dropout), int(cfg.seed)
+        self.p, self.seed, self.subsets = float(sel.dropout), int(cfg.seed), str(sel.subsets)
 
     def __call__(self, inputs: torch.Tensor, n: int, k: int, step: int) -> torch.Tensor:
         generator = torch.Generator().manual_seed(self.seed * 1_000_003 + step)
-        keep = fs.random_keep_mask(n, len(self.slices), self.p, generator, self.always)
+        keep = fs.keep_mask(self.subsets, n, len(self.slices), self.p, generator, self.always)
         keep = keep.repeat_interleave(k, dim=0).to(inputs.device)
         return fs.drop_features(inputs, keep, self.slices, self.neutral.to(inputs.device), channel_axis=1)
 
