@@ -1,15 +1,21 @@
 """The floored flicker (`flicker_unbiased`) and Noisebase's temporal PSNR (`temporal_psnr`) of
 src/metrics/temporal.py, by value against closed forms of synthetic sequences: a smooth true sequence and
-independent Gaussian noise of known standard deviation in each reference."""
+independent Gaussian noise of known standard deviation in each reference; and both in the sequence
+evaluation (src/eval/denoise_eval.py), the floored one only where an item has a second reference."""
 
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
+import torch
 
 from src.errors import DataError
+from src.eval.denoise_eval import DenoiseEvaluation, OnDevice
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
-from tests.conftest import one_line_error
+from src.tracking.tracker import Tracker
+from tests.conftest import one_line_error, smoke_config
+from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
 
 F, H, W, C = 8, 48, 48, 3
 M = (F - 1) * H * W * C  # frame differences per sequence
@@ -167,3 +173,95 @@ def test_temporal_psnr_rejects_a_warmup_that_leaves_no_pair():
     with pytest.raises(DataError) as excinfo:
         temporal_psnr(output, reference, warmup=2)
     one_line_error(excinfo, "warmup 2", "3 frames")
+
+
+# -- in the sequence evaluation --
+
+
+@pytest.fixture(scope="module")
+def vol_data(tmp_path_factory):
+    """<data>/volumetric/smoke/{raw,prepared} of tests/test_volume_shards.py's synthetic 4-frame scenes."""
+    data = tmp_path_factory.mktemp("voldata")
+    raw = _raw(data / "volumetric" / "smoke" / "raw")
+    _preprocess(raw, data / "volumetric" / "smoke" / "prepared", patch_size=8)
+    return data
+
+
+#: The stub denoiser's output: each reference frame scaled by its own factor; the second reference: the
+#: reference scaled by other factors per frame (both known, so every metric is computed here by hand).
+_OUT_SCALES, _REF2_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8]), torch.tensor([1.1, 0.9, 1.0, 1.2])
+
+
+def _evaluate(vol_data, tmp_path, monkeypatch, second: bool):
+    cfg = smoke_config(
+        vol_data,
+        tmp_path,
+        ["dataset=volumetric", "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"]
+        + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"],
+    )
+    monkeypatch.setattr(
+        DenoiseEvaluation,
+        "infer",
+        lambda self, item: item["item"]["reference"] * _OUT_SCALES.view(4, 1, 1, 1),
+    )
+    if second:
+
+        def items(self):
+            data = self.kind.held_out(self.cfg, self.features, self.model)
+            with_second = [dict(data[i]) for i in range(len(data))]
+            for item in with_second:
+                item["reference2"] = item["reference"] * _REF2_SCALES.view(4, 1, 1, 1)
+            return OnDevice(with_second, self.device)
+
+        monkeypatch.setattr(DenoiseEvaluation, "items", items)
+    evaluation = DenoiseEvaluation(cfg, Tracker())
+    summary = evaluation.run(desc="stub")
+    return summary, evaluation.logged_metrics(summary), pd.read_csv(tmp_path / "eval" / "per_image.csv")
+
+
+def _sequences(row):
+    """The raw frames (F, H, W, 3) of a row's test scene: denoised (stub), noisy, reference, reference2."""
+    reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in range(4)])
+    noisy = np.stack([synthetic_frame(row.scene, f, row.spp)["color"] for f in range(4)])
+    scale = lambda s: s.numpy().reshape(4, 1, 1, 1)  # noqa: E731
+    return reference * scale(_OUT_SCALES), noisy, reference, reference * scale(_REF2_SCALES)
+
+
+def test_sequence_evaluation_reports_temporal_psnr_and_no_floored_flicker_without_a_second_reference(
+    vol_data, tmp_path, monkeypatch
+):
+    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False)
+    assert len(rows) == 2
+    for row in rows.itertuples():
+        denoised, noisy, reference, _ = _sequences(row)
+        tm = ("reinhard_gamma", 2.2)
+        assert row.tpsnr == pytest.approx(temporal_psnr(denoised, reference, *tm), rel=1e-5)
+        assert row.noisy_tpsnr == pytest.approx(temporal_psnr(noisy, reference, *tm), rel=1e-5)
+        assert row.temporal == pytest.approx(temporal_error(denoised, reference, *tm), rel=1e-5)
+        assert logged[f"eval_tpsnr_spp{row.spp}"] == pytest.approx(row.tpsnr, rel=1e-12)
+    assert abs(rows["tpsnr"] - rows["noisy_tpsnr"]).min() > 1.0  # the fixture tells output and input apart
+    assert logged["eval_tpsnr"] == pytest.approx(rows["tpsnr"].mean(), rel=1e-12)
+    assert "flicker_unbiased" not in rows and not any(
+        "flicker_unbiased" in k for k in (*summary["mean"], *logged)
+    )
+
+
+def test_sequence_evaluation_reports_the_floored_flicker_where_items_have_a_second_reference(
+    vol_data, tmp_path, monkeypatch
+):
+    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=True)
+    assert len(rows) == 2
+    for row in rows.itertuples():
+        denoised, noisy, reference, reference2 = _sequences(row)
+        tm = ("reinhard_gamma", 2.2)
+        expected = flicker_unbiased(denoised, reference, reference2, *tm)
+        expected_noisy = flicker_unbiased(noisy, reference, reference2, *tm)
+        assert row.flicker_unbiased == pytest.approx(expected, rel=1e-5)
+        assert row.noisy_flicker_unbiased == pytest.approx(expected_noisy, rel=1e-5)
+        assert abs(expected - expected_noisy) > 0.01 and abs(expected) > 0.01
+        assert logged[f"eval_flicker_unbiased_spp{row.spp}"] == pytest.approx(row.flicker_unbiased, rel=1e-12)
+        assert logged[f"eval_noisy_flicker_unbiased_spp{row.spp}"] == pytest.approx(
+            row.noisy_flicker_unbiased, rel=1e-12
+        )
+    assert summary["mean"]["flicker_unbiased"] == pytest.approx(rows["flicker_unbiased"].mean(), rel=1e-12)
+    assert logged["eval_flicker_unbiased"] == pytest.approx(rows["flicker_unbiased"].mean(), rel=1e-12)
