@@ -8,8 +8,12 @@ each also for the noisy input (`noisy_*`). relMSE comes in two conventions: `rel
 mean over pixels and channels) and `relmse_spp` (Davletaliyev 2016, Eq. 3.5: summed over channels, times
 spp/2), with `relmse_ratio`, the denoised image's Eq. 3.5 value over the noisy one's (the GP thesis's
 fitness term). A row of `per_image.csv` is one item: its frames' metrics averaged; for the kinds of
-sequences (`DataKind.temporal`) also its frame count and the temporal-stability metric `temporal` of the
-whole sequence (`src.metrics.temporal`: mean |Δt output - Δt reference|, tone-mapped; flicker).
+sequences (`DataKind.temporal`) also its frame count and the temporal-stability metrics of the whole
+sequence (`src.metrics.temporal`, all on tone-mapped frames): `temporal` (mean |Δt output - Δt
+reference|, the "Flicker" column; its floor is the reference's own noise), `tpsnr` (Noisebase's temporal
+PSNR of the frame differences, Balint et al. 2023) and, only where the item holds a second, independently
+rendered reference `reference2`, `flicker_unbiased` (the RMS flicker against the noise-free truth,
+estimated without bias from the two references; absent, never faked, without one).
 
 Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json` (resolved config,
 git commit, data fingerprint), denoised EXRs, tone-mapped PNGs and comparison strips (a sequence's middle
@@ -32,7 +36,7 @@ from src.eval.loop import Evaluation
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
 from src.metrics.image import image_metrics, relmse_spp, tonemap
-from src.metrics.temporal import temporal_error
+from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.train.trainer import data_kind
@@ -40,7 +44,8 @@ from src.train.trainer import data_kind
 log = logging.getLogger(__name__)
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
-#: (flicker) only where there are sequences.
+#: (flicker) and `tpsnr` only where there are sequences, `flicker_unbiased` only where they have a second
+#: reference.
 SCORES = (
     "psnr",
     "ssim",
@@ -53,6 +58,8 @@ SCORES = (
     "lpips",
     "flip",
     "temporal",
+    "tpsnr",
+    "flicker_unbiased",
 )
 
 
@@ -135,7 +142,8 @@ class DenoiseEvaluation(Evaluation):
 
     def score(self, item: dict[str, Any], images: dict[str, np.ndarray], seconds: float) -> dict[str, Any]:
         """Per-frame metrics of the denoised and of the noisy frames against the reference, averaged over
-        the frames; a sequence's frame count and flicker; the runtime per frame."""
+        the frames; a sequence's frame count and temporal metrics (module docstring); the runtime per
+        frame."""
         denoised, noisy, reference = images["denoised"], images["noisy"], images["reference"]
         m, spp = self.cfg.metrics, int(item["item"]["spp"])
         frames, height, width = reference.shape[:3]
@@ -153,7 +161,17 @@ class DenoiseEvaluation(Evaluation):
             flicker = {
                 "temporal": temporal_error(denoised, reference, m.tonemap, m.gamma),
                 "noisy_temporal": temporal_error(noisy, reference, m.tonemap, m.gamma),
+                "tpsnr": temporal_psnr(denoised, reference, m.tonemap, m.gamma),
+                "noisy_tpsnr": temporal_psnr(noisy, reference, m.tonemap, m.gamma),
             }
+            if "reference2" in item["item"]:  # a second, independent render of the reference
+                reference2 = _frames_hwc(item["item"]["reference2"])
+                flicker |= {
+                    "flicker_unbiased": flicker_unbiased(denoised, reference, reference2, m.tonemap, m.gamma),
+                    "noisy_flicker_unbiased": flicker_unbiased(
+                        noisy, reference, reference2, m.tonemap, m.gamma
+                    ),
+                }
         ms_per_frame = seconds * 1e3 / frames
         timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
         return {**name, **means, **flicker, **timing}

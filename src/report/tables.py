@@ -39,6 +39,12 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     "Energy": ("eval_energy", None, "{:.4f}"),
     # Sequences (dataset=volumetric): mean |Δt output - Δt reference|, tone-mapped (src/metrics/temporal.py)
     "Flicker": ("eval_temporal", False, "{:.4g}"),
+    # Noisebase's temporal PSNR (Balint et al. 2023): PSNR of Δt output against Δt reference, per frame pair
+    # then averaged, tone-mapped, peak 1 (src/metrics/temporal.py::temporal_psnr)
+    "tPSNR": ("eval_tpsnr", True, "{:.2f}"),
+    # RMS flicker against the noise-free truth from two independent references (no floor; negative: within
+    # the estimate's noise of the truth); only runs on data with a second reference log it, else "-"
+    "Flicker vs truth": ("eval_flicker_unbiased", False, "{:.4g}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
     # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best, and the
     # minimum over all generations (its Sec. 4.2 measure; with a hall of fame, the default, the expression
