@@ -274,11 +274,10 @@ class _SequenceWriter:
         return summary
 
 
-def second_reference_colour(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn) -> np.ndarray:
-    """(F, H, W, 3) float32: the linear colour of the second reference of `scene` (its files
-    `<raw_dir>/reference2/<scene>-f<FFFF>-<ref spp>spp.exr`, every frame at the reference's sample count);
-    a one-line DataError for a missing file (a render of another split or without
-    `dataset.second_reference`) or one of another size than the reference."""
+def second_reference_paths(raw_dir, scene: str, frames: Mapping) -> list[Path]:
+    """The files of the second reference of `scene`, `<raw_dir>/reference2/<scene>-f<FFFF>-<ref spp>spp.exr`
+    for every frame at the reference's sample count; a one-line DataError when one is missing (a render of
+    another split or without `dataset.second_reference`)."""
     ref_spp = max(frames[0])
     paths = [Path(raw_dir) / SECOND_REFERENCE_DIR / volume_exr_name(scene, f, ref_spp) for f in frames]
     missing = [p for p in paths if not p.is_file()]
@@ -288,6 +287,13 @@ def second_reference_colour(raw_dir, scene: str, frames: Mapping, load_fn: LoadF
             f"is missing ({len(missing)} of its {len(paths)} frames); run stage=render with the same "
             "task.preprocess.split, split_seed and split_by_base as stage=preprocess"
         )
+    return paths
+
+
+def second_reference_colour(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn) -> np.ndarray:
+    """(F, H, W, 3) float32: the linear colour of the second reference of `scene`
+    (`second_reference_paths`)."""
+    paths = second_reference_paths(raw_dir, scene, frames)
     colour = _stack(
         [load_fn(p, ("color",)) for p in paths], ("color",), f"{raw_dir}: {scene} second reference"
     )
@@ -394,6 +400,9 @@ def preprocess_volume_dataset(
             f"{FRAMES_KEY}={sequence_frames} is more than the {n} frame(s) of scene {scene!r} in {raw_dir}"
         )
     splits = split_scenes(groups, split_fractions, split_seed, split_by_base)
+    if second_reference:  # every held-out scene's files, before any work
+        for scene in (s for split in FULL_SPLITS for s in splits[split]):
+            second_reference_paths(raw_dir, scene, groups[scene])
     writer = _SequenceWriter(out_dir, settings)
     n_sequences = sum(len(next(iter(fr.values()))) - 1 for fr in groups.values())
     bar = tqdm(total=n_sequences, desc="preprocess volumetric", unit="seq", disable=not progress)
