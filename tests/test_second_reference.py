@@ -139,6 +139,42 @@ def test_a_missing_second_reference_is_one_line(tmp_path):
         "1 of its 4 frames",
         "stage=render",
     )
+    assert not (tmp_path / "out").exists()  # checked before any sequence is prepared
+
+
+def test_the_stage_stores_the_second_reference_of_real_files_with_their_repairs(tmp_path):
+    """`stage=preprocess` on written EXRs (the default loader): the held-out scenes' second references,
+    one with a negative pixel the repair policy clamps (recorded under reference2/, apart from its
+    reference's name), stored as read."""
+    from src.data.volume_buffers import write_volume_exr
+    from src.kinds.sequences import preprocess_settings
+    from src.stages import preprocess
+
+    cfg = smoke_config(
+        tmp_path / "data",
+        tmp_path / "run",
+        ["dataset=volumetric", "dataset.second_reference=true", "task.preprocess.repair.negative=clamp"],
+    )
+    raw = Path(cfg.paths.raw)
+    scenes = ("a-0000", "b-0000", "c-0000")
+    for s in scenes:
+        for f in range(2):
+            for spp in (2, 16):
+                write_volume_exr(raw / volume_exr_name(s, f, spp), synthetic_frame(s, f, spp))
+    p = preprocess_settings(cfg)
+    split = split_scenes(scenes, p["split_fractions"], p["split_seed"])
+    held_out = split["val"] + split["test"]
+    second = {(s, f): synthetic_frame(_second(s), f, 16) for s in held_out for f in range(2)}
+    second[held_out[0], 1]["color"][3, 4, 1] = -0.5
+    for (s, f), frame in second.items():
+        write_volume_exr(raw / SECOND_REFERENCE_DIR / volume_exr_name(s, f, 16), frame)
+    summary = preprocess(cfg)
+    assert summary["repairs"] == {f"reference2/{volume_exr_name(held_out[0], 1, 16)}": "negative: G=1"}
+    second[held_out[0], 1]["color"][3, 4, 1] = 0.0
+    prepared = Path(cfg.paths.prepared)
+    for split_name in ("val", "test"):
+        (item,) = [i for i in SequenceDataset(prepared, split_name) if i["spp"] == 2]
+        assert torch.equal(item["reference2"], _chw([second[item["scene"], f]["color"] for f in range(2)]))
 
 
 # --- the config: the scenes the render stage gives a second reference, the prepared data's cache key ---
@@ -258,32 +294,38 @@ def test_second_references_of_scenes_no_longer_held_out_are_removed(tmp_path, cp
 
 @pytest.mark.slow
 def test_the_smoke_pipeline_with_a_second_reference_logs_the_floored_flicker(tmp_path):
-    """The smoke profile's sequences rendered with `dataset.second_reference=true` (the held-out two scenes'
-    second references, 2 frames each), preprocessed, and a filter evaluated: its run logs
-    eval_flicker_unbiased beside the unchanged metrics."""
+    """The smoke profile's sequences rendered without, then preprocessed with `dataset.second_reference=true`
+    (one line, exit 2: no second reference), rendered with it (only the held-out two scenes' second
+    references, 2 frames each, are new), preprocessed, and a filter evaluated: its run logs
+    eval_flicker_unbiased beside the other metrics."""
     import mlflow
 
-    args = [
-        "dataset=volumetric",
-        "profile=smoke",
-        "dataset.second_reference=true",
-        f"hydra.run.dir={tmp_path}/h",
-    ]
-    for stage, expect in (
-        (["stage=render"], "render: 28 files (0 cached)"),
-        (["stage=preprocess"], "preprocess: 8 noisy sequences"),
-        (["stage=eval", "model=cross_bilateral"], "eval"),
+    from tests.conftest import one_line_cli_error
+
+    base = ["dataset=volumetric", "profile=smoke", f"hydra.run.dir={tmp_path}/h"]
+    on = [*base, "dataset.second_reference=true"]
+
+    def run(*args):
+        cmd, env = cli_job(list(args), tmp_path)
+        return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+
+    for args, expect in (
+        (["stage=render", *base], "render: 24 files (0 cached)"),
+        (["stage=preprocess", *on], None),
+        (["stage=render", *on], "render: 4 files (24 cached)"),
+        (["stage=preprocess", *on], "preprocess: 8 noisy sequences"),
+        (["stage=eval", "model=cross_bilateral", *on], "eval: cross_bilateral"),
     ):
-        cmd, env = cli_job([*stage, *args], tmp_path)
-        result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+        result = run(*args)
+        if expect is None:
+            one_line_cli_error(result, "reference2", "dataset.second_reference", "stage=render")
+            continue
         assert result.returncode == 0, result.stderr[-3000:]
         assert expect in result.stdout, result.stdout[-2000:]
     raw = tmp_path / "volumetric" / "smoke" / "raw"
     assert len(list((raw / SECOND_REFERENCE_DIR).glob("*.exr"))) == 4
     mlflow.set_tracking_uri(f"sqlite:///{tmp_path}/mlflow.db")
-    runs = mlflow.search_runs(search_all_experiments=True)
-    metrics = runs.iloc[0].filter(like="metrics.eval_")
-    assert np.isfinite(metrics["metrics.eval_flicker_unbiased"]) and np.isfinite(
-        metrics["metrics.eval_tpsnr"]
-    )
-    assert np.isfinite(metrics["metrics.eval_noisy_flicker_unbiased"])
+    runs = mlflow.search_runs(search_all_experiments=True, order_by=["start_time DESC"])
+    metrics = runs.iloc[0]
+    for key in ("eval_flicker_unbiased", "eval_noisy_flicker_unbiased", "eval_tpsnr", "eval_temporal"):
+        assert np.isfinite(metrics[f"metrics.{key}"]), key
