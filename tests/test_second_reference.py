@@ -265,7 +265,10 @@ def _entry(folder: Path, name: str) -> None:
     (folder / "manifest" / f"{name}.json").write_text("{}")
 
 
-def test_second_references_of_scenes_no_longer_held_out_are_removed(tmp_path, cpu_ds):
+def test_stale_second_references_are_removed_and_those_of_another_split_kept(tmp_path, cpu_ds):
+    """With the option on, a second reference of a scene another split holds out (the other task's, or a
+    split_seed before) stays; one of a frame, scene or reference count the dataset no longer has goes;
+    with the option off every one goes; a user's file without an entry always stays."""
     from src.render.volume_dataset import remove_stale_volume_files
 
     ds = {**cpu_ds, "frames": 2}
@@ -273,20 +276,29 @@ def test_second_references_of_scenes_no_longer_held_out_are_removed(tmp_path, cp
     for s in ("cloud-0000", "godrays-0000"):
         _entry(raw, volume_exr_name(s, 0, 256))
         _entry(second, volume_exr_name(s, 0, 256))
+    stale = [volume_exr_name("godrays-0000", 2, 256), volume_exr_name("cloud-0009", 0, 256)]
+    stale += [volume_exr_name("cloud-0000", 1, 64)]  # no frame 2, no 10th cloud, another reference count
+    for name in stale:
+        _entry(second, name)
     (second / "mine-f0000-00256spp.exr").write_bytes(b"a user's file: no entry")
-    removed = remove_stale_volume_files(ds, raw, ["godrays-0000"])  # the split changed: cloud is train
-    assert removed == ["reference2/cloud-0000-f0000-00256spp.exr"]
+    assert remove_stale_volume_files(ds, raw, True) == sorted(f"reference2/{n}" for n in stale)
     assert sorted(p.name for p in second.glob("*.exr")) == [
+        "cloud-0000-f0000-00256spp.exr",
         "godrays-0000-f0000-00256spp.exr",
         "mine-f0000-00256spp.exr",
+    ]
+    assert sorted(p.name for p in (second / "manifest").iterdir()) == [
+        "cloud-0000-f0000-00256spp.exr.json",
+        "godrays-0000-f0000-00256spp.exr.json",
     ]
     assert sorted(p.name for p in raw.glob("*.exr")) == [
         volume_exr_name(s, 0, 256) for s in ("cloud-0000", "godrays-0000")
     ]
-    assert remove_stale_volume_files(ds, raw, []) == [
-        "reference2/godrays-0000-f0000-00256spp.exr"
-    ]  # option off
+    assert remove_stale_volume_files(ds, raw, False) == [
+        f"reference2/{volume_exr_name(s, 0, 256)}" for s in ("cloud-0000", "godrays-0000")
+    ]  # the option off
     assert sorted(p.name for p in second.rglob("*") if p.is_file()) == ["mine-f0000-00256spp.exr"]
+    assert len(list(raw.glob("*.exr"))) == 2  # the other files stay
 
 
 # --- the pipeline ---

@@ -16,9 +16,14 @@ references let the evaluation estimate the flicker against the noise-free truth
 (``src.metrics.temporal.flicker_unbiased``). Only the held-out scenes: only their whole sequences are
 evaluated, and at the cpu profile the references are 90% of the render time (the held-out four of the
 eight scenes' references: +30% in all, against +90% for every scene). What decides the split
-(``task.preprocess.split``, ``split_seed``, ``split_by_base``) decides which second references exist, not
-what any of them holds, so it is not in a file's render key: a change of split removes the second
-references of the scenes no longer held out (as stale) and renders the newly held-out ones.
+(``task.preprocess.split``, ``split_seed``, ``split_by_base``) decides which second references are
+rendered, not what any of them holds, so it is not in a file's render key: a change of split renders the
+newly held-out scenes' second references and keeps those of scenes no longer held out. Kept, because
+preprocessing reads the held-out scenes' files by name (an extra file is never mixed in), and the two
+tasks on these data split differently (task=filter_search sets ``split_by_base``): removing them would
+render the costliest files again every time the other task renders into the same folder. Stale are second
+references of scenes, frames or a reference count the dataset no longer has, and all of them when the
+option is off (``remove_stale_volume_files``).
 
 Motion: ``motion`` (``frame_motion``) is the flow in pixels from this frame to the next, computed from the
 file's own mean ``position`` buffer with the cameras of frames t and t+1.
@@ -205,11 +210,12 @@ def load_volume_frame(source: SceneSource, frame: int, ds: Mapping):
         ) from err
 
 
-def remove_stale_volume_files(ds: Mapping, raw_dir: Path, second_reference: Collection[str]) -> list[str]:
+def remove_stale_volume_files(ds: Mapping, raw_dir: Path, second_reference: bool) -> list[str]:
     """Delete the files (and manifest entries) of ``raw_dir`` that the whole dataset no longer makes: in
-    ``raw_dir`` those of no (scene, frame, spp) of ``ds``, in ``raw_dir/reference2`` those of no scene in
-    ``second_reference`` (every one when it is empty). Returns the names removed (``reference2/`` ones
-    with that prefix). Files without a manifest entry (a user's own) stay (``remove_stale_entries``)."""
+    ``raw_dir`` those of no (scene, frame, spp) of ``ds``; in ``raw_dir/reference2`` those of no (scene,
+    frame) of ``ds`` at its reference count, and every one when ``second_reference`` is off (those of
+    scenes another split holds out stay: module docstring). Returns the names removed (``reference2/``
+    ones with that prefix). Files without a manifest entry (a user's own) stay (``remove_stale_entries``)."""
     _, reference = spp_counts(ds)
     every_frame = range(int(ds["frames"]))
     every_file = {
@@ -218,7 +224,12 @@ def remove_stale_volume_files(ds: Mapping, raw_dir: Path, second_reference: Coll
         for f in every_frame
         for spp, _ in frame_jobs(ds, s.name)
     }
-    every_second = {volume_exr_name(s, f, reference) for s in second_reference for f in every_frame}
+    every_second = {
+        volume_exr_name(s.name, f, reference)
+        for s in scene_sources(ds)
+        for f in every_frame
+        if second_reference
+    }
     removed = remove_stale_entries(raw_dir, MANIFEST_DIR, every_file)
     second_dir = raw_dir / SECOND_REFERENCE_DIR
     return removed + [
@@ -288,8 +299,8 @@ def render_volumetric_dataset(
     of them; subsets rendered by separate (even concurrent) jobs compose to the files of one full run.
     Files whose manifest entry holds the current render key are kept; files with an entry that the whole
     dataset (every scene and frame, whatever the subset) no longer has are deleted first
-    (``remove_stale_entries``: files without an entry, a user's own, stay); so are the second references
-    of scenes not in ``second_reference`` (all of them when it is empty: ``dataset.second_reference`` off).
+    (``remove_stale_entries``: files without an entry, a user's own, stay); so are all second references
+    when ``second_reference`` is empty (``dataset.second_reference`` off; ``remove_stale_volume_files``).
     """
     import mitsuba as mi
 
@@ -303,7 +314,7 @@ def render_volumetric_dataset(
     register()
     integrator = mi.load_dict({"type": INTEGRATOR, **dict(ds["integrator"])})
     raw_dir.mkdir(parents=True, exist_ok=True)
-    removed = remove_stale_volume_files(ds, raw_dir, second)
+    removed = remove_stale_volume_files(ds, raw_dir, bool(second))
 
     sources = {s.name: s for s in scene_sources(ds)}
     units: dict[tuple[str, int], list[dict]] = {}
