@@ -12,7 +12,9 @@ for sequences, in the batch contract of `src.models.denoise.base`: the sequences
 colour (what a KPCN's kernels filter) and `radiance_target` the transformed reference. Besides:
 `surface_t` / `volume_t` / `target_surface` / `target_volume` (the colour's parts), `color` and
 `reference` (linear), and the guides `albedo`, `normal`, `depth` and `motion` (flow in pixels to the next
-frame), taken from the stored candidates whatever the selection.
+frame), taken from the stored candidates whatever the selection. Whole sequences of data rendered with
+`dataset.second_reference` also hold `reference2` (the second, independently seeded reference, linear),
+from which the evaluation scores the flicker against the truth; others do not (never made up).
 `inverse_volume_transform(x, dataset.volume_transform)` maps `radiance_target` / `radiance_t` / a
 network's output back to linear radiance.
 """
@@ -31,7 +33,7 @@ from src.data.denoise_dataset import ShardStream
 from src.data.kpcn_preprocess import WhiteningStats, load_whitening_stats, whiten
 from src.data.shards import INDEX_NAME, load_tensors, read_index
 from src.data.volume_features import Features, volume_channel_indices, volume_feature_channels
-from src.data.volume_shards import SEQUENCE_KEYS
+from src.data.volume_shards import SECOND_REFERENCE_KEY, SEQUENCE_KEYS
 
 Whitening = Mapping[str, WhiteningStats] | str | os.PathLike[str] | None
 #: The one branch of the sequences (`src.models.denoise.base`: its groups `radiance_in`, `radiance_t`,
@@ -66,6 +68,8 @@ class _Selection:
 
     def apply(self, data: Mapping[str, torch.Tensor], channel_axis: int) -> dict[str, torch.Tensor]:
         out = {_BATCH_NAMES.get(k, k): data[k] for k in SEQUENCE_KEYS}
+        if SECOND_REFERENCE_KEY in data:  # only whole held-out sequences of data rendered with one
+            out[SECOND_REFERENCE_KEY] = data[SECOND_REFERENCE_KEY]
         for key, idx in self.extra.items():
             out[key] = data["inputs"].index_select(channel_axis, idx)
         inputs = data["inputs"].index_select(channel_axis, self.inputs)
@@ -109,7 +113,8 @@ class SequencePatchDataset(ShardStream):
 
 class SequenceDataset(Dataset):
     """Whole sequences of one split from `<prepared>/full/<split>/` (val, test), one file per item:
-    dicts of (F, C, H, W) tensors plus `scene` (str), `spp` and `reference_spp` (int)."""
+    dicts of (F, C, H, W) tensors (`reference2` too where the index names it) plus `scene` (str), `spp`
+    and `reference_spp` (int)."""
 
     def __init__(
         self,
@@ -131,7 +136,8 @@ class SequenceDataset(Dataset):
     @property
     def batch_keys(self) -> frozenset[str]:
         """The tensor keys of every item (no sequence read): what `_Selection.apply` returns."""
-        return frozenset((*(_BATCH_NAMES.get(k, k) for k in SEQUENCE_KEYS), *_ALWAYS))
+        second = (SECOND_REFERENCE_KEY,) if SECOND_REFERENCE_KEY in self.index["channels"] else ()
+        return frozenset((*(_BATCH_NAMES.get(k, k) for k in SEQUENCE_KEYS), *_ALWAYS, *second))
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         meta = self.sequences[i]

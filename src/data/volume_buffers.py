@@ -76,6 +76,13 @@ write_volume_exr = VOLUME_LAYOUT.write
 _VOLUME_EXR_NAME = re.compile(r"^(?P<scene>.+)-f(?P<frame>\d+)-(?P<spp>\d+)spp\.exr$")
 
 
+#: Sub-folder of the raw folder holding the second, independent reference of the held-out scenes
+#: (``dataset.second_reference``), named like the others: ``<raw>/reference2/<scene>-f<FFFF>-<NNNNN>spp.exr``
+#: (with its own ``manifest/``). A folder of its own, so that `group_volume_dataset` (the raw folder's
+#: ``*.exr``) never takes a second reference for a sample count of the sequence.
+SECOND_REFERENCE_DIR = "reference2"
+
+
 def volume_exr_name(scene: str, frame: int, spp: int) -> str:
     """The file of one render: ``<scene>-f<FFFF>-<NNNNN>spp.exr`` (inverse of `parse_volume_exr_name`)."""
     return f"{scene}-f{frame:04d}-{spp:05d}spp.exr"

@@ -10,7 +10,12 @@ lower one a noisy *sequence* of the scene's F frames. For each noisy sequence, p
   which a run selects `task.volume_features` by name at load time;
 * `target`, `target_surface`, `target_volume`: the reference's colour, surface and volume radiance under
   the same `volume_transform` (`inverse_volume_transform` gives back the linear reference);
-* `color`, `reference`: the noisy and the reference colour, linear (baselines, metrics).
+* `color`, `reference`: the noisy and the reference colour, linear (baselines, metrics);
+* `reference2` (`second_reference`, whole val/test sequences only): the colour of the second, independently
+  seeded reference `<raw>/reference2/<scene>-f<FFFF>-<NNNNN>spp.exr` (`src.render.volume_dataset`), linear,
+  from which evaluation estimates the flicker against the noise-free truth
+  (`src.metrics.temporal.flicker_unbiased`). Never in training samples (nothing trains on it), never in
+  data rendered without it (then the full indices do not name it and evaluation leaves that metric out).
 
 A training sample (train and val splits) is the same crop over `sequence_frames` = k consecutive frames,
 sampled by `sequence_patches.sample_sequence_patches` on per-frame importance maps (the thesis map of
@@ -21,7 +26,8 @@ the noisy colour and normals by default). Layout under `out_dir`, as `src.data.s
     summary.json                what `preprocess_volume_dataset` returns
     patches/<split>/index.json  (train, val) one shard per (scene, noisy spp)
     patches/<split>/<scene>-<NNNNN>spp.pt   (n, k, C, P, P) tensors; int64 `starts` (n,), `corners` (n, 2)
-    full/<split>/index.json     (val, test) one whole sequence per (scene, noisy spp)
+    full/<split>/index.json     (val, test) one whole sequence per (scene, noisy spp); its channels name
+                                `reference2` when the sequences hold it
     full/<split>/<scene>-<NNNNN>spp.pt      (F, C, H, W) tensors
 
 float32 throughout (HDR radiance and variances, as `shards.py` argues). Every file is written
@@ -53,7 +59,7 @@ from src.data.patch_sampling import check_importance, configured_importance_map
 from src.data.sequence_patches import FRAMES_KEY, extract_sequence_patches, sample_sequence_patches
 from src.data.shards import _channels_first, _image_rng, save_tensors, shard_name
 from src.data.splits import SPLITS, split_scenes
-from src.data.volume_buffers import group_volume_dataset
+from src.data.volume_buffers import SECOND_REFERENCE_DIR, group_volume_dataset, volume_exr_name
 from src.data.volume_features import (
     NO_VARIANCE,
     VALUE_KINDS,
@@ -77,6 +83,12 @@ SEQUENCE_CHANNELS: dict[str, tuple[str, ...]] = {
     "reference": _RGB,  # reference colour, linear
 }
 SEQUENCE_KEYS = tuple(SEQUENCE_CHANNELS)
+#: The second reference's colour, linear: stored in the whole held-out sequences of data rendered with
+#: `dataset.second_reference` only (not one of `SEQUENCE_KEYS`, which every item holds).
+SECOND_REFERENCE_KEY = "reference2"
+#: The splits whose whole sequences are stored (and evaluated, `task.eval.split`): they get the second
+#: reference.
+FULL_SPLITS = ("val", "test")
 #: The buffers read from a noisy file: every feature buffer and its variance (not the world points).
 NOISY_BUFFERS = tuple(VOLUME_FEATURE_BUFFERS) + tuple(
     f"{b}Variance" for b in VOLUME_FEATURE_BUFFERS if b not in NO_VARIANCE
@@ -190,9 +202,7 @@ class _SequenceWriter:
         self.out_dir, self.settings = out_dir, settings
         self.moments = RunningMoments()
         self.indices: dict[tuple[str, str], list[dict[str, Any]]] = {
-            (kind, s): []
-            for kind, ss in (("patches", ("train", "val")), ("full", ("val", "test")))
-            for s in ss
+            (kind, s): [] for kind, ss in (("patches", ("train", "val")), ("full", FULL_SPLITS)) for s in ss
         }
 
     def add(self, split: str, entry: dict[str, Any], arrays: dict, importance: np.ndarray) -> None:
@@ -209,14 +219,16 @@ class _SequenceWriter:
                 min_keep_prob=s["min_keep_prob"],
                 min_distance=s["min_distance"],
             )
-            samples = {key: extract_sequence_patches(a, starts, corners, p, k) for key, a in arrays.items()}
+            samples = {
+                key: extract_sequence_patches(arrays[key], starts, corners, p, k) for key in SEQUENCE_KEYS
+            }
             if split == "train":
                 self.moments.update(samples["inputs"])
             shard = {key: _channels_first(v) for key, v in samples.items()}
             shard |= {"starts": torch.from_numpy(starts), "corners": torch.from_numpy(corners)}
             save_tensors(self.out_dir / "patches" / split / entry["file"], shard)
             self.indices["patches", split].append({**entry, "n_samples": len(starts)})
-        if split in ("val", "test"):
+        if split in FULL_SPLITS:
             full = {key: _channels_first(v) for key, v in arrays.items()}
             save_tensors(self.out_dir / "full" / split / entry["file"], full)
             h, w = arrays["color"].shape[1:3]
@@ -227,6 +239,7 @@ class _SequenceWriter:
     ) -> dict[str, Any]:
         channels = {k: list(v) for k, v in SEQUENCE_CHANNELS.items()}
         s = self.settings
+        second = {SECOND_REFERENCE_KEY: list(_RGB)} if s.get("second_reference") else {}
         for (kind, split), entries in self.indices.items():
             index = {
                 "kind": kind,
@@ -234,7 +247,7 @@ class _SequenceWriter:
                 "dtype": "float32",
                 "layout": "(n, k, C, P, P)" if kind == "patches" else "(F, C, H, W)",
                 "volume_transform": s["volume_transform"],
-                "channels": channels,
+                "channels": channels | (second if kind == "full" else {}),
                 "shards": entries,
             }
             if kind == "patches":
@@ -261,15 +274,57 @@ class _SequenceWriter:
         return summary
 
 
-def _scene_sequences(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn, settings: Mapping[str, Any]):
+def second_reference_paths(raw_dir, scene: str, frames: Mapping) -> list[Path]:
+    """The files of the second reference of `scene`, `<raw_dir>/reference2/<scene>-f<FFFF>-<ref spp>spp.exr`
+    for every frame at the reference's sample count; a one-line DataError when one is missing (a render of
+    another split or without `dataset.second_reference`)."""
+    ref_spp = max(frames[0])
+    paths = [Path(raw_dir) / SECOND_REFERENCE_DIR / volume_exr_name(scene, f, ref_spp) for f in frames]
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        raise DataError(
+            f"{missing[0]}: the second reference of held-out scene {scene!r} (dataset.second_reference=true) "
+            f"is missing ({len(missing)} of its {len(paths)} frames); run stage=render with the same "
+            "task.preprocess.split, split_seed and split_by_base as stage=preprocess"
+        )
+    return paths
+
+
+def second_reference_colour(raw_dir, scene: str, frames: Mapping, load_fn: LoadFn) -> np.ndarray:
+    """(F, H, W, 3) float32: the linear colour of the second reference of `scene`
+    (`second_reference_paths`)."""
+    paths = second_reference_paths(raw_dir, scene, frames)
+    colour = _stack(
+        [load_fn(p, ("color",)) for p in paths], ("color",), f"{raw_dir}: {scene} second reference"
+    )
+    return colour["color"]
+
+
+def _scene_sequences(
+    raw_dir,
+    scene: str,
+    frames: Mapping,
+    load_fn: LoadFn,
+    settings: Mapping[str, Any],
+    second_reference: bool = False,
+):
     """(index entry, stored arrays, per-frame importance maps) of each noisy sequence of one scene; the
-    reference is the scene's highest sample count."""
+    reference is the scene's highest sample count. `second_reference`: the arrays also hold `reference2`
+    (`second_reference_colour`), the same for every noisy sequence of the scene."""
     counts = sorted(frames[0])
     ref_spp = counts[-1]
     ref = [load_fn(frames[f][ref_spp], REFERENCE_BUFFERS) for f in frames]
+    ref2 = second_reference_colour(raw_dir, scene, frames, load_fn) if second_reference else None
     for spp in counts[:-1]:
         noisy = [load_fn(frames[f][spp], NOISY_BUFFERS) for f in frames]
         arrays = sequence_arrays(noisy, ref, settings["volume_transform"], f"{raw_dir}: {scene} {spp} spp")
+        if ref2 is not None:
+            if ref2.shape != arrays["reference"].shape:
+                raise DataError(
+                    f"{raw_dir}: {scene}: second reference of {ref2.shape[1:3]} per frame, reference "
+                    f"{arrays['reference'].shape[1:3]}"
+                )
+            arrays[SECOND_REFERENCE_KEY] = ref2
         imp = np.stack([configured_importance_map(n, settings) for n in noisy])
         entry = {
             "file": shard_name(scene, spp),
@@ -302,6 +357,7 @@ def preprocess_volume_dataset(
     load_fn: LoadFn | None = None,
     progress: bool = True,
     split_by_base: bool = False,
+    second_reference: bool = False,
 ) -> dict[str, Any]:
     """Rendered volumetric sequences -> splits, sequence-sample shards, whole sequences, whitening stats
     (module docstring). `patches_per_sequence` samples of `sequence_frames` frames of `patch_size`^2 per
@@ -309,7 +365,8 @@ def preprocess_volume_dataset(
     bound; None: half a patch) as in `sample_sequence_patches`. `load_fn(path, buffers)` maps a file to
     its buffer dict (default: `load_volume_exr`). Deterministic given the seeds (one generator per
     sequence, from the seed, the scene and the spp). Returns (and writes to summary.json) the counts and
-    the settings."""
+    the settings. `second_reference` (`dataset.second_reference`): the whole val and test sequences also
+    hold `reference2` (`second_reference_colour`; a one-line DataError when a held-out scene lacks it)."""
     _check_transform(volume_transform)
     check_importance(importance)
     settings = {
@@ -330,6 +387,8 @@ def preprocess_volume_dataset(
     }
     if split_by_base:  # absent when off: the summaries of folders made before the option stay the same
         settings["split_by_base"] = True
+    if second_reference:  # likewise
+        settings["second_reference"] = True
     load_fn = load_fn or _default_load_fn
     out_dir = Path(out_dir)
     start = time.perf_counter()
@@ -341,12 +400,18 @@ def preprocess_volume_dataset(
             f"{FRAMES_KEY}={sequence_frames} is more than the {n} frame(s) of scene {scene!r} in {raw_dir}"
         )
     splits = split_scenes(groups, split_fractions, split_seed, split_by_base)
+    if second_reference:  # every held-out scene's files, before any work
+        for scene in (s for split in FULL_SPLITS for s in splits[split]):
+            second_reference_paths(raw_dir, scene, groups[scene])
     writer = _SequenceWriter(out_dir, settings)
     n_sequences = sum(len(next(iter(fr.values()))) - 1 for fr in groups.values())
     bar = tqdm(total=n_sequences, desc="preprocess volumetric", unit="seq", disable=not progress)
     for split in SPLITS:
+        second = second_reference and split in FULL_SPLITS  # only the whole sequences hold it
         for scene in splits[split]:
-            for entry, arrays, imp in _scene_sequences(raw_dir, scene, groups[scene], load_fn, settings):
+            for entry, arrays, imp in _scene_sequences(
+                raw_dir, scene, groups[scene], load_fn, settings, second
+            ):
                 writer.add(split, entry, arrays, imp)
                 bar.update(1)
     bar.close()

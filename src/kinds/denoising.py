@@ -161,7 +161,10 @@ class DenoisingKind(DataKind):
         def load(path: Path, buffers=None):
             loaded, report = load_exr(path, repair=policy, buffers=buffers)
             if report.total:
-                repairs[path.name] = report.summary()
+                # by path within the raw folder: a second reference (reference2/) has its reference's name
+                repairs[str(path.relative_to(raw)) if path.is_relative_to(raw) else path.name] = (
+                    report.summary()
+                )
             return loaded
 
         with atomic_directory(out) as tmp:

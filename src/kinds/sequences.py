@@ -35,7 +35,22 @@ def preprocess_settings(cfg: DictConfig) -> dict[str, Any]:
         **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
         # only when on: the cache keys of folders made before the option stay the same
         **({"split_by_base": True} if p.get("split_by_base") else {}),
+        # the held-out sequences' second reference (dataset.second_reference; absent when off, as above)
+        **({"second_reference": True} if cfg.dataset.get("second_reference") else {}),
     }
+
+
+def held_out_scenes(cfg: DictConfig) -> list[str]:
+    """The val and test scenes preprocessing will make of this config's renders: `split_scenes` of every
+    scene the dataset renders, with the same `task.preprocess` keys (`preprocess_settings`) as
+    `preprocess_volume_dataset`; the scenes whose second reference the render stage makes."""
+    from src.data.splits import split_scenes
+    from src.render.render_dataset import scene_sources
+
+    s = preprocess_settings(cfg)
+    names = [source.name for source in scene_sources(OmegaConf.to_container(cfg.dataset, resolve=True))]
+    splits = split_scenes(names, s["split_fractions"], s["split_seed"], s.get("split_by_base", False))
+    return sorted(splits["val"] + splits["test"])
 
 
 class RenderedSequences(DenoisingKind):
@@ -46,12 +61,16 @@ class RenderedSequences(DenoisingKind):
 
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
         """Every sequence, or the `render_scenes` / `render_frames` subset a fanned-out job was given: then
-        one summary file per subset, so jobs keep theirs."""
+        one summary file per subset, so jobs keep theirs. With `dataset.second_reference`, also the second
+        reference of the held-out scenes (`held_out_scenes`)."""
         from src.render.volume_dataset import render_volumetric_dataset
 
         ds = OmegaConf.to_container(cfg.dataset, resolve=True)
         scenes, frames = ds.get("render_scenes"), ds.get("render_frames")
-        summary = render_volumetric_dataset(ds, raw, cfg.render.variant, scenes=scenes, frames=frames)
+        second = held_out_scenes(cfg) if ds.get("second_reference") else []
+        summary = render_volumetric_dataset(
+            ds, raw, cfg.render.variant, scenes=scenes, frames=frames, second_reference=second
+        )
         summary_path = Path(cfg.paths.dataset) / "render_summary.json"
         if scenes is not None or frames is not None:
             tag = hashlib.sha256(json.dumps([scenes, frames]).encode()).hexdigest()[:8]

@@ -29,7 +29,9 @@ from src.io.atomic import atomic_write_json
 from src.render.moments import MomentAccumulator, variance_of_mean
 from src.render.stale_renders import remove_stale_files
 
-ROLE_IDS = {"noisy": 1, "reference": 2}
+#: Each role's part of a pass seed (`pass_seed`): ``reference2`` is the volumetric sequences' second,
+#: independent reference of the held-out scenes (``dataset.second_reference``).
+ROLE_IDS = {"noisy": 1, "reference": 2, "reference2": 3}
 
 
 @dataclass(frozen=True)

@@ -315,6 +315,8 @@ class VolumetricDataset(DenoisingData):
     # Subsets the render stage renders (null: all), to fan it out over jobs; not part of any file's key.
     render_scenes: Annotated[list[Annotated[str, Field(min_length=1)]], Field(min_length=1)] | None = None
     render_frames: Annotated[list[NonNegativeInt], Field(min_length=1)] | None = None
+    # A second, independently seeded reference of the held-out sequences (src/render/volume_dataset.py).
+    second_reference: bool
 
     @model_validator(mode="after")
     def _reference_above_noisy(self) -> VolumetricDataset:
