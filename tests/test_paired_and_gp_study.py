@@ -215,3 +215,28 @@ def test_paired_table_needs_two_rows_and_compares_differences_where_a_ratio_is_z
     zero.loc[(zero["params.model.name"] == "A") & (zero["scene"] == "s0"), "metrics.relmse_ratio"] = 0.0
     table = paired_table(zero, ["model.name"])
     assert "relMSE / noisy vs best (difference)" in table and "relMSE / noisy vs best (ratio)" not in table
+
+
+def test_paired_table_compares_sequences_on_their_flicker_and_temporal_psnr():
+    """Sequence rows carry per-item `flicker_unbiased` and `tpsnr`: lower flicker and higher tPSNR are
+    best; an infinite tPSNR (an output changing exactly as its reference) pairs nothing instead of
+    failing; still-image rows, which lack both, get no such columns."""
+    from src.report.tables import paired_table
+
+    study = _study()
+    assert "Flicker vs truth" not in paired_table(study, ["model.name"])
+    a = study["params.model.name"] == "A"
+    b = study["params.model.name"] == "B"
+    study.loc[a, "metrics.flicker_unbiased"] = 0.02
+    study.loc[b, "metrics.flicker_unbiased"] = 0.05
+    study["metrics.tpsnr"] = 30.0
+    study.loc[b, "metrics.tpsnr"] = 28.0
+    first_a = study.index[a][0]
+    study.loc[first_a, "metrics.tpsnr"] = np.inf
+    table = paired_table(study, ["model.name"])
+    assert table.loc[("A",), "Flicker vs truth"] == "best"
+    assert table.loc[("B",), "Flicker vs truth vs best (difference)"] == pytest.approx(0.03)
+    assert table.loc[("B",), "Flicker vs truth"] == "shown"  # 6 of 6 pairs one way
+    assert pd.isna(table.loc[("C",), "Flicker vs truth vs best (difference)"])  # C has no flicker scores
+    assert table.loc[("B",), "tPSNR vs best (difference)"] == pytest.approx(-2.0)
+    assert table.loc[("B",), "tPSNR"] == "not shown"  # 5 pairs left: the smallest p is 0.0625

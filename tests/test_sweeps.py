@@ -437,6 +437,7 @@ def test_the_volumetric_studies_sweep_what_they_name():
     assert list(arms.sweep_string_iterator()) == ["all", "selected", "color_only", "random"]
     weights = list(swept(temporal)["task.train.volumetric.temporal_weight"].sweep_string_iterator())
     assert weights[0] == "0.0" and float(weights[1]) == temporal.task.train.volumetric.temporal_weight > 0
+    assert list(temporal.report.metrics)[:3] == ["Flicker vs truth", "Flicker", "tPSNR"]  # the claim's
     for cfg in (selection, temporal):
         assert cfg.dataset.name == "volumetric" and cfg.model.name == "unet_kpcn"
         assert cfg.tracking.experiment == "nrbench-denoise-volumetric"

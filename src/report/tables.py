@@ -240,6 +240,10 @@ def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> 
 PAIRED_METRICS: dict[str, tuple[str, bool, bool]] = {
     "relMSE / noisy": ("relmse_ratio", True, False),
     "PSNR": ("psnr", False, True),
+    # sequences only (absent elsewhere): the flicker against the truth (data with a second reference) and
+    # Noisebase's temporal PSNR
+    "Flicker vs truth": ("flicker_unbiased", False, False),
+    "tPSNR": ("tpsnr", False, True),
 }
 #: The significance level of the paired table's verdicts (two-sided).
 PAIRED_ALPHA = 0.05
@@ -251,7 +255,8 @@ def _item_means(images: pd.DataFrame, keys: pd.Series, row: str, column: str) ->
     """One row's score per item (seed, scene, spp); the mean where a row has one item twice."""
     part = images[keys.map(lambda k: k == row)]
     index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in PAIRED_ITEM]
-    return pd.to_numeric(part[f"metrics.{column}"]).groupby(index).mean().dropna()
+    scores = pd.to_numeric(part[f"metrics.{column}"]).replace([np.inf, -np.inf], np.nan)
+    return scores.groupby(index).mean().dropna()  # an infinite tPSNR (a copy of the reference) pairs nothing
 
 
 def paired_table(
@@ -281,7 +286,7 @@ def paired_table(
     table = pd.DataFrame(index=pd.MultiIndex.from_tuples(rows, names=labels))
     specs: dict[str, MetricSpec] = {}
     for label, (column, log_scale, higher) in PAIRED_METRICS.items():
-        if f"metrics.{column}" not in images:
+        if f"metrics.{column}" not in images or images[f"metrics.{column}"].isna().all():
             continue
         scores = {row: _item_means(images, keys, row, column) for row in rows}
         log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
