@@ -181,10 +181,6 @@ def cx_thesis(ind1: gp.PrimitiveTree, ind2: gp.PrimitiveTree, same_pairs: bool =
     return _exchange(ind1, ind2, thesis_points(ind1, ind2), same_pairs)
 
 
-#: Crossover rule -> its point drawing (`SearchParams.crossover_points`).
-CROSSOVER_POINTS = {"type_first": type_first_points, "thesis": thesis_points}
-
-
 def mut_insert(
     individual: gp.PrimitiveTree, book: Mapping[type, Sequence[list]], pset, same_pairs: bool = False
 ):
