@@ -251,9 +251,9 @@ PAIRED_ALPHA = 0.05
 PAIRED_ITEM = ("params.seed", "scene", "spp")
 
 
-def _item_means(images: pd.DataFrame, keys: pd.Series, row: str, column: str) -> pd.Series:
-    """One row's score per item (seed, scene, spp); the mean where a row has one item twice."""
-    part = images[keys.map(lambda k: k == row)]
+def _item_means(part: pd.DataFrame, column: str) -> pd.Series:
+    """One row's score (its image rows `part`) per item (seed, scene, spp); the mean where a row has one
+    item twice."""
     index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in PAIRED_ITEM]
     scores = pd.to_numeric(part[f"metrics.{column}"]).replace([np.inf, -np.inf], np.nan)
     return scores.groupby(index).mean().dropna()  # an infinite tPSNR (a copy of the reference) pairs nothing
@@ -283,12 +283,13 @@ def paired_table(
     rows = list(dict.fromkeys(keys))
     if len(rows) < 2:
         return None
+    row_images = {row: images[keys.map(lambda k, r=row: k == r)] for row in rows}
     table = pd.DataFrame(index=pd.MultiIndex.from_tuples(rows, names=labels))
     specs: dict[str, MetricSpec] = {}
     for label, (column, log_scale, higher) in PAIRED_METRICS.items():
         if f"metrics.{column}" not in images or images[f"metrics.{column}"].isna().all():
             continue
-        scores = {row: _item_means(images, keys, row, column) for row in rows}
+        scores = {row: _item_means(row_images[row], column) for row in rows}
         log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
         scored = [row for row in rows if len(scores[row])]
         if not scored:
@@ -319,8 +320,10 @@ def paired_table(
             specs["pairs"] = ("", None, "{:,.0f}")
     if not specs:
         return None
-    runs = images["run_id"] if "run_id" in images else pd.Series(range(len(images)), index=images.index)
-    table[RUNS_COLUMN] = [int(runs[keys.map(lambda k, r=row: k == r)].nunique()) for row in rows]
+    table[RUNS_COLUMN] = [
+        int(row_images[row]["run_id"].nunique()) if "run_id" in images else len(row_images[row])
+        for row in rows
+    ]
     table.attrs["metrics"] = specs
     table.attrs["axes"] = labels
     return table
