@@ -118,6 +118,18 @@ def smoke_config(data_dir, run_dir, overrides=()):
     )
 
 
+@pytest.fixture(scope="module")
+def vol_data(tmp_path_factory):
+    """<data>/volumetric/smoke/{raw,prepared} of tests/test_volume_shards.py's four synthetic 4-frame
+    scenes (2 train, 1 val, 1 test), preprocessed with 8x8 patches."""
+    from tests.test_volume_shards import _preprocess, _raw  # lazy: a test module's helpers
+
+    data = tmp_path_factory.mktemp("voldata")
+    raw = _raw(data / "volumetric" / "smoke" / "raw")
+    _preprocess(raw, data / "volumetric" / "smoke" / "prepared", patch_size=8)
+    return data
+
+
 @pytest.fixture(scope="session")
 def smoke_data(tmp_path_factory, mitsuba_variant):
     """A rendered and preprocessed smoke dataset, shared by the training/evaluation tests."""

@@ -15,7 +15,7 @@ from src.eval.denoise_eval import DenoiseEvaluation, OnDevice
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
 from src.tracking.tracker import Tracker
 from tests.conftest import one_line_error, smoke_config
-from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
+from tests.test_volume_shards import SPPS, synthetic_frame
 
 F, H, W, C = 8, 48, 48, 3
 M = (F - 1) * H * W * C  # frame differences per sequence
@@ -176,15 +176,6 @@ def test_temporal_psnr_rejects_a_warmup_that_leaves_no_pair():
 
 
 # -- in the sequence evaluation --
-
-
-@pytest.fixture(scope="module")
-def vol_data(tmp_path_factory):
-    """<data>/volumetric/smoke/{raw,prepared} of tests/test_volume_shards.py's synthetic 4-frame scenes."""
-    data = tmp_path_factory.mktemp("voldata")
-    raw = _raw(data / "volumetric" / "smoke" / "raw")
-    _preprocess(raw, data / "volumetric" / "smoke" / "prepared", patch_size=8)
-    return data
 
 
 #: The stub denoiser's output: each reference frame scaled by its own factor; the second reference: the

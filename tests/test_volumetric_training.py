@@ -25,19 +25,10 @@ from src.train.checkpoint import load_checkpoint
 from src.train.trainer import DenoiserTrainer
 from tests.conftest import ROOT, cli_job, compose_config, one_line_cli_error, one_line_error, smoke_config
 from tests.test_temporal import _np_temporal_loss
-from tests.test_volume_shards import SPPS, _preprocess, _raw, synthetic_frame
+from tests.test_volume_shards import SPPS, synthetic_frame
 
 SMALL = ["task.train.epochs=2", "task.train.batch_size=4", "task.eval.save_exr=false"]
 FAST_METRICS = ["metrics.lpips.enabled=false", "metrics.flip.enabled=false"]
-
-
-@pytest.fixture(scope="module")
-def vol_data(tmp_path_factory):
-    """<data>/volumetric/{raw,prepared} of four synthetic 4-frame scenes (2 train, 1 val, 1 test)."""
-    data = tmp_path_factory.mktemp("voldata")
-    raw = _raw(data / "volumetric" / "smoke" / "raw")
-    _preprocess(raw, data / "volumetric" / "smoke" / "prepared", patch_size=8)
-    return data
 
 
 def _cfg(data, run_dir, *overrides):
