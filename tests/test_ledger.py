@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from src.report.claims import load_claims
-from src.report.ledger import build_ledger, matching
+from src.report.ledger import arm_values, build_ledger, matching
 from src.report.verdicts import (
     DIRECTION_ONLY,
     NOT_DISTINGUISHABLE,
@@ -169,6 +169,18 @@ def test_param_values_match_by_value_not_by_spelling():
     assert not matching(runs, {"absent": "1"}).any()
 
 
+def test_an_arm_scored_twice_on_one_item_counts_its_mean_once():
+    scores = pd.DataFrame(
+        {
+            "params.model.name": ["kpcn", "kpcn", "kpcn", "dpcn"],
+            "params.seed": ["0", "0", "1", "0"],
+            "value": [1.0, 3.0, 5.0, 7.0],
+        }
+    )
+    values = arm_values(scores, {"model.name": "kpcn"}, "params.", ["params.seed", "scene"])
+    assert values.to_dict() == {("0", "-"): 2.0, ("1", "-"): 5.0}
+
+
 # --- the ledger from logged runs -----------------------------------------------------------------------
 
 STUDY = "toy_study"
@@ -198,8 +210,9 @@ def _images(psnr):
 @pytest.fixture(scope="module")
 def ledger_store(tmp_path_factory):
     """A study (`kpcn` 1 dB above `dpcn` on 2 images x 4 seeds, an older kpcn rerun 10 dB below that the
-    ledger must not count), a study run at smoke only, and a benchmark with 7 rounds (U-Net 12x faster
-    than KPCN, 1.5x slower than OIDN)."""
+    ledger must not count), a study run at smoke only, and benchmarks with 7 rounds: at paper size an
+    older run (U-Net 5x faster than KPCN) and the newest (12x faster, 1.5x slower than OIDN), and a newer
+    one at cpu size (only 2x faster)."""
     tmp = tmp_path_factory.mktemp("ledger_store")
     previous = mlflow.get_tracking_uri()
     uri = f"sqlite:///{tmp}/mlflow.db"
@@ -253,7 +266,13 @@ def ledger_store(tmp_path_factory):
         [{"round": r, "model": m, "seconds": t * (1 + 0.01 * r)} for r in range(7) for m, t in times.items()]
     )
     paper = {**cpu, "nrbench.profile": "paper"}
+    older = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.5, rounds["seconds"]))  # 5x
+    _log(client, bench, tmp, {"bench": "denoise"}, paper, artifact=("bench/rounds.csv", older))
     _log(client, bench, tmp, {"bench": "denoise"}, paper, artifact=("bench/rounds.csv", rounds))
+    # A newer bench run at the cpu profile, where the U-Net is only 2x faster: the claims that list paper
+    # first must still read the paper run.
+    cpu_rounds = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.2, rounds["seconds"]))
+    _log(client, bench, tmp, {"bench": "denoise"}, cpu, artifact=("bench/rounds.csv", cpu_rounds))
     yield {"tmp": tmp, "uri": uri}
     mlflow.set_tracking_uri(previous)
 
@@ -300,7 +319,7 @@ LEDGER_CLAIMS = textwrap.dedent(
       - id: unet_10x
         source: {{document: Doc B, section: "4"}}
         statement: The U-Net is at least 10x faster than KPCN.
-        profiles: [paper]
+        profiles: [paper, cpu]
         needs: gpu
         runs: {{bench: denoise, experiment: nrbench-bench}}
         metric: seconds

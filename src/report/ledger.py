@@ -105,15 +105,15 @@ def claim_runs(claim: Claim, profile: str) -> pd.DataFrame:
         "tags": {**tags, "nrbench.profile": profile},
         "filter": where,
         "keep": "latest",
-        "axes": [] if claim.source == "bench" else _arm_keys(claim),
+        "axes": [] if claim.source == "bench" else _arm_keys(claim),  # the newest per arm and seed
     }
     try:
         runs = find_runs(report_cfg)
     except DataError as err:
         log.info("ledger: %s: no runs at %s (%s)", claim.id, profile, err)
         return pd.DataFrame()
-    runs = runs[matching(runs, claim.where)] if claim.where else runs
-    return runs.tail(1) if claim.source == "bench" else runs
+    # A bench run has no axes and no seed: keeping the latest per (nothing) leaves its newest run.
+    return runs[matching(runs, claim.where)] if claim.where else runs
 
 
 def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
