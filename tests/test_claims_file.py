@@ -487,3 +487,25 @@ def test_pipeline_checks_accept_the_dvc_report_names_only():
     assert pipeline_errors(claim) == []
     claim["runs"]["pipeline"] = "denoising"
     assert any("pipeline" in e for e in pipeline_errors(claim))
+
+
+#: Per-run `better` claims whose study keeps fewer seeds than a paired test over seeds needs, and why.
+SEED_LIMITED = {
+    # The denoisers study is sized for its per-image claims (seed x held-out image items); six seeds of its
+    # three trainings would double the study's hours at the cpu profile for one curve-reading claim.
+    "kpcn_beats_dpcn_specular_loss",
+}
+
+
+def test_a_per_run_claims_study_runs_enough_seeds_for_its_paired_test_to_show_it():
+    """A claim compared over seeds (per: run) can only show a difference with at least `min_items` seeds
+    (a signed-rank test over n seeds never gives p below 2 / 2^n): its study must sweep that many."""
+    from src.report.verdicts import min_items
+
+    needed = min_items(0.05)
+    for claim in CLAIMS:
+        study = claim["runs"].get("study")
+        if claim["per"] != "run" or claim["rule"]["kind"] != "better" or not study:
+            continue
+        seeds = list(swept(compose_sweep(study))["seed"].sweep_string_iterator())
+        assert len(seeds) >= needed or claim["id"] in SEED_LIMITED, (claim["id"], study, seeds)
