@@ -19,6 +19,8 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from omegaconf import DictConfig, OmegaConf
+
 from src.bench.denoise_timing import Row
 from src.bench.timing import Rounds
 from src.io.atomic import atomic_write_csv
@@ -29,12 +31,19 @@ ROUNDS_CSV = "bench/rounds.csv"
 ROUNDS_COLUMNS = ("round", "model", "seconds")
 
 
-def tracking_config(root: Path | None = None) -> dict[str, str]:
+def tracking_config(root: Path | None = None) -> DictConfig:
     """The store and experiment: `MLFLOW_TRACKING_URI`, else conf/config.yaml's default under `root`
     (the current directory)."""
     root = (root or Path.cwd()).resolve()
     uri = os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{root}/mlflow.db"
-    return {"uri": uri, "experiment": EXPERIMENT, "artifact_root": str(root / "mlartifacts")}
+    return OmegaConf.create(
+        {"uri": uri, "experiment": EXPERIMENT, "artifact_root": str(root / "mlartifacts")}
+    )
+
+
+def write_rounds_csv(path: Path, rounds: Rounds) -> Path:
+    """`rounds` as the `bench/rounds.csv` table (columns round, model, seconds), written atomically."""
+    return atomic_write_csv(path, rounds.csv_rows(), ROUNDS_COLUMNS)
 
 
 def log_bench_run(
@@ -51,7 +60,7 @@ def log_bench_run(
         timed = [r for r in rows if r.key in rounds.seconds]
         tracker.log_metrics({f"seconds_{r.key}": r.seconds for r in timed})
         with tempfile.TemporaryDirectory(prefix="nrbench-bench-") as tmp:
-            path = atomic_write_csv(Path(tmp) / Path(ROUNDS_CSV).name, rounds.csv_rows(), ROUNDS_COLUMNS)
+            path = write_rounds_csv(Path(tmp) / Path(ROUNDS_CSV).name, rounds)
             tracker.log_artifact(path, str(Path(ROUNDS_CSV).parent))
         tracker.log_text(report, "bench/report.txt")
         return tracker.run_id

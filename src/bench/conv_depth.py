@@ -9,6 +9,9 @@ random batch with every tensor tagged by the most convolutions any path to it ha
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import torch
 import torch.nn.functional as F
 from torch.overrides import TorchFunctionMode
@@ -56,7 +59,12 @@ def conv_depth(model: Denoiser, side: int = PROBE_SIDE) -> int:
         generator=torch.Generator().manual_seed(0),
         device=device,
     )
+    return path_depth(lambda: model(batch))
+
+
+def path_depth(run: Callable[[], Any]) -> int:
+    """Convolutions on the longest path from the tensors `run` reads to those it returns."""
     mode = _DepthMode()
     with torch.inference_mode(), mode:
-        out = model(batch)
+        out = run()
     return max(mode.depth.get(x, 0) for x in tree_flatten(out)[0] if isinstance(x, torch.Tensor))

@@ -40,9 +40,9 @@ import torch
 
 from src.bench.bench_log import log_bench_run
 from src.bench.denoise_table import format_claims, format_ratios, format_spreads, format_table
-from src.bench.denoise_timing import Prepared, Row, bench_model, bench_oidn
+from src.bench.denoise_timing import Prepared, bench_model, bench_oidn, timed_rows
 from src.bench.peak import conv_baseline
-from src.bench.timing import Spread, device_name, time_rounds
+from src.bench.timing import device_name, time_rounds
 from src.data.features import PAPER_CHANNELS
 from src.models.denoise.models import BRANCHES
 from src.models.denoise.summary import random_batch
@@ -95,12 +95,7 @@ def run_denoise(args: argparse.Namespace) -> str:
         prepared = _prepare(args, device, tile)
         timed = {row.key: run for row, run in prepared if run is not None}
         rounds = time_rounds(timed, device, args.rounds, args.warmup)
-    rows: list[Row] = []
-    for row, run in prepared:
-        if run is not None:
-            row.spread = Spread.of(rounds.seconds[row.key])
-            row.seconds = row.spread.median
-        rows.append(row)
+    rows = timed_rows(prepared, rounds)
     by_key = {r.key: r for r in rows}
     report = "\n".join(
         [

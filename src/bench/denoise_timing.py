@@ -12,7 +12,7 @@ from torch import nn
 
 from src.bench.conv_depth import conv_depth
 from src.bench.model_configs import load_model_config
-from src.bench.timing import Spread
+from src.bench.timing import Rounds, Spread
 from src.errors import one_line
 from src.models.denoise.base import Denoiser
 from src.models.denoise.models import BRANCHES, BranchDenoiser, infer_tiled
@@ -159,3 +159,15 @@ def bench_oidn(profile: str, batch, device: torch.device) -> Prepared:
     except Exception as err:  # import failure, missing native library, unsupported device...
         return Row("oidn", None, note=f"unavailable ({one_line(err)})"), None
     return Row("oidn", None, note=f"pyoidn on {device.type}, full frame"), run
+
+
+def timed_rows(prepared: list[Prepared], rounds: Rounds) -> list[Row]:
+    """The rows with their times: each timed row's seconds per frame over the rounds (its spread) and
+    their median; a row that could not run keeps `seconds` None."""
+    rows = []
+    for row, run in prepared:
+        if run is not None:
+            row.spread = Spread.of(rounds.seconds[row.key])
+            row.seconds = row.spread.median
+        rows.append(row)
+    return rows
