@@ -153,6 +153,8 @@ def test_missing_reference_prints_na_and_no_unet_prints_no_claims():
     rounds = Rounds(seconds={"unet_kpcn": [1.0] * 5, "oidn": [1.0] * 5}, orders=[[]] * 5)
     lines = format_claims(_rows(rounds), rounds)
     assert "  unet_kpcn / kpcn: n/a (kpcn not timed)" in lines
+    rows = _rows(rounds) | {"kpcn_frame": Row("kpcn_frame", None, note="unavailable (no GPU)")}
+    assert "  unet_kpcn / kpcn_frame: n/a (kpcn_frame unavailable (no GPU))" in format_claims(rows, rounds)
     assert format_claims({"oidn": _rows(rounds)["oidn"]}, rounds) == []
 
 

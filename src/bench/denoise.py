@@ -38,7 +38,6 @@ from contextlib import nullcontext
 
 import torch
 
-from src.bench.bench_log import log_bench_run
 from src.bench.denoise_table import format_claims, format_ratios, format_spreads, format_table
 from src.bench.denoise_timing import Prepared, bench_model, bench_oidn, timed_rows
 from src.bench.peak import conv_baseline
@@ -107,6 +106,8 @@ def run_denoise(args: argparse.Namespace) -> str:
         ]
     )
     if args.log:
+        from src.bench.bench_log import log_bench_run  # MLflow: imported only to log
+
         run_id = log_bench_run(
             "denoise", _params(args, device, tile), _tags(args, device), rows, rounds, report
         )

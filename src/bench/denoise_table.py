@@ -141,7 +141,7 @@ def format_claims(by_key: Mapping[str, Row], rounds: Rounds) -> list[str]:
         ref = by_key.get(key)
         ratio = per_round_ratio(rounds, unet, ref)
         if ratio is None:
-            lines.append(f"  unet_kpcn / {key}: n/a ({key} not timed)")
+            lines.append(f"  unet_kpcn / {key}: n/a ({key} {'not timed' if ref is None else ref.note})")
             continue
         spread, ratios = ratio
         met = sum(r <= target for r in ratios)
