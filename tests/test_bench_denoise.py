@@ -275,3 +275,14 @@ def test_the_bench_prints_spreads_and_the_claims_against_both_kpcn_forms_and_oid
         "unet_kpcn", "kpcn", "kpcn", "kpcn_frame", "kpcn_frame", "oidn", "conv2d"
     ]  # fmt: skip
     assert "conv layers on the longest input-to-output path (hidden channels): unet_kpcn " in out
+
+
+def test_log_to_an_unusable_store_is_one_line_exit_2_after_the_report(tmp_path, monkeypatch, capsys):
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"sqlite:///{tmp_path}/file/mlflow.db")  # under a file
+    argv = ["denoise", "--profile", "smoke", "--width", "16", "--height", "12", "--device", "cpu"]
+    assert bench_main([*argv, "--rounds", "5", "--models", "unet_kpcn", "--no-oidn", "--log"]) == 2
+    captured = capsys.readouterr()
+    assert "seconds per frame over 5 rounds" in captured.out  # the measurement is not lost
+    err = captured.err.strip()
+    assert "\n" not in err and "tracking.uri=" in err and "mlflow.db" in err

@@ -85,7 +85,8 @@ def _prepare(args, device: torch.device, tile: int) -> list[Prepared]:
 
 
 def run_denoise(args: argparse.Namespace) -> str:
-    """All measurements of `denoise`; returns the printed report (and logs it with `--log`)."""
+    """All measurements of `denoise`; returns the report to print, or with `--log` prints it, logs the run
+    and returns the line naming the run."""
     device = _device(args.device)
     tile = args.tile if args.tile is not None else (0 if device.type == "cuda" else CPU_TILE)
     dtype = AUTOCAST_DTYPES[args.autocast]
@@ -105,14 +106,13 @@ def run_denoise(args: argparse.Namespace) -> str:
             *format_claims(by_key, rounds),
         ]
     )
-    if args.log:
-        from src.bench.bench_log import log_bench_run  # MLflow: imported only to log
+    if not args.log:
+        return report
+    print(report, flush=True)  # before logging: a store that cannot be used must not lose the measurement
+    from src.bench.bench_log import log_bench_run  # MLflow: imported only to log
 
-        run_id = log_bench_run(
-            "denoise", _params(args, device, tile), _tags(args, device), rows, rounds, report
-        )
-        report += f"\nlogged: MLflow run {run_id} in experiment nrbench-bench (artifact bench/rounds.csv)"
-    return report
+    run_id = log_bench_run("denoise", _params(args, device, tile), _tags(args, device), rows, rounds, report)
+    return f"logged: MLflow run {run_id} in experiment nrbench-bench (artifact bench/rounds.csv)"
 
 
 def _params(args, device: torch.device, tile: int) -> dict[str, object]:
