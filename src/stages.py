@@ -109,6 +109,19 @@ def report(cfg: DictConfig, tracker=None) -> dict:
     return summary
 
 
+def ledger(cfg: DictConfig, tracker=None) -> dict:
+    """The reproduction ledger: every claim of `ledger.claims` (conf/claims.yaml) with the status the
+    logged runs give it, written to `<ledger.out_dir>/ledger.{md,html,csv}` (src/report/ledger.py)."""
+    if not cfg.tracking.enabled:
+        print("ledger: tracking.enabled is false, so there are no logged runs to judge the claims by")
+        return {}
+    from src.report.ledger import build_ledger, ledger_line
+
+    summary = build_ledger(cfg)
+    print(ledger_line(summary), flush=True)
+    return summary
+
+
 def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     """Print the model's architecture and parameter count (and FLOPs per pixel or per ray); trains
     nothing."""
@@ -142,11 +155,12 @@ STAGES: dict[str, Callable[..., dict]] = {
     "select_features": select_features,
     "eval": evaluate,
     "report": report,
+    "ledger": ledger,
     "summary": print_model_summary,
     "config": write_result_config,
 }
 #: Stages that run outside a task's pipeline and log nothing.
-STANDALONE = ("summary", "config")
+STANDALONE = ("summary", "config", "ledger")
 #: Stages whose results go to MLflow (one run per job).
 TRACKED = ("train", "search", "select_features", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.

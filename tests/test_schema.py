@@ -53,6 +53,7 @@ PROBABILITY = Bound(float, lo=0, hi=1)
 AT_LEAST_ONE = Bound(float, lo=1)
 PERCENTILE = Bound(float, lo=0, lo_open=True, hi=100)
 FRACTION = Bound(float, lo=0, lo_open=True, hi=1)
+OPEN_UNIT = Bound(float, lo=0, lo_open=True, hi=1, hi_open=True)
 POSITIVE_INT_ITEMS = Bound(int, lo=0, lo_open=True, shape="item")
 NON_NEGATIVE_INT_ITEMS = Bound(int, lo=0, shape="item")
 POSITIVE_ITEMS = Bound(float, lo=0, lo_open=True, shape="item")
@@ -163,6 +164,9 @@ BOUNDED: dict[Bound, str] = {
     """,
     FRACTION: """
         nerf.Train.precrop_frac
+    """,
+    OPEN_UNIT: """
+        run.Ledger.alpha
     """,
     POSITIVE_INT_ITEMS: """
         filter_search.Search.spp dataset.ProceduralDataset.noisy_spp dataset.VolumetricDataset.noisy_spp

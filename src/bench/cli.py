@@ -1,7 +1,7 @@
-"""Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --repeats 3 --device auto
---models dpcn,kpcn,resnet,unet_kpcn --profile paper]`` and ``python -m src.bench nerf [--models
-nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096 --device auto
---micro-batch N --threads N --peer-nerf-pytorch DIR]`` and
+"""Benchmarks: ``python -m src.bench denoise [--width 1280 --height 720 --rounds 7 --device auto
+--models dpcn,kpcn,kpcn_frame,resnet,unet_kpcn --profile paper --log]`` and ``python -m src.bench nerf
+[--models nerf,mipnerf,refnerf --profile cpu --batch 1024 --steps 5 --render-rays 4096 --chunk 4096
+--device auto --micro-batch N --threads N --peer-nerf-pytorch DIR]`` and
 ``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
 and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
 --sample 8 --device auto]`` or ``python -m src.bench filter --table41 [--resolutions 32,128,256,512
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 from hydra.errors import HydraException
 
-from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, run_denoise
+from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, MIN_ROUNDS, run_denoise
 from src.bench.filter import THESIS_ISLANDS, THESIS_POPULATION, THESIS_TABLE41, run_filter
 from src.bench.nerf import NERF_AUTOCAST_DTYPES, run_nerf
 from src.bench.volpath import run_volpath
@@ -28,8 +28,13 @@ from src.errors import NrbenchError, one_line
 
 
 def _check_denoise(args: argparse.Namespace) -> str | None:
-    if min(args.width, args.height, args.repeats) < 1 or args.warmup < 0:
-        return "--width, --height and --repeats must be >= 1, --warmup >= 0"
+    if min(args.width, args.height) < 1 or args.warmup < 0:
+        return "--width and --height must be >= 1, --warmup >= 0"
+    if args.rounds < MIN_ROUNDS:
+        return (
+            f"--rounds: expected >= {MIN_ROUNDS} (with fewer a two-sided Wilcoxon signed-rank test over "
+            f"rounds cannot reach p < 0.05), found {args.rounds}"
+        )
     return None
 
 
@@ -88,10 +93,21 @@ def _parser() -> argparse.ArgumentParser:
     d = commands.add_parser("denoise", help="inference time of the learned denoisers, OIDN and conv2d")
     d.add_argument("--width", type=int, default=1280, help="frame width (default: the KPCN set's 1280)")
     d.add_argument("--height", type=int, default=720, help="frame height (default 720)")
-    d.add_argument("--repeats", type=int, default=3, help="timed runs per model (median reported)")
-    d.add_argument("--warmup", type=int, default=1, help="untimed runs first (allocator, cuDNN autotune)")
+    d.add_argument(
+        "--rounds",
+        type=int,
+        default=7,
+        help=f"timed rounds, each timing every model once in a rotating order (>= {MIN_ROUNDS}; default 7)",
+    )
+    d.add_argument(
+        "--warmup", type=int, default=1, help="untimed runs of each first (allocator, cuDNN autotune)"
+    )
     d.add_argument("--device", default="auto", help="auto (CUDA if present, else CPU) | cpu | cuda | cuda:N")
-    d.add_argument("--models", default="dpcn,kpcn,resnet,unet_kpcn", help="comma-separated conf/model names")
+    d.add_argument(
+        "--models",
+        default="dpcn,kpcn,kpcn_frame,resnet,unet_kpcn",
+        help="comma-separated conf/model names, or kpcn_frame (the KPCN on the sequences' radiance branch)",
+    )
     d.add_argument(
         "--profile", default="paper", help="profile whose model sizes are used (paper: Bako et al.)"
     )
@@ -101,6 +117,11 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--autocast", choices=sorted(AUTOCAST_DTYPES), default="none", help="mixed precision")
     d.add_argument("--oidn", action=argparse.BooleanOptionalAction, default=True, help="also time OIDN")
     d.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
+    d.add_argument(
+        "--log",
+        action="store_true",
+        help="also log one MLflow run (experiment nrbench-bench, MLFLOW_TRACKING_URI) with bench/rounds.csv",
+    )
     d.set_defaults(run=run_denoise, check=_check_denoise)
 
     n = commands.add_parser("nerf", help="training and rendering rays/s of NeRF, mip-NeRF and Ref-NeRF")

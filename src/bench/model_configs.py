@@ -19,13 +19,17 @@ def _compose(overrides: list[str], group: str, resolve: bool = True) -> dict[str
     return OmegaConf.to_container(cfg[group], resolve=resolve)  # type: ignore[return-value]
 
 
-def load_model_config(name: str, profile: str, task: str | None = None) -> dict[str, Any]:
-    """The `model:` group as `python -m src.run [task=<task>] model=<name> profile=<profile>` composes it
-    (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also sets the NeRF dataset that
-    `model.background` refers to). A model whose class reads branches the default data lack (the U-Net
-    KPCN: the sequences' `radiance`) is composed with the first `conf/dataset` that has them, so its
-    `in_channels` are those of its data."""
-    overrides = ([f"task={task}"] if task else []) + [f"model={name}", f"profile={profile}"]
+def load_model_config(
+    name: str, profile: str, task: str | None = None, dataset: str | None = None
+) -> dict[str, Any]:
+    """The `model:` group as `python -m src.run [task=<task>] [dataset=<dataset>] model=<name>
+    profile=<profile>` composes it (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also
+    sets the NeRF dataset that `model.background` refers to; `dataset=volumetric` gives the KPCN family
+    the sequences' one `radiance` branch and its `in_channels`, as the `unet_vs_kpcn` study trains it). A
+    model whose class reads branches the default data lack (the U-Net KPCN: the sequences' `radiance`)
+    is composed with the first `conf/dataset` that has them, so its `in_channels` are those of its data."""
+    overrides = ([f"task={task}"] if task else []) + ([f"dataset={dataset}"] if dataset else [])
+    overrides += [f"model={name}", f"profile={profile}"]
     model = _compose(overrides, "model")
     reads = set(getattr(resolve_target(model), "branches", ()))
     if not reads or reads <= set(_compose(overrides, "dataset").get("branches") or ()):

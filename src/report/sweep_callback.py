@@ -1,5 +1,6 @@
 """Hydra callback: one report over a multirun's jobs when it ends (inside a multirun the `report` stage
-does not run in each job). Configured in `conf/config.yaml` under `hydra.callbacks.sweep_report`, after
+does not run in each job), then the reproduction ledger again, so that the claims the sweep tests are
+current. Configured in `conf/config.yaml` under `hydra.callbacks.sweep_report`, after
 `mlflow_sweep`, whose parent-run record in the sweep dir says which runs are this sweep's."""
 
 from __future__ import annotations
@@ -37,3 +38,18 @@ class SweepReportCallback(Callback):
             log.error("report: %s", err)
             return
         print(report_line(summary), flush=True)
+        self._refresh_ledger(config, tracking)
+
+    @staticmethod
+    def _refresh_ledger(config: DictConfig, tracking: DictConfig) -> None:
+        """The ledger again, so the claims this sweep tests show its runs (a failure is logged)."""
+        from src.report.ledger import build_ledger, ledger_line
+
+        try:
+            summary = build_ledger(
+                OmegaConf.create({"ledger": resolved_section(config, "ledger"), "tracking": tracking})
+            )
+        except NrbenchError as err:
+            log.error("ledger: %s", err)
+            return
+        print(ledger_line(summary), flush=True)

@@ -68,6 +68,15 @@ class Report(Schema):
     images: NonNegativeInt
 
 
+class Ledger(Schema):
+    """The reproduction ledger (src/report/ledger.py): the claims file, where it writes, the paired
+    tests' significance level."""
+
+    claims: str
+    out_dir: str
+    alpha: float = Field(gt=0, lt=1)
+
+
 class Paths(Schema):
     root: str
     data: str
@@ -117,6 +126,7 @@ class RunSchema(Schema):
     tracking: Tracking
     metrics: Metrics
     report: Report
+    ledger: Ledger
     render: Render
     compare: Compare
     task: Open

@@ -188,3 +188,21 @@ def job_run(
         _end(run_id, "FAILED", parent_id)
         raise
     _end(run_id, "FINISHED", parent_id)
+
+
+@contextlib.contextmanager
+def standalone_run(tracking_cfg, *, run_name: str, tags: Mapping[str, str]) -> Iterator[Tracker]:
+    """One MLflow run outside a Hydra job (`python -m src.bench ... --log`), in experiment
+    `tracking_cfg.experiment` of store `tracking_cfg.uri` (see `setup_tracking`), with the provenance tags
+    of a job's run (git commit and dirty flag); it ends FINISHED, or FAILED on an exception (re-raised)."""
+    experiment_id = setup_tracking(tracking_cfg)
+    all_tags = _base_tags(tags, "", None)
+    del all_tags["nrbench.hydra_job"]  # no Hydra job
+    run = MlflowClient().create_run(experiment_id, run_name=run_name, tags=all_tags)
+    run_id = run.info.run_id
+    try:
+        yield Tracker(run_id)
+    except BaseException:
+        MlflowClient().set_terminated(run_id, "FAILED")
+        raise
+    MlflowClient().set_terminated(run_id, "FINISHED")

@@ -11,7 +11,7 @@ from mlflow.entities import Metric, RunTag
 from mlflow.tracking import MlflowClient
 from mlflow.utils.validation import MAX_METRICS_PER_BATCH
 
-from src.tracking.run_config import param_key
+from src.tracking.run_config import log_params, param_key
 
 
 class Tracker:
@@ -54,6 +54,11 @@ class Tracker:
         entries = [m for m in entries if (m.key, m.step) not in self._logged]
         for i in range(0, len(entries), MAX_METRICS_PER_BATCH):
             self._client.log_batch(self.run_id, metrics=entries[i : i + MAX_METRICS_PER_BATCH])
+
+    def log_params(self, params: Mapping[str, Any]) -> None:
+        """Log params (values as strings; names made MLflow-safe), in batches of MLflow's limit."""
+        if self.enabled and params:
+            log_params(self._client, self.run_id, {param_key(str(k)): str(v) for k, v in params.items()})
 
     def log_metric(self, key: str, value: float, step: int | None = None) -> None:
         self.log_metrics({key: value}, step=step)

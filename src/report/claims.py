@@ -1,0 +1,197 @@
+"""The reproduction ledger's claims (`conf/claims.yaml`): each published finding the harness can test, where
+it is stated, how it is measured and at which profiles. This module reads and checks the file; what the
+runs say about each claim is `src.report.ledger`'s job, and the statuses are `src.report.verdicts`'.
+
+A claim names its runs (a sweep `study`, the DVC `pipeline`, or a `bench`), the metric and its direction,
+and a rule (`better`, `comparable` or `agreement`); docs/ledger.md describes every key. A malformed file
+is a one-line `ConfigError` naming the claim and the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from src.errors import ConfigError
+
+RULE_KINDS = ("better", "comparable", "agreement")
+RUN_SOURCES = ("study", "pipeline", "bench")
+PER_CHOICES = ("image", "run", "round")
+NEEDS_CHOICES = (None, "gpu", "user_data")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One published number an `agreement` rule checks: the arm (param -> value), extra param filters
+    (`where`, e.g. the scene) and the value."""
+
+    arm: dict[str, str]
+    where: dict[str, str]
+    value: float
+
+
+@dataclass(frozen=True)
+class Rule:
+    """`better`: arm `a` beats arm `b` (by at least `size`, in the metric's units or as a ratio when the
+    claim compares logs); `comparable`: `a` and `b` within `tolerance`; `agreement`: each case within
+    `tolerance` of its published value."""
+
+    kind: str
+    a: dict[str, str] = field(default_factory=dict)
+    b: dict[str, str] = field(default_factory=dict)
+    size: float = 0.0
+    tolerance: float = 0.0
+    published: tuple[Case, ...] = ()
+
+
+@dataclass(frozen=True)
+class Claim:
+    id: str
+    document: str
+    section: str
+    where_stated: str
+    statement: str
+    profiles: tuple[str, ...]
+    needs: str | None
+    source: str  # study | pipeline | bench
+    source_name: str
+    experiment: str
+    where: dict[str, str]
+    metric: str
+    per: str
+    higher: bool
+    log: bool
+    rule: Rule
+
+    @property
+    def citation(self) -> str:
+        """ "Bunjevac 2019, Sec. 6.2, Table 6.3"."""
+        parts = [self.document, f"Sec. {self.section}" if self.section else "", self.where_stated]
+        return ", ".join(p for p in parts if p)
+
+    def command(self, profile: str) -> str:
+        """How a user produces the claim's runs at `profile`."""
+        if self.source == "study":
+            return f"python -m src.run -m +sweep={self.source_name} profile={profile}"
+        if self.source == "bench":
+            return f"python -m src.bench {self.source_name} --profile {profile} --log"
+        return f"dvc repro (profile: {profile} in params.yaml)"
+
+
+def _strings(mapping: Any, key: str) -> dict[str, str]:
+    if mapping is None:
+        return {}
+    if not isinstance(mapping, Mapping):
+        raise ConfigError(f"{key}: {mapping!r}; expected a mapping of config keys to values")
+    return {str(k): str(v) for k, v in mapping.items()}
+
+
+def _get(raw: Mapping, key: str, where: str, kinds: type | tuple[type, ...] = str) -> Any:
+    value = raw.get(key)
+    if value is None or not isinstance(value, kinds):
+        expected = kinds.__name__ if isinstance(kinds, type) else " or ".join(k.__name__ for k in kinds)
+        raise ConfigError(f"{where}.{key}: {value!r}; expected a {expected}")
+    return value
+
+
+def _choice(value: Any, choices: tuple, key: str) -> Any:
+    if value not in choices:
+        raise ConfigError(f"{key}: {value!r}; expected one of {list(choices)}")
+    return value
+
+
+def _rule(raw: Any, where: str) -> Rule:
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"{where}: {raw!r}; expected a mapping with a `kind`")
+    kind = _choice(raw.get("kind"), RULE_KINDS, f"{where}.kind")
+    if kind == "agreement":
+        cases = raw.get("published") or []
+        if not cases:
+            raise ConfigError(f"{where}.published: empty; an agreement rule needs published values")
+        published = tuple(
+            Case(
+                _strings(c.get("arm"), f"{where}.published[{i}].arm"),
+                _strings(c.get("where"), f"{where}.published[{i}].where"),
+                float(_get(c, "value", f"{where}.published[{i}]", (int, float))),
+            )
+            for i, c in enumerate(cases)
+        )
+        return Rule(kind, tolerance=float(_get(raw, "tolerance", where, (int, float))), published=published)
+    a, b = _strings(raw.get("a"), f"{where}.a"), _strings(raw.get("b"), f"{where}.b")
+    if not a or not b or a == b:
+        raise ConfigError(f"{where}: arms a={a} and b={b}; expected two different, non-empty arms")
+    if kind == "comparable":
+        tolerance = float(_get(raw, "tolerance", where, (int, float)))
+        if tolerance <= 0:
+            raise ConfigError(f"{where}.tolerance: {tolerance}; expected > 0")
+        return Rule(kind, a, b, tolerance=tolerance)
+    return Rule(kind, a, b, size=float(raw.get("size") or 0.0))
+
+
+def _runs_source(raw: Any, where: str) -> tuple[str, str]:
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"{where}: {raw!r}; expected a mapping")
+    named = [s for s in RUN_SOURCES if raw.get(s)]
+    if len(named) != 1:
+        raise ConfigError(f"{where}: names {named or 'none'} of {list(RUN_SOURCES)}; expected exactly one")
+    return named[0], str(raw[named[0]])
+
+
+def parse_claim(raw: Any, index: int) -> Claim:
+    """One entry of `claims:`; a missing or malformed key is a one-line ConfigError naming it."""
+    if not isinstance(raw, Mapping):
+        raise ConfigError(f"claims[{index}]: {raw!r}; expected a mapping")
+    name = f"claims[{index}]" if not isinstance(raw.get("id"), str) else f"claims.{raw['id']}"
+    claim_id = _get(raw, "id", name)
+    source = raw.get("source") or {}
+    profiles = raw.get("profiles")
+    if not profiles or isinstance(profiles, str | Mapping):
+        raise ConfigError(f"{name}.profiles: {profiles!r}; expected a non-empty list of profiles")
+    runs = raw.get("runs") or {}
+    kind, source_name = _runs_source(runs, f"{name}.runs")
+    per = _choice(raw.get("per"), PER_CHOICES, f"{name}.per")
+    if (kind == "bench") != (per == "round"):
+        raise ConfigError(f"{name}.per: {per!r} with runs.{kind}; expected per: round for a bench, only then")
+    return Claim(
+        id=claim_id,
+        document=_get(source, "document", f"{name}.source"),
+        section=str(source.get("section") or ""),
+        where_stated=str(source.get("where") or ""),
+        statement=" ".join(_get(raw, "statement", name).split()),
+        profiles=tuple(str(p) for p in profiles),
+        needs=_choice(raw.get("needs"), NEEDS_CHOICES, f"{name}.needs"),
+        source=kind,
+        source_name=source_name,
+        experiment=_get(runs, "experiment", f"{name}.runs"),
+        where=_strings(runs.get("where"), f"{name}.runs.where"),
+        metric=_get(raw, "metric", name),
+        per=per,
+        higher=bool(_get(raw, "higher", name, bool)),
+        log=bool(raw.get("log", False)),
+        rule=_rule(raw.get("rule"), f"{name}.rule"),
+    )
+
+
+def load_claims(path: str | Path) -> list[Claim]:
+    """Every claim of the claims file at `path`, in file order; ids must be unique."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: not found; expected the ledger's claims file (ledger.claims)")
+    try:
+        raw = OmegaConf.to_container(OmegaConf.load(path), resolve=True)
+    except Exception as err:  # a YAML syntax error: one line naming the file
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(err).split())[:200]})") from None
+    entries = raw.get("claims") if isinstance(raw, Mapping) else None
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"{path}: no `claims:` list; expected one entry per claim")
+    claims = [parse_claim(entry, i) for i, entry in enumerate(entries)]
+    seen: set[str] = set()
+    for claim in claims:
+        if claim.id in seen:
+            raise ConfigError(f"{path}: claim id {claim.id!r} appears twice; expected unique ids")
+        seen.add(claim.id)
+    return claims
