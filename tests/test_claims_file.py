@@ -21,6 +21,7 @@ import pytest
 import yaml
 from omegaconf import DictConfig, OmegaConf
 
+from src.bench.denoise import AUTOCAST_DTYPES
 from src.eval.denoise_eval import SCORES
 from src.tracking.run_config import flatten_config
 from tests.conftest import ROOT
@@ -55,6 +56,8 @@ RULE_KEYS = {
 PROFILES = {p.stem for p in (CONF_DIR / "profile").glob("*.yaml")}
 #: `python -m src.bench denoise --log`: experiment, and the `model` values of its bench/rounds.csv.
 BENCH = {"denoise": ("nrbench-bench", {"unet_kpcn", "kpcn", "kpcn_frame", "oidn"})}
+#: The bench params a speed claim may select runs by, and their values.
+BENCH_WHERE = {"autocast": set(AUTOCAST_DTYPES)}
 #: NerfBaselines' agreement tolerances, which the issue asks for.
 AGREEMENT_TOLERANCE = {"psnr": 0.2, "ssim": 0.05}
 
@@ -265,8 +268,11 @@ def bench_errors(c: dict) -> list[str]:
     experiment, models = BENCH.get(c["runs"]["bench"], (None, set()))
     errors = [] if c["runs"]["experiment"] == experiment else [f"{c['id']}: bench experiment"]
     for arm, where in arms(c):
-        if set(arm) != {"model"} or arm["model"] not in models or where:
+        if set(arm) != {"model"} or arm["model"] not in models:
             errors.append(f"{c['id']}: bench arm {arm}; expected {{model: one of {sorted(models)}}}")
+        for key, value in where.items():  # a bench run's params (src/bench/denoise.py::_params)
+            if key not in BENCH_WHERE or str(value) not in BENCH_WHERE[key]:
+                errors.append(f"{c['id']}: bench where {key}={value}; expected one of {BENCH_WHERE}")
     return errors
 
 

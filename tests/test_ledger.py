@@ -210,9 +210,9 @@ def _images(psnr):
 @pytest.fixture(scope="module")
 def ledger_store(tmp_path_factory):
     """A study (`kpcn` 1 dB above `dpcn` on 2 images x 4 seeds, an older kpcn rerun 10 dB below that the
-    ledger must not count), a study run at smoke only, and benchmarks with 7 rounds: at paper size an
-    older run (U-Net 5x faster than KPCN) and the newest (12x faster, 1.5x slower than OIDN), and a newer
-    one at cpu size (only 2x faster)."""
+    ledger must not count), a study run at smoke only, and benchmarks with 7 rounds: at paper size in fp32
+    an older run (U-Net 5x faster than KPCN) and the newest (12x faster, 1.5x slower than OIDN), then a
+    bf16 one (3x), and a newer one at cpu size (only 2x faster)."""
     tmp = tmp_path_factory.mktemp("ledger_store")
     previous = mlflow.get_tracking_uri()
     uri = f"sqlite:///{tmp}/mlflow.db"
@@ -267,8 +267,12 @@ def ledger_store(tmp_path_factory):
     )
     paper = {**cpu, "nrbench.profile": "paper"}
     older = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.5, rounds["seconds"]))  # 5x
-    _log(client, bench, tmp, {"bench": "denoise"}, paper, artifact=("bench/rounds.csv", older))
-    _log(client, bench, tmp, {"bench": "denoise"}, paper, artifact=("bench/rounds.csv", rounds))
+    fp32 = {"bench": "denoise", "autocast": "none"}
+    _log(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", older))
+    _log(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", rounds))
+    # The newest paper run is in bf16, which the claim's `where` leaves out: the fp32 run before it counts.
+    bf16 = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.3, rounds["seconds"]))
+    _log(client, bench, tmp, {**fp32, "autocast": "bf16"}, paper, artifact=("bench/rounds.csv", bf16))
     # A newer bench run at the cpu profile, where the U-Net is only 2x faster: the claims that list paper
     # first must still read the paper run.
     cpu_rounds = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.2, rounds["seconds"]))
@@ -321,7 +325,7 @@ LEDGER_CLAIMS = textwrap.dedent(
         statement: The U-Net is at least 10x faster than KPCN.
         profiles: [paper, cpu]
         needs: gpu
-        runs: {{bench: denoise, experiment: nrbench-bench}}
+        runs: {{bench: denoise, experiment: nrbench-bench, where: {{autocast: none}}}}
         metric: seconds
         per: round
         higher: false

@@ -22,7 +22,7 @@ import pandas as pd
 
 from src.errors import DataError
 from src.report.claims import Claim
-from src.report.collect import find_runs, per_image_rows
+from src.report.collect import find_runs, keep_latest, per_image_rows
 from src.report.verdicts import (
     NOT_RUN,
     Verdict,
@@ -97,23 +97,23 @@ def _arm_keys(claim: Claim) -> list[str]:
 
 
 def claim_runs(claim: Claim, profile: str) -> pd.DataFrame:
-    """The claim's FINISHED runs at `profile`: the newest per compared setting and seed (a bench: its
-    newest run). Empty when there are none (or no such experiment)."""
+    """The claim's FINISHED runs at `profile` that match its `where`: the newest per compared setting and
+    seed (a bench: its newest run). Empty when there are none (or no such experiment)."""
     where, tags = _source_filter(claim)
     report_cfg = {
         "experiment": claim.experiment,
         "tags": {**tags, "nrbench.profile": profile},
         "filter": where,
-        "keep": "latest",
-        "axes": [] if claim.source == "bench" else _arm_keys(claim),  # the newest per arm and seed
     }
     try:
         runs = find_runs(report_cfg)
     except DataError as err:
         log.info("ledger: %s: no runs at %s (%s)", claim.id, profile, err)
         return pd.DataFrame()
-    # A bench run has no axes and no seed: keeping the latest per (nothing) leaves its newest run.
-    return runs[matching(runs, claim.where)] if claim.where else runs
+    # `where` before keeping the newest, so that a newer run it leaves out cannot hide an older one it
+    # keeps. A bench run has no axes and no seed: the newest per (nothing) is its newest run.
+    runs = runs[matching(runs, claim.where)]
+    return keep_latest(runs, [] if claim.source == "bench" else _arm_keys(claim))
 
 
 def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
