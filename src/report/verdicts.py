@@ -67,7 +67,7 @@ def better_verdict(
     effect = result.mean_difference if higher else -result.mean_difference
     wins, losses = (result.a_higher, result.b_higher) if higher else (result.b_higher, result.a_higher)
     if log:
-        shown_size = f"{names[0]} better by a factor {math.exp(effect):.3g} (geometric mean)"
+        shown_size = f"{names[0]} better by a factor {math.exp(effect):.4g} (geometric mean)"
         big_enough = math.exp(effect) >= max(size, 1.0)
     else:
         shown_size = f"{names[0]} - {names[1]} = {result.mean_difference:+.4g}"
