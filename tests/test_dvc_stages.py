@@ -180,7 +180,7 @@ def test_no_two_stages_write_the_same_file():
 
 #: The config groups a stage reads, by its `stage=` (the stages that list conf files one by one; the
 #: others depend on all of `conf`): their deps must name every profile-group file that writes one of them.
-READS = {"render": {"dataset"}, "preprocess": {"dataset", "task"}}
+READS = {"render": {"dataset"}, "preprocess": {"dataset", "task"}, "ledger": set()}
 
 
 def _loaded_profile_files(overrides: list[str]) -> dict[str, str]:
@@ -213,4 +213,4 @@ def test_a_stage_that_lists_its_conf_files_lists_each_profile_file_it_reads():
         needed = {path for path, group in loaded.items() if group in READS[kind]}
         assert needed <= deps, f"{stage.addressing}: deps lack {sorted(needed - deps)}"
         checked += 1
-    assert checked == 5  # render, preprocess, vol_render, vol_preprocess, nerf_render
+    assert checked == 6  # render, preprocess, vol_render, vol_preprocess, nerf_render, ledger
