@@ -214,8 +214,9 @@ def schema_errors(claims: list[dict]) -> list[str]:
             )
         runs = c["runs"]
         sources = [s for s in RUN_SOURCES if s in runs]
-        if not set(runs) <= RUN_KEYS or len(sources) != 1 or not isinstance(runs.get("experiment"), str):
-            errors.append(f"{name}: runs {runs}; expected exactly one of {RUN_SOURCES} and an experiment")
+        allowed = (["study"], ["pipeline"], ["study", "pipeline"], ["bench"])
+        if not set(runs) <= RUN_KEYS or sources not in allowed or not isinstance(runs.get("experiment"), str):
+            errors.append(f"{name}: runs {runs}; expected one of {allowed} and an experiment")
             continue
         if c["per"] not in PER or (c["per"] == "round") != (sources[0] == "bench"):
             errors.append(f"{name}: per {c['per']!r} with runs.{sources[0]}")
@@ -276,17 +277,30 @@ def bench_errors(c: dict) -> list[str]:
     return errors
 
 
+#: The DVC pipeline's parts (dvc.yaml's report names): their MLflow experiment and conf/compare.yaml section.
+PIPELINES = {
+    "denoise": ("nrbench-denoise", "denoise"),
+    "volumetric": ("nrbench-denoise-volumetric", "volumetric"),
+    "nerf": ("nrbench-nerf", "nerf"),
+}
+
+
 def pipeline_errors(c: dict) -> list[str]:
-    dvc = (ROOT / "dvc.yaml").read_text()
-    names = set(re.findall(r"report\.name=(\w+)", dvc))
-    compare = yaml.safe_load((CONF_DIR / "compare.yaml").read_text())
-    models = {
-        m for part in compare.values() for k in ("learned", "baselines", "models") for m in part.get(k, [])
-    }
-    errors = [] if c["runs"]["pipeline"] in names else [f"{c['id']}: pipeline {c['runs']['pipeline']!r}"]
-    for arm, _ in arms(c):
+    """The pipeline part exists and logs to the claim's experiment; its arms are models (and scenes) that
+    part of dvc.yaml runs (conf/compare.yaml)."""
+    dvc_names = set(re.findall(r"report\.name=(\w+)", (ROOT / "dvc.yaml").read_text()))
+    name = c["runs"]["pipeline"]
+    if name not in PIPELINES or name not in dvc_names:
+        return [f"{c['id']}: pipeline {name!r}; expected one of {sorted(dvc_names)}"]
+    experiment, section = PIPELINES[name]
+    part = yaml.safe_load((CONF_DIR / "compare.yaml").read_text())[section]
+    models = {m for k in ("learned", "baselines", "models") for m in part.get(k, [])}
+    errors = [] if c["runs"]["experiment"] == experiment else [f"{c['id']}: pipeline experiment"]
+    for arm, where in arms(c):
         if set(arm) != {"model.name"} or arm["model.name"] not in models:
             errors.append(f"{c['id']}: pipeline arm {arm}; expected {{model.name: one of {sorted(models)}}}")
+        if "task.scene" in where and where["task.scene"] not in part.get("scenes", []):
+            errors.append(f"{c['id']}: the pipeline runs no scene {where['task.scene']!r}")
     return errors
 
 
@@ -362,10 +376,10 @@ def test_claim_names_runs_the_harness_produces(claim):
     runs = claim["runs"]
     if "bench" in runs:
         errors = bench_errors(claim)
-    elif "pipeline" in runs:
-        errors = pipeline_errors(claim)
     else:
-        errors = study_errors(claim)
+        errors = (pipeline_errors(claim) if "pipeline" in runs else []) + (
+            study_errors(claim) if "study" in runs else []
+        )
     assert errors == []
 
 

@@ -420,8 +420,8 @@ def test_bench_runs_on_a_tiny_frame_and_prints_the_ratios(capsys):
             "16",
             "--profile",
             "smoke",
-            "--repeats",
-            "1",
+            "--rounds",
+            "5",
             "--warmup",
             "0",
         ]

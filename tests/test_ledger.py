@@ -135,7 +135,7 @@ def _claims_file(tmp_path, text):
 def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
     (claim,) = load_claims(_claims_file(tmp_path, "claims:" + CLAIM.format(id="kpcn_dpcn")))
     assert claim.citation == "Bunjevac 2019, Sec. 6.2, Table 6.3"
-    assert (claim.source, claim.source_name, claim.profiles) == ("study", "denoisers", ("paper", "cpu"))
+    assert (claim.sources, claim.profiles) == ((("study", "denoisers"),), ("paper", "cpu"))
     assert claim.rule.a == {"model.name": "kpcn"} and claim.rule.size == 0.0
     assert claim.command("cpu") == "python -m src.run -m +sweep=denoisers profile=cpu"
 
@@ -147,7 +147,7 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
         (lambda t: t.replace("kind: better", "kind: bigger"), ["claims.kpcn_dpcn.rule.kind", "bigger"]),
         (
             lambda t: t.replace("study: denoisers", "study: denoisers, bench: denoise"),
-            ["runs", "exactly one"],
+            ["runs", "a bench alone"],
         ),
         (lambda t: t.replace("per: image", "per: round"), ["claims.kpcn_dpcn.per", "round"]),
         (lambda t: t.replace("experiment: nrbench-denoise", "where: {}"), ["runs.experiment"]),
@@ -251,6 +251,19 @@ def ledger_store(tmp_path_factory):
             {"eval_psnr": float(np.mean(base))},
             ("eval/per_image.csv", _images(base)),
         )
+    # The DVC pipeline's runs: one seed per model, 6 held-out images, kpcn 0.5 dB above dpcn on each.
+    pipeline = {**cpu, "nrbench.group": "dvc"}
+    six = pd.DataFrame({"scene": [f"p{i}" for i in range(6)], "spp": 4, "relmse_ratio": 0.5})
+    for model, offset in (("kpcn", 0.5), ("dpcn", 0.0)):
+        scores = six.assign(psnr=[24.0 + i + offset for i in range(6)])
+        _log(
+            client,
+            denoise,
+            tmp,
+            {"report.name": "denoise", "model.name": model, "seed": 0},
+            pipeline,
+            artifact=("eval/per_image.csv", scores),
+        )
     smoke = {**cpu, "nrbench.profile": "smoke"}
     for model in ("kpcn", "dpcn"):
         _log(
@@ -302,6 +315,24 @@ LEDGER_CLAIMS = textwrap.dedent(
         per: image
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, size: 3}}
+      - id: pipeline_fallback
+        source: {{document: Doc A, section: "1"}}
+        statement: KPCN beats DPCN; its study never ran, the pipeline did.
+        profiles: [cpu]
+        runs: {{study: never_run, pipeline: denoise, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
+      - id: study_first
+        source: {{document: Doc A, section: "1"}}
+        statement: KPCN beats DPCN; both the study and the pipeline ran.
+        profiles: [cpu]
+        runs: {{study: {STUDY}, pipeline: denoise, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, size: 0.8}}
       - id: per_seed
         source: {{document: Doc A, section: "1"}}
         statement: KPCN beats DPCN, per run.
@@ -387,6 +418,8 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert summary["statuses"] == {
         "kpcn_beats_dpcn": REPRODUCED,  # +1 dB on all 8 (seed, image) items, older reruns left out
         "kpcn_beats_dpcn_by_3db": DIRECTION_ONLY,
+        "pipeline_fallback": REPRODUCED,  # +0.5 dB on the pipeline's 6 images
+        "study_first": REPRODUCED,  # the study's +1 dB: the pipeline's 0.5 would be direction only
         "per_seed": NOT_DISTINGUISHABLE,  # 4 seeds: a signed-rank test cannot show it
         "smoke_only": NOT_RUN,
         "unet_10x": REPRODUCED,
@@ -399,6 +432,11 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert kpcn["profile"] == "cpu" and kpcn["runs"] == 8  # the newest run per model and seed
     assert "kpcn - dpcn = +1 over 8 paired items (8 favour kpcn, 0 dpcn" in kpcn["numbers"]
     assert kpcn["commits"] == "abc1234def" and kpcn["data"] == "f00d" and kpcn["source"] == "Doc A, Sec. 1"
+    assert (
+        ledger.loc["pipeline_fallback", "from"] == "pipeline" and ledger.loc["pipeline_fallback", "runs"] == 2
+    )
+    assert "+0.5 over 6 paired items" in ledger.loc["pipeline_fallback", "numbers"]
+    assert ledger.loc["study_first", "from"] == f"study {STUDY}" and kpcn["from"] == f"study {STUDY}"
     assert "factor 12" in ledger.loc["unet_10x", "numbers"] and ledger.loc["unet_10x", "profile"] == "paper"
     assert "needs 6 or more" in ledger.loc["per_seed", "numbers"]
     smoke = ledger.loc["smoke_only", "numbers"]
@@ -406,10 +444,10 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     scenes = ledger.loc["needs_scenes", "numbers"]
     assert scenes.startswith("needs the user's data") and "+sweep=nerf_thesis profile=thesis" in scenes
     md = (tmp_path / "reports" / "ledger.md").read_text()
-    assert "**4 reproduced, 1 direction only, 1 not distinguishable, 2 not run**" in md
-    assert md.count("\n| ") == 1 + 8  # the header and one row per claim
+    assert "**6 reproduced, 1 direction only, 1 not distinguishable, 2 not run**" in md
+    assert md.count("\n| ") == 1 + 10  # the header and one row per claim
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    assert html.count("<tr>") == 1 + 8 and "#d4edda" in html
+    assert html.count("<tr>") == 1 + 10 and "#d4edda" in html
 
 
 def test_a_slower_unet_is_not_reproduced(ledger_store, tmp_path):

@@ -57,8 +57,7 @@ class Claim:
     statement: str
     profiles: tuple[str, ...]
     needs: str | None
-    source: str  # study | pipeline | bench
-    source_name: str
+    sources: tuple[tuple[str, str], ...]  # (study | pipeline | bench, its name), in the order they are tried
     experiment: str
     where: dict[str, str]
     metric: str
@@ -73,12 +72,17 @@ class Claim:
         parts = [self.document, f"Sec. {self.section}" if self.section else "", self.where_stated]
         return ", ".join(p for p in parts if p)
 
+    @property
+    def is_bench(self) -> bool:
+        return self.sources[0][0] == "bench"
+
     def command(self, profile: str) -> str:
-        """How a user produces the claim's runs at `profile`."""
-        if self.source == "study":
-            return f"python -m src.run -m +sweep={self.source_name} profile={profile}"
-        if self.source == "bench":
-            return f"python -m src.bench {self.source_name} --profile {profile} --log"
+        """How a user produces the claim's (first-choice) runs at `profile`."""
+        kind, name = self.sources[0]
+        if kind == "study":
+            return f"python -m src.run -m +sweep={name} profile={profile}"
+        if kind == "bench":
+            return f"python -m src.bench {name} --profile {profile} --log"
         return f"dvc repro (profile: {profile} in params.yaml)"
 
 
@@ -132,13 +136,18 @@ def _rule(raw: Any, where: str) -> Rule:
     return Rule(kind, a, b, size=float(raw.get("size") or 0.0))
 
 
-def _runs_source(raw: Any, where: str) -> tuple[str, str]:
+def _runs_sources(raw: Any, where: str) -> tuple[tuple[str, str], ...]:
+    """(kind, name) of the claim's run sources in the order tried: a study's seeds before the pipeline's
+    one run per model; a bench alone."""
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where}: {raw!r}; expected a mapping")
     named = [s for s in RUN_SOURCES if raw.get(s)]
-    if len(named) != 1:
-        raise ConfigError(f"{where}: names {named or 'none'} of {list(RUN_SOURCES)}; expected exactly one")
-    return named[0], str(raw[named[0]])
+    if not named or ("bench" in named and len(named) > 1):
+        raise ConfigError(
+            f"{where}: names {named or 'none'} of {list(RUN_SOURCES)}; expected a study and/or the pipeline, "
+            "or a bench alone"
+        )
+    return tuple((kind, str(raw[kind])) for kind in named)
 
 
 def parse_claim(raw: Any, index: int) -> Claim:
@@ -152,10 +161,12 @@ def parse_claim(raw: Any, index: int) -> Claim:
     if not profiles or isinstance(profiles, str | Mapping):
         raise ConfigError(f"{name}.profiles: {profiles!r}; expected a non-empty list of profiles")
     runs = raw.get("runs") or {}
-    kind, source_name = _runs_source(runs, f"{name}.runs")
+    sources = _runs_sources(runs, f"{name}.runs")
     per = _choice(raw.get("per"), PER_CHOICES, f"{name}.per")
-    if (kind == "bench") != (per == "round"):
-        raise ConfigError(f"{name}.per: {per!r} with runs.{kind}; expected per: round for a bench, only then")
+    if (sources[0][0] == "bench") != (per == "round"):
+        raise ConfigError(
+            f"{name}.per: {per!r} with runs.{sources[0][0]}; expected per: round for a bench, only then"
+        )
     return Claim(
         id=claim_id,
         document=_get(source, "document", f"{name}.source"),
@@ -164,8 +175,7 @@ def parse_claim(raw: Any, index: int) -> Claim:
         statement=" ".join(_get(raw, "statement", name).split()),
         profiles=tuple(str(p) for p in profiles),
         needs=_choice(raw.get("needs"), NEEDS_CHOICES, f"{name}.needs"),
-        source=kind,
-        source_name=source_name,
+        sources=sources,
         experiment=_get(runs, "experiment", f"{name}.runs"),
         where=_strings(runs.get("where"), f"{name}.runs.where"),
         metric=_get(raw, "metric", name),

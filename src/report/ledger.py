@@ -52,6 +52,7 @@ class LedgerRow:
 
     claim: Claim
     profile: str
+    runs_from: str  # "study <name>", "pipeline" or "bench <name>"; "-" when not run
     verdict: Verdict
     runs: int
     commits: tuple[str, ...]
@@ -81,13 +82,14 @@ def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "para
     return mask
 
 
-def _source_filter(claim: Claim) -> tuple[str, dict[str, str]]:
-    """The MLflow filter string and tags that select the claim's kind of runs."""
-    if claim.source == "study":
-        return f"params.`report.name` = 'sweeps/{claim.source_name}'", {}
-    if claim.source == "pipeline":
-        return f"params.`report.name` = '{claim.source_name}'", {"nrbench.group": "dvc"}
-    return f"params.bench = '{claim.source_name}'", {}
+def _source_filter(kind: str, name: str) -> tuple[str | None, dict[str, str]]:
+    """The MLflow filter string and tags that select one kind of runs: a study's jobs, the DVC pipeline's
+    runs (its tag; the claim's experiment says which task), or a bench's runs."""
+    if kind == "study":
+        return f"params.`report.name` = 'sweeps/{name}'", {}
+    if kind == "pipeline":
+        return None, {"nrbench.group": "dvc"}
+    return f"params.bench = '{name}'", {}
 
 
 def _arm_keys(claim: Claim) -> list[str]:
@@ -96,10 +98,10 @@ def _arm_keys(claim: Claim) -> list[str]:
     return list(dict.fromkeys([*keys, "task.scene"]))
 
 
-def claim_runs(claim: Claim, profile: str) -> pd.DataFrame:
-    """The claim's FINISHED runs at `profile` that match its `where`: the newest per compared setting and
-    seed (a bench: its newest run). Empty when there are none (or no such experiment)."""
-    where, tags = _source_filter(claim)
+def claim_runs(claim: Claim, source: tuple[str, str], profile: str) -> pd.DataFrame:
+    """The claim's FINISHED runs from `source` at `profile` that match its `where`: the newest per
+    compared setting and seed (a bench: its newest run). Empty when there are none (or no experiment)."""
+    where, tags = _source_filter(*source)
     report_cfg = {
         "experiment": claim.experiment,
         "tags": {**tags, "nrbench.profile": profile},
@@ -113,7 +115,7 @@ def claim_runs(claim: Claim, profile: str) -> pd.DataFrame:
     # `where` before keeping the newest, so that a newer run it leaves out cannot hide an older one it
     # keeps. A bench run has no axes and no seed: the newest per (nothing) is its newest run.
     runs = runs[matching(runs, claim.where)]
-    return keep_latest(runs, [] if claim.source == "bench" else _arm_keys(claim))
+    return keep_latest(runs, [] if claim.is_bench else _arm_keys(claim))
 
 
 def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
@@ -198,24 +200,34 @@ def _provenance(runs: pd.DataFrame, column: str) -> tuple[str, ...]:
     return tuple(sorted({str(v)[:12] for v in runs[column].dropna()}))
 
 
+def _runs_from(source: tuple[str, str]) -> str:
+    return "pipeline" if source[0] == "pipeline" else " ".join(source)
+
+
 def evaluate_claim(claim: Claim, alpha: float, all_profiles: tuple[str, ...] = ()) -> LedgerRow:
-    """The claim's ledger row: its status at the first of its profiles with runs (module docstring)."""
+    """The claim's ledger row: its status at the first of its profiles with runs, from the first of its
+    sources with runs there (a study's seeds before the pipeline's one run per model; module docstring)."""
     for profile in claim.profiles:
-        runs = claim_runs(claim, profile)
-        if runs.empty:
-            continue
-        scores, prefix, item = item_scores(claim, runs)
-        verdict = _verdict(claim, scores, prefix, item, alpha)
-        return LedgerRow(
-            claim,
-            profile,
-            verdict,
-            len(runs),
-            _provenance(runs, "tags.nrbench.git_commit"),
-            _provenance(runs, "tags.nrbench.data_fingerprint"),
-        )
-    others = [p for p in all_profiles if p not in claim.profiles and not claim_runs(claim, p).empty]
-    return LedgerRow(claim, "-", _not_run(claim, others), 0, (), ())
+        for source in claim.sources:
+            runs = claim_runs(claim, source, profile)
+            if runs.empty:
+                continue
+            scores, prefix, item = item_scores(claim, runs)
+            return LedgerRow(
+                claim,
+                profile,
+                _runs_from(source),
+                _verdict(claim, scores, prefix, item, alpha),
+                len(runs),
+                _provenance(runs, "tags.nrbench.git_commit"),
+                _provenance(runs, "tags.nrbench.data_fingerprint"),
+            )
+    others = [
+        p
+        for p in all_profiles
+        if p not in claim.profiles and any(not claim_runs(claim, s, p).empty for s in claim.sources)
+    ]
+    return LedgerRow(claim, "-", "-", _not_run(claim, others), 0, (), ())
 
 
 def build_ledger(cfg: Any) -> dict[str, Any]:

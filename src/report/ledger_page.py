@@ -13,7 +13,7 @@ import pandas as pd
 from src.io.atomic import atomic_write_text
 from src.report.verdicts import STATUSES
 
-COLUMNS = ("claim", "source", "statement", "profile", "status", "numbers", "runs", "commits", "data")
+COLUMNS = ("claim", "source", "statement", "profile", "from", "status", "numbers", "runs", "commits", "data")
 _COLOURS = {
     "reproduced": "#d4edda",
     "direction only": "#fff3cd",
@@ -38,6 +38,7 @@ def ledger_frame(rows: Sequence) -> pd.DataFrame:
                 "source": r.claim.citation,
                 "statement": r.claim.statement,
                 "profile": r.profile,
+                "from": r.runs_from,
                 "status": r.verdict.status,
                 "numbers": r.verdict.numbers,
                 "runs": r.runs,
