@@ -306,6 +306,11 @@ def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp
     losses = read_csv(report / "losses.csv")
     assert len(losses) == 2 and {"val specular", "train specular"} <= set(losses[0])
     assert (report / "learning_curves.png").is_file() and (report / "index.html").is_file()
+    # The sweep rewrote the ledger: the whitening claim found this sweep's runs, at a profile (smoke)
+    # where it means nothing.
+    ledger = {r["claim"]: r for r in read_csv(tmp_path / "reports" / "ledger.csv")}
+    whitening = ledger["whitening_hurts_specular"]
+    assert whitening["status"] == "not run" and "runs at smoke only" in whitening["numbers"]
 
 
 @pytest.mark.slow
