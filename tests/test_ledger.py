@@ -264,6 +264,16 @@ def ledger_store(tmp_path_factory):
             pipeline,
             artifact=("eval/per_image.csv", scores),
         )
+    # A third model of the study, which no claim compares: its run is not one of a claim's runs.
+    _log(
+        client,
+        denoise,
+        tmp,
+        {**study, "model.name": "resnet", "seed": 0},
+        {**cpu, "nrbench.git_commit": "0ther"},
+        {"eval_psnr": 20.0},
+        ("eval/per_image.csv", _images([20.0, 20.0])),
+    )
     smoke = {**cpu, "nrbench.profile": "smoke"}
     for model in ("kpcn", "dpcn"):
         _log(

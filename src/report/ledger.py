@@ -200,6 +200,19 @@ def _provenance(runs: pd.DataFrame, column: str) -> tuple[str, ...]:
     return tuple(sorted({str(v)[:12] for v in runs[column].dropna()}))
 
 
+def _compared_runs(claim: Claim, runs: pd.DataFrame) -> pd.DataFrame:
+    """The runs of the arms the claim compares (the others of its study say nothing about it); a bench's
+    arms are rows of its rounds table, so its run is kept whole."""
+    if claim.is_bench:
+        return runs
+    rule = claim.rule
+    arms = [rule.a, rule.b] if rule.kind != "agreement" else [{**c.arm, **c.where} for c in rule.published]
+    mask = pd.Series(False, index=runs.index)
+    for arm in arms:
+        mask |= matching(runs, arm)
+    return runs[mask]
+
+
 def _runs_from(source: tuple[str, str]) -> str:
     return "pipeline" if source[0] == "pipeline" else " ".join(source)
 
@@ -209,7 +222,7 @@ def evaluate_claim(claim: Claim, alpha: float, all_profiles: tuple[str, ...] = (
     sources with runs there (a study's seeds before the pipeline's one run per model; module docstring)."""
     for profile in claim.profiles:
         for source in claim.sources:
-            runs = claim_runs(claim, source, profile)
+            runs = _compared_runs(claim, claim_runs(claim, source, profile))
             if runs.empty:
                 continue
             scores, prefix, item = item_scores(claim, runs)
@@ -225,7 +238,8 @@ def evaluate_claim(claim: Claim, alpha: float, all_profiles: tuple[str, ...] = (
     others = [
         p
         for p in all_profiles
-        if p not in claim.profiles and any(not claim_runs(claim, s, p).empty for s in claim.sources)
+        if p not in claim.profiles
+        and any(not _compared_runs(claim, claim_runs(claim, s, p)).empty for s in claim.sources)
     ]
     return LedgerRow(claim, "-", "-", _not_run(claim, others), 0, (), ())
 
