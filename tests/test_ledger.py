@@ -153,6 +153,11 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
         (lambda t: t.replace("experiment: nrbench-denoise", "where: {}"), ["runs.experiment"]),
         (lambda t: t.replace("b: {model.name: dpcn}", "b: {model.name: kpcn}"), ["two different"]),
         (lambda t: t.replace("profiles: [paper, cpu]", "profiles: cpu"), ["profiles"]),
+        (
+            lambda t: t.replace("b: {model.name: dpcn}}", "b: {model.name: dpcn}, sise: 1}"),
+            ["rule", "'sise'"],
+        ),
+        (lambda t: t.replace("higher: true", "higher: true\n    metirc: psnr"), ["kpcn_dpcn", "'metirc'"]),
     ],
 )
 def test_a_malformed_claim_is_one_line_naming_its_key(tmp_path, edit, needles):

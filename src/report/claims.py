@@ -94,6 +94,22 @@ def _strings(mapping: Any, key: str) -> dict[str, str]:
     return {str(k): str(v) for k, v in mapping.items()}
 
 
+#: The keys each part of a claim may have: a misspelt one (`tolerence`) is an error, not ignored.
+KEYS = {
+    "": {"id", "source", "statement", "profiles", "needs", "runs", "metric", "per", "higher", "log", "rule"},
+    "source": {"document", "section", "where"},
+    "runs": {*RUN_SOURCES, "experiment", "where"},
+    "rule": {"kind", "a", "b", "size", "tolerance", "published"},
+    "published": {"arm", "where", "value"},
+}
+
+
+def _known_keys(raw: Mapping, part: str, where: str) -> None:
+    unknown = sorted(set(raw) - KEYS[part])
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; expected some of {sorted(KEYS[part])}")
+
+
 def _get(raw: Mapping, key: str, where: str, kinds: type | tuple[type, ...] = str) -> Any:
     value = raw.get(key)
     if value is None or not isinstance(value, kinds):
@@ -111,11 +127,14 @@ def _choice(value: Any, choices: tuple, key: str) -> Any:
 def _rule(raw: Any, where: str) -> Rule:
     if not isinstance(raw, Mapping):
         raise ConfigError(f"{where}: {raw!r}; expected a mapping with a `kind`")
+    _known_keys(raw, "rule", where)
     kind = _choice(raw.get("kind"), RULE_KINDS, f"{where}.kind")
     if kind == "agreement":
         cases = raw.get("published") or []
         if not cases:
             raise ConfigError(f"{where}.published: empty; an agreement rule needs published values")
+        for i, c in enumerate(cases):
+            _known_keys(c, "published", f"{where}.published[{i}]")
         published = tuple(
             Case(
                 _strings(c.get("arm"), f"{where}.published[{i}].arm"),
@@ -156,12 +175,15 @@ def parse_claim(raw: Any, index: int) -> Claim:
         raise ConfigError(f"claims[{index}]: {raw!r}; expected a mapping")
     name = f"claims[{index}]" if not isinstance(raw.get("id"), str) else f"claims.{raw['id']}"
     claim_id = _get(raw, "id", name)
+    _known_keys(raw, "", name)
     source = raw.get("source") or {}
+    _known_keys(source, "source", f"{name}.source")
     profiles = raw.get("profiles")
     if not profiles or isinstance(profiles, str | Mapping):
         raise ConfigError(f"{name}.profiles: {profiles!r}; expected a non-empty list of profiles")
     runs = raw.get("runs") or {}
     sources = _runs_sources(runs, f"{name}.runs")
+    _known_keys(runs, "runs", f"{name}.runs")
     per = _choice(raw.get("per"), PER_CHOICES, f"{name}.per")
     if (sources[0][0] == "bench") != (per == "round"):
         raise ConfigError(
