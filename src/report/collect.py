@@ -92,7 +92,7 @@ def _sweep_parent_ids(experiment_ids: list[str], sweep_dir: str) -> list[str]:
     return [str(r) for r in parents.loc[same, "run_id"]]
 
 
-def find_runs(report_cfg: Any) -> pd.DataFrame:
+def find_runs(report_cfg: Any, level: int = logging.INFO) -> pd.DataFrame:
     """FINISHED job runs selected by `report_cfg`, oldest first.
 
     Keys (all optional except `experiment`): `tracking_uri` (else the current MLflow URI), `experiment`
@@ -100,7 +100,8 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     (matched to the parent runs' `nrbench.sweep_dir` tag), `group` (the runs' `nrbench.group` tag),
     `tags` ({key: value}), `filter` (a free MLflow filter string, e.g.
     "params.`task.train.lr` = '0.0001'"), `keep` + `axes` (see `keep_latest`). When nothing matches,
-    raises `DataError` with one line naming the first filter that left no run.
+    raises `DataError` with one line naming the first filter that left no run. `level`: the log level of
+    the line counting the runs (the ledger, which searches once per claim and source, keeps it quiet).
     """
     uri = config_value(report_cfg, "tracking_uri")
     if uri:
@@ -112,7 +113,7 @@ def find_runs(report_cfg: Any) -> pd.DataFrame:
     runs = _matching_runs(experiment_ids, steps, config_value(report_cfg, "filter"), uri)
     runs = runs.sort_values("start_time", kind="stable") if "start_time" in runs else runs
     runs = _keep_selected(runs, report_cfg)
-    log.info("report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
+    log.log(level, "report: %d runs from experiment(s) %s", len(runs), ", ".join(names))
     return runs.reset_index(drop=True)
 
 

@@ -31,7 +31,7 @@ from src.report.verdicts import (
     comparable_verdict,
 )
 
-log = logging.getLogger("nrbench.report")
+log = logging.getLogger("nrbench.ledger")
 
 #: The MLflow artifact of `python -m src.bench denoise --log`: one row per model and round.
 BENCH_ROUNDS_ARTIFACT = "bench/rounds.csv"
@@ -108,9 +108,9 @@ def claim_runs(claim: Claim, source: tuple[str, str], profile: str) -> pd.DataFr
         "filter": where,
     }
     try:
-        runs = find_runs(report_cfg)
+        runs = find_runs(report_cfg, level=logging.DEBUG)  # one claim, source and profile of many: quietly
     except DataError as err:
-        log.info("ledger: %s: no runs at %s (%s)", claim.id, profile, err)
+        log.debug("ledger: %s: no runs at %s (%s)", claim.id, profile, err)
         return pd.DataFrame()
     # `where` before keeping the newest, so that a newer run it leaves out cannot hide an older one it
     # keeps. A bench run has no axes and no seed: the newest per (nothing) is its newest run.
