@@ -182,8 +182,8 @@ def test_the_stage_stores_the_second_reference_of_real_files_with_their_repairs(
 
 def test_the_render_stage_picks_the_scenes_preprocessing_holds_out(tmp_path):
     """`held_out_scenes` of the smoke config is the val + test of a preprocessing of its scenes with the
-    same config, and follows task.preprocess.split_seed; at the cpu profile, the four held-out scenes of
-    the cpu data (their splits.json at issue 33)."""
+    same config, and follows task.preprocess.split_seed; at the cpu profile, the twelve held-out scenes of
+    the cpu data (val + test of their splits.json, six seeds per base, at issue 33)."""
     from src.kinds.sequences import held_out_scenes, preprocess_settings
     from src.render.render_dataset import scene_sources
 
@@ -203,10 +203,18 @@ def test_the_render_stage_picks_the_scenes_preprocessing_holds_out(tmp_path):
     cpu = compose_config(["dataset=volumetric", "profile=cpu"])
     assert cpu.dataset.second_reference is True
     assert held_out_scenes(cpu) == [
+        "cloud-0002",
+        "cloud-0003",
+        "cloud-0004",
         "fog_objects-0000",
-        "fog_objects-0001",
-        "godrays-0000",
+        "fog_objects-0002",
+        "fog_objects-0004",
+        "fog_objects-0005",
         "smoke_tabletop-0000",
+        "smoke_tabletop-0002",
+        "smoke_tabletop-0003",
+        "smoke_tabletop-0004",
+        "smoke_tabletop-0005",
     ]
 
 
@@ -239,7 +247,7 @@ def test_the_plan_renders_a_second_reference_with_other_seeds_for_the_held_out_s
     plain, plan = render_plan(cpu_ds), render_plan(cpu_ds, second_reference=held_out)
     second = [f for f in plan if f["role"] == "reference2"]
     assert [f for f in plan if f["role"] != "reference2"] == plain  # the other files unchanged
-    assert len(plain) == 8 * 8 * 3 and len(second) == 2 * 8
+    assert len(plain) == 24 * 8 * 3 and len(second) == 2 * 8  # 4 bases x 6 seeds, 8 frames, 3 spp counts
     assert sorted((f["scene"], f["frame"]) for f in second) == [(s, f) for s in held_out for f in range(8)]
     by_file = {(f["scene"], f["frame"], f["role"]): f for f in plan}
     for f in second:
