@@ -237,6 +237,19 @@ def differing_params(runs: pd.DataFrame, axes: Iterable[str]) -> list[str]:
 PER_IMAGE_ARTIFACT = "eval/per_image.csv"
 
 
+def artifact_csv(run_id: str, artifact_path: str, dst: str) -> pd.DataFrame | None:
+    """A run's CSV artifact read into a frame (downloaded under `dst`), or None, logged, when the run has
+    none or the store cannot be reached."""
+    try:
+        local = mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=artifact_path, dst_path=dst)
+    except (
+        Exception
+    ) as err:  # no such artifact (a search-only run, an older bench), or the store is unreachable
+        log.info("report: run %s has no %s (%s)", run_id, artifact_path, err)
+        return None
+    return pd.read_csv(local)
+
+
 def per_image_rows(runs: pd.DataFrame, required: str = "relmse_ratio") -> pd.DataFrame:
     """The rows of every run's `eval/per_image.csv` artifact that has column `required` (the denoising
     evaluations write `relmse_ratio`; NeRF's do not), each row extended with its run's columns (`params.*`,
@@ -247,15 +260,8 @@ def per_image_rows(runs: pd.DataFrame, required: str = "relmse_ratio") -> pd.Dat
     parts = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, (_, run) in enumerate(runs.iterrows()):
-            try:
-                local = mlflow.artifacts.download_artifacts(
-                    run_id=run["run_id"], artifact_path=PER_IMAGE_ARTIFACT, dst_path=f"{tmp}/{i}"
-                )
-            except Exception as err:  # no such artifact (a search-only run), or the store is unreachable
-                log.info("report: run %s has no %s (%s)", run["run_id"], PER_IMAGE_ARTIFACT, err)
-                continue
-            images = pd.read_csv(local)
-            if required not in images:
+            images = artifact_csv(run["run_id"], PER_IMAGE_ARTIFACT, f"{tmp}/{i}")
+            if images is None or required not in images:
                 continue
             scores = images.rename(columns={c: f"metrics.{c}" for c in images if c not in ("scene", "spp")})
             context = {c: run[c] for c in runs.columns if c.startswith("params.") or c == "run_id"}

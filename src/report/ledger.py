@@ -22,7 +22,8 @@ import pandas as pd
 
 from src.errors import DataError
 from src.report.claims import Claim
-from src.report.collect import find_runs, keep_latest, per_image_rows
+from src.report.collect import artifact_csv, find_runs, keep_latest, per_image_rows
+from src.report.tables import item_means
 from src.report.verdicts import (
     NOT_RUN,
     Verdict,
@@ -119,17 +120,11 @@ def claim_runs(claim: Claim, source: tuple[str, str], profile: str) -> pd.DataFr
 
 
 def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
-    """The rounds table of the (newest) bench run, its columns (model, round, seconds) as is."""
-    run_id = runs["run_id"].iloc[-1]
+    """The rounds table of the (newest) bench run, its columns (model, round, seconds) as is; empty when
+    the run has none."""
     with tempfile.TemporaryDirectory() as tmp:
-        try:
-            local = mlflow.artifacts.download_artifacts(
-                run_id=run_id, artifact_path=BENCH_ROUNDS_ARTIFACT, dst_path=tmp
-            )
-        except Exception as err:  # an older bench run without the artifact
-            log.info("ledger: bench run %s has no %s (%s)", run_id, BENCH_ROUNDS_ARTIFACT, err)
-            return pd.DataFrame()
-        return pd.read_csv(local)
+        rounds = artifact_csv(runs["run_id"].iloc[-1], BENCH_ROUNDS_ARTIFACT, tmp)
+    return pd.DataFrame() if rounds is None else rounds
 
 
 def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str, list[str]]:
@@ -153,11 +148,7 @@ def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str, li
 def arm_values(scores: pd.DataFrame, arm: Mapping[str, str], prefix: str, item: list[str]) -> pd.Series:
     """An arm's scores, one per item (the mean where it has one item twice), non-finite ones dropped."""
     part = scores[matching(scores, arm, prefix)] if not scores.empty else scores
-    if part.empty:
-        return pd.Series(dtype=float)
-    keys = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in item]
-    values = pd.to_numeric(part["value"], errors="coerce").replace([float("inf"), float("-inf")], None)
-    return values.groupby(keys).mean().dropna()
+    return pd.Series(dtype=float) if part.empty else item_means(part, "value", item)
 
 
 def _label(arm: Mapping[str, str]) -> str:

@@ -251,11 +251,12 @@ PAIRED_ALPHA = 0.05
 PAIRED_ITEM = ("params.seed", "scene", "spp")
 
 
-def _item_means(part: pd.DataFrame, column: str) -> pd.Series:
-    """One row's score (its image rows `part`) per item (seed, scene, spp); the mean where a row has one
-    item twice."""
-    index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in PAIRED_ITEM]
-    scores = pd.to_numeric(part[f"metrics.{column}"]).replace([np.inf, -np.inf], np.nan)
+def item_means(part: pd.DataFrame, column: str, item: Sequence[str] = PAIRED_ITEM) -> pd.Series:
+    """The scores in `column` of one compared row (or arm) `part`, one per item (the `item` columns, "-"
+    for one `part` lacks); the mean where it has one item twice. Shared by the paired table and the
+    ledger (src/report/ledger.py)."""
+    index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in item]
+    scores = pd.to_numeric(part[column]).replace([np.inf, -np.inf], np.nan)
     return scores.groupby(index).mean().dropna()  # an infinite tPSNR (a copy of the reference) pairs nothing
 
 
@@ -289,7 +290,7 @@ def paired_table(
     for label, (column, log_scale, higher) in PAIRED_METRICS.items():
         if f"metrics.{column}" not in images or images[f"metrics.{column}"].isna().all():
             continue
-        scores = {row: _item_means(row_images[row], column) for row in rows}
+        scores = {row: item_means(row_images[row], f"metrics.{column}") for row in rows}
         log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
         scored = [row for row in rows if len(scores[row])]
         if not scored:
