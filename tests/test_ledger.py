@@ -269,6 +269,14 @@ def ledger_store(tmp_path_factory):
             pipeline,
             artifact=("eval/per_image.csv", scores),
         )
+    # The radiance fields' pipeline: one run per model, scored per test view (`view`, no scene or spp):
+    # refnerf 0.3 dB above mipnerf on each of 6 views, which must pair as 6 items, not one.
+    nerf = client.create_experiment("nrbench-nerf", artifact_location=(tmp / "art_nerf").as_uri())
+    views = pd.DataFrame({"view": [f"tabletop-r_{i}" for i in range(6)]})
+    for model, offset in (("refnerf", 0.3), ("mipnerf", 0.0)):
+        scores = views.assign(psnr=[23.0 + 0.2 * i + offset for i in range(6)])
+        params = {"report.name": "nerf", "model.name": model, "seed": 0, "task.scene": "tabletop"}
+        _log(client, nerf, tmp, params, pipeline, artifact=("eval/per_image.csv", scores))
     # A third model of the study, which no claim compares: its run is not one of a claim's runs.
     _log(
         client,
@@ -396,6 +404,15 @@ LEDGER_CLAIMS = textwrap.dedent(
         per: run
         higher: true
         rule: {{kind: agreement, tolerance: 5, published: [{{arm: {{model.name: dpcn}}, value: 25.0}}]}}
+      - id: nerf_views
+        source: {{document: Doc C, section: "6"}}
+        statement: Ref-NeRF beats mip-NeRF, per test view.
+        profiles: [cpu]
+        runs: {{pipeline: nerf, experiment: nrbench-nerf, where: {{task.scene: tabletop}}}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: better, a: {{model.name: refnerf}}, b: {{model.name: mipnerf}}}}
       - id: needs_scenes
         source: {{document: Doc C, section: "6"}}
         statement: Needs the user's scenes.
@@ -440,6 +457,7 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
         "unet_10x": REPRODUCED,
         "unet_vs_oidn": REPRODUCED,
         "published": REPRODUCED,
+        "nerf_views": REPRODUCED,  # +0.3 dB on each of 6 views: 6 items, not 1
         "needs_scenes": NOT_RUN,
     }
     ledger = pd.read_csv(summary["paths"]["csv"]).set_index("claim")
@@ -456,13 +474,14 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert "needs 6 or more" in ledger.loc["per_seed", "numbers"]
     smoke = ledger.loc["smoke_only", "numbers"]
     assert "runs at smoke only" in smoke and "python -m src.run -m +sweep=smoke_only profile=cpu" in smoke
+    assert "+0.3 over 6 paired items" in ledger.loc["nerf_views", "numbers"]
     scenes = ledger.loc["needs_scenes", "numbers"]
     assert scenes.startswith("needs the user's data") and "+sweep=nerf_thesis profile=thesis" in scenes
     md = (tmp_path / "reports" / "ledger.md").read_text()
-    assert "**6 reproduced, 1 direction only, 1 not distinguishable, 2 not run**" in md
-    assert md.count("\n| ") == 1 + 10  # the header and one row per claim
+    assert "**7 reproduced, 1 direction only, 1 not distinguishable, 2 not run**" in md
+    assert md.count("\n| ") == 1 + 11  # the header and one row per claim
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    assert html.count("<tr>") == 1 + 10 and "#d4edda" in html
+    assert html.count("<tr>") == 1 + 11 and "#d4edda" in html
 
 
 def test_a_slower_unet_is_not_reproduced(ledger_store, tmp_path):

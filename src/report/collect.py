@@ -250,6 +250,11 @@ def artifact_csv(run_id: str, artifact_path: str, dst: str) -> pd.DataFrame | No
     return pd.read_csv(local)
 
 
+#: The columns of `eval/per_image.csv` that name a scored item rather than score it: a denoiser's image
+#: (scene, spp) and a radiance field's test view (view). Kept as they are, so items pair by name.
+IMAGE_IDS = ("scene", "spp", "view")
+
+
 def per_image_rows(runs: pd.DataFrame, required: str = "relmse_ratio") -> pd.DataFrame:
     """The rows of every run's `eval/per_image.csv` artifact that has column `required` (the denoising
     evaluations write `relmse_ratio`; NeRF's do not), each row extended with its run's columns (`params.*`,
@@ -263,7 +268,7 @@ def per_image_rows(runs: pd.DataFrame, required: str = "relmse_ratio") -> pd.Dat
             images = artifact_csv(run["run_id"], PER_IMAGE_ARTIFACT, f"{tmp}/{i}")
             if images is None or required not in images:
                 continue
-            scores = images.rename(columns={c: f"metrics.{c}" for c in images if c not in ("scene", "spp")})
+            scores = images.rename(columns={c: f"metrics.{c}" for c in images if c not in IMAGE_IDS})
             context = {c: run[c] for c in runs.columns if c.startswith("params.") or c == "run_id"}
             parts.append(scores.assign(**context))
     return pd.concat(parts, ignore_index=True) if parts else pd.DataFrame()
