@@ -1,6 +1,6 @@
-"""Your own scene (docs/denoisers.md, README "Add your own data"): the documented command, with the example
-scene the repository ships, composes, validates and renders; a dataset with neither base scenes nor scene
-files is refused in one line."""
+"""Your own scene (docs/extending.md, README "Add a method, a scene, your own data"): the documented
+command, with the example scene the repository ships, composes, validates and renders; a dataset with
+neither base scenes nor scene files is refused in one line."""
 
 import json
 import shlex
@@ -16,7 +16,7 @@ from src.schema.run import validate_run
 from tests.conftest import ROOT, cli_job, one_line_cli_error, one_line_error, smoke_config
 
 EXAMPLE = "examples/scenes/glossy_sphere.xml"
-#: The documented command (README.md and docs/denoisers.md show it verbatim: checked below).
+#: The documented command (README.md and docs/extending.md show it verbatim: checked below).
 COMMAND = f"python -m src.run stage=render 'dataset.scene_files=[{EXAMPLE}]' dataset.bases=[]"
 
 
@@ -25,7 +25,7 @@ def overrides(command: str = COMMAND) -> list[str]:
 
 
 def test_the_documented_command_is_the_one_the_docs_show():
-    for page in ("README.md", "docs/denoisers.md"):
+    for page in ("README.md", "docs/extending.md"):
         assert COMMAND in (ROOT / page).read_text(), page
 
 
