@@ -278,3 +278,21 @@ def test_a_stale_key_in_a_documented_command_fails(monkeypatch):
     multirun, overrides = hydra_args("python -m src.run task=nerf task.scen=tabletop profile=smoke")
     with pytest.raises(Exception, match="task.scen"):
         compose_job(jobs(multirun, overrides)[0])
+
+
+#: Pages another part of issue 34 adds (the report site's own page); linked before they land.
+PENDING_PAGES = {"docs/report-site.md"}
+
+
+def test_relative_links_between_pages_resolve():
+    """Every relative link of README.md and docs/*.md names a file that exists (pages moved in issue 34)."""
+    broken = []
+    for page in PAGES:
+        text = (ROOT / page).read_text(encoding="utf-8")
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"^[a-z]+://|^#|^mailto:", target):
+                continue
+            path = ((ROOT / page).parent / target.split("#")[0]).resolve()
+            if not path.exists() and path.relative_to(ROOT).as_posix() not in PENDING_PAGES:
+                broken.append(f"{page}: {target}")
+    assert not broken, broken
