@@ -198,6 +198,7 @@ def test_the_docs_show_commands_of_every_system():
         "python -m src.run dataset=volumetric model=unet_kpcn profile=smoke",
         "python -m src.run task=filter_search profile=smoke",
         "python -m src.run task=nerf model=mipnerf task.scene=tabletop profile=smoke",
+        "python -m src.run stage=ledger profile=smoke",
         "bash scripts/main.sh profile=smoke",  # an inline span
     ):
         assert quickstart in texts, quickstart
