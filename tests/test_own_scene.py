@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from src.data.kpcn_buffers import KPCN_LAYOUT
 from src.errors import ConfigError
 from src.render.render_dataset import scene_sources
 from src.schema.run import validate_run
@@ -72,5 +73,8 @@ def test_the_documented_command_renders_the_example_at_smoke(tmp_path):
     raw = tmp_path / "procedural" / "smoke" / "raw"
     manifest = json.loads((raw / "manifest.json").read_text())
     assert sorted(manifest) == [f"glossy-sphere-{spp:05d}spp.exr" for spp in (4, 16, 128)]
-    assert all((raw / name).stat().st_size > 0 for name in manifest)
+    for name in manifest:  # the loader the preprocessing uses: every channel present, finite, non-negative
+        buffers, _ = KPCN_LAYOUT.load(raw / name, expected_size=(32, 48))
+        hit = buffers["depth"][..., 0] > 0
+        assert 0.2 < hit.mean() < 1 and buffers["color"].mean() > 0, name  # the floor and sphere, some sky
     print(f"rendered in {time.perf_counter() - start:.1f} s")
