@@ -1,4 +1,4 @@
-"""Did a change keep the numbers? Timing-free comparisons used to check refactors (README, Tests).
+"""Did a change keep the numbers? Timing-free comparisons used to check refactors (docs/development.md).
 
 python scripts/compare_metrics.py dump  MLFLOW_DB OUT.csv
     every FINISHED job run's eval metrics (timings left out), one row per (model, scene, seed), sorted,

@@ -1,5 +1,5 @@
 """Seed spread and paired comparisons of a filter-search study (`+sweep=gp_expansion|gp_rules|gp_bias_guard|
-gp_population`), from its job folders: the numbers the README quotes for these studies.
+gp_population`), from its job folders: the numbers docs/studies.md quotes.
 
     python scripts/gp_study.py SWEEP_DIR [--spp 4]
 

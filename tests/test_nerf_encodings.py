@@ -175,7 +175,7 @@ def test_a_profile_changes_an_encoding_setting_and_the_mlp_follows():
 
 
 def test_an_encoding_file_is_chosen_from_the_command_line():
-    """`encoding@model.position_encoding=mipnerf_position` (README): NeRF on the frustums' IPE, 96 inputs,
+    """`encoding@model.position_encoding=mipnerf_position` (docs): NeRF on the frustums' IPE, 96 inputs,
     and the model then computes the Gaussians for it."""
     cfg = model_cfg("nerf", "smoke", "encoding@model.position_encoding=mipnerf_position")
     model = build_method(cfg)

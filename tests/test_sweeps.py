@@ -344,7 +344,7 @@ def test_lr_search_smoke_runs_optuna_trials_and_reports_each(smoke_data, tmp_pat
 
 
 def test_a_users_own_denoiser_runs_beside_a_builtin_one(smoke_data, tmp_path):
-    """README "Add your own method": one module (tests/plugins/toy_denoiser.py) and one YAML each
+    """docs/extending.md: one module (tests/plugins/toy_denoiser.py) and one YAML each
     (tests/conf/model/toy.yaml, a two-branch model; toy_color.yaml, one branch predicting colour;
     toy_filter.yaml, a filter) outside src/ are trained (the learned ones), evaluated and reported beside
     DPCN by one multirun."""

@@ -3,7 +3,7 @@ preprocessing first (`stage=train`, `eval`, `select_features`, `search`) checks,
 the folder's recorded cache key equals the key `stage=preprocess` would give it now. Otherwise it would
 train or score on data made with other `task.preprocess` settings (a `stage=preprocess
 task.preprocess.patch_size=16` before a plain `stage=train`) or from other raw data, while its run
-records this config. Why at job start: before any run is opened or file written (the README's rule for bad
+records this config. Why at job start: before any run is opened or file written (the docs' rule for bad
 input)."""
 
 from __future__ import annotations

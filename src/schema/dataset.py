@@ -147,7 +147,8 @@ class DenoisingData(DatasetSchema):
 
 class ProceduralDataset(DenoisingData):
     name: Literal["procedural"]
-    bases: list[Literal["cornell", "tabletop", "outdoor"]] = Field(min_length=1)
+    # Empty when the user's own scene files are the whole dataset (`dataset.bases=[]`); not both empty.
+    bases: list[Literal["cornell", "tabletop", "outdoor"]]
     scenes_per_base: PositiveInt
     scene_files: list[str]
     width: PositiveInt
@@ -159,6 +160,16 @@ class ProceduralDataset(DenoisingData):
     max_pass_samples: PositiveInt
     randomize: Randomize
     base_scenes: BaseScenes
+
+    @model_validator(mode="after")
+    def _some_scenes(self) -> ProceduralDataset:
+        """The scenes are the bases' permutations plus the scene files: at least one of the two lists."""
+        if not self.bases and not self.scene_files:
+            raise own_error(
+                "dataset.bases=[]: expected a non-empty list of base scenes, or your own scenes in "
+                "dataset.scene_files"
+            )
+        return self
 
     @model_validator(mode="after")
     def _reference_above_noisy(self) -> ProceduralDataset:

@@ -1,4 +1,4 @@
-"""A denoiser from outside `src/`, as a user would write one (README, "Add your own method"): per branch of
+"""A denoiser from outside `src/`, as a user would write one (docs/extending.md): per branch of
 the data (still images: diffuse and specular; sequences: radiance), a two-layer 1x1-convolution network
 from the branch's inputs to its transformed colour. Its config is `tests/conf/model/toy.yaml`; the tests
 run it through training, evaluation, the report and a multirun, on still images and on a toy kind of

@@ -1,4 +1,4 @@
-"""An encoding from outside `src/`, as a user would write one (README, "Add your own encoding"): random
+"""An encoding from outside `src/`, as a user would write one (docs/radiance-fields.md): random
 Fourier features (Tancik et al. 2020, "Fourier Features Let Networks Learn High Frequency Functions in Low
 Dimensional Domains", Sec. 4, Gaussian mapping): gamma(x) = [cos(2 pi B x), sin(2 pi B x)] with the
 rows of B (num_features x 3) drawn from N(0, scale^2 I) with `seed`. Its config,

@@ -1,4 +1,4 @@
-"""A radiance field from outside `src/`, as a user would write one (README, "Add your own method"): a
+"""A radiance field from outside `src/`, as a user would write one (docs/extending.md): a
 `NerfModelBase` subclass whose field is a small MLP of the raw sample position (no encoding, no view
 dependence), one MLP for both levels. Config: `tests/conf/model/toy_field.yaml`."""
 

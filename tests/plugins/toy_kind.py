@@ -1,4 +1,4 @@
-"""A kind of data from outside `src/`, as a user would write one (README, "Add your own kind of data"):
+"""A kind of data from outside `src/`, as a user would write one (docs/extending.md):
 small analytic image sequences. Each scene is a few frames of drifting sinusoids per colour channel; a
 noisy render at s spp adds Gaussian noise of std `noise / sqrt(s)`, seeded per (scene, spp). The kind
 owns its render (the clean and noisy frames into `paths.raw`), its preprocessing (k-frame training
