@@ -56,7 +56,10 @@ def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
     axes = ["task.search.replication", "task.search.crossover", "task.search.mutation"]
     build_report(_cfg(runs, reports, name="sweeps/gp_rules", experiment=GP_EXPERIMENT, axes=axes))
     ledger = pd.DataFrame(
-        [["c1", "thesis", "KPCN beats the input", "cpu", "study gp_rules", "reproduced", "x", 3, "-", "-"]],
+        [
+            ["c1", "thesis", "KPCN beats the input", "cpu", "study gp_rules", "reproduced", "x", 3, "-", "-"],
+            ["gpu_claim", "paper", "U-Net is 10x faster", "-", "-", "not run", "needs a GPU", 0, "-", "-"],
+        ],
         columns=list(COLUMNS),
     )
     ledger.to_csv(reports / "ledger.csv", index=False)
@@ -93,7 +96,9 @@ def test_the_index_links_every_report_study_ledger_bench_and_method(site):
     assert "<td>cpu</td>" in row and "<td>4</td>" in row and "smoke" not in row
     assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", row)
     # the ledger's findings, its study linked
-    assert "1 reproduced" in index and '<a href="sweeps/gp_rules/index.html">study gp_rules</a>' in index
+    assert "1 reproduced, 1 not run" in index
+    assert '<a href="sweeps/gp_rules/index.html">study gp_rules</a>' in index
+    assert "gpu_claim" not in index and "1 claims not run" in index  # counted; the ledger says why
     assert "1 runs" in index  # the benchmark entry
 
 
@@ -176,3 +181,47 @@ def test_the_site_loads_in_chromium_and_a_broken_image_or_link_fails_the_check(s
     assert result.returncode == 1, result.stdout
     assert "denoise/index.html: image did not load: missing.png" in result.stdout
     assert "link to a missing page: methods/resnet.html" in result.stdout
+
+
+def test_grid_tiles_carry_their_psnr_and_radiance_fields_start_at_the_reference(store, tmp_path):  # noqa: F811
+    """A denoising grid reads noisy | denoised | reference, a radiance field's reference | rendered; each
+    tile but the reference is labelled with its PSNR against the reference (the skimage PSNR of the
+    evaluation, on the PNGs shown)."""
+    import numpy as np
+    from PIL import Image
+
+    from src.metrics.image import psnr
+    from src.report.figures import GRID_HEADINGS, _panels, image_grid
+
+    client = MlflowClient()
+    experiment = client.create_experiment("nerf-grid", artifact_location=(tmp_path / "art").as_uri())
+    rng = np.random.default_rng(0)
+    reference = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    ids = {}
+    for model, sigma in (("nerf", 20), ("mipnerf", 5)):
+        run_id = client.create_run(experiment).info.run_id
+        client.log_batch(run_id, params=[Param("model.name", model), Param("seed", "0")])
+        folder = tmp_path / model
+        folder.mkdir()
+        rendered = np.clip(reference + rng.normal(0, sigma, reference.shape), 0, 255).astype(np.uint8)
+        Image.fromarray(reference).save(folder / "lego-r_0-reference.png")
+        Image.fromarray(rendered).save(folder / "lego-r_0-rendered.png")
+        client.log_artifacts(run_id, str(folder), "eval/png")
+        client.set_terminated(run_id, "FINISHED")
+        ids[model] = (run_id, rendered)
+    runs = pd.DataFrame(
+        {"run_id": [ids[m][0] for m in ids], "params.model.name": list(ids), "params.seed": ["0", "0"]}
+    )
+    chosen = {m: (ids[m][0], {"lego-r_0": {"rendered", "reference"}}) for m in ids}
+    panels = _panels("lego-r_0", chosen, tmp_path / "dl")
+    assert [label.split(" ")[0] for label, _ in panels] == ["reference", "nerf", "mipnerf"]
+    for (label, image), model in zip(panels[1:], ids, strict=True):
+        expected = psnr(ids[model][1] / 255.0, reference / 255.0)
+        assert label == f"{model} {expected:.2f} dB"
+        assert np.array_equal(image, ids[model][1])
+    grid = image_grid(runs, tmp_path / "grid.png", 1, ["model.name"], 4, 2)
+    assert grid.heading == GRID_HEADINGS["rendered"] and "reference | rendered" in grid.heading
+    with Image.open(grid.path) as image:
+        first = np.asarray(image.convert("RGB"))[:12, :16]  # the first tile, its crop box drawn on it
+    same = (first == reference).all(axis=-1).mean()
+    assert same > 0.5 and (first == ids["nerf"][1]).all(axis=-1).mean() < 0.2

@@ -17,7 +17,8 @@ from src.report.tables import MISSING, NOISY_ROW, cells
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.92em; }
-.scroll { overflow-x: auto; max-width: 100%; } tr.noisy td { font-style: italic; color: #555; }
+.scroll { overflow-x: auto; max-width: 100%; } td.num { white-space: nowrap; }
+tr.noisy td { font-style: italic; color: #555; }
 .plain td, .plain th { text-align: left; }
 .smoke { background: #f8d7da; border: 1px solid #d08080; padding: 0.6em 1em; margin: 1em 0; }
 th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right; }

@@ -31,6 +31,7 @@ import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.report.tables import NOISY_ROW
+from src.report.verdicts import NOT_RUN
 
 log = logging.getLogger("nrbench.report")
 
@@ -301,6 +302,35 @@ def _table_rows(report_dir: Path, stem: str, model: str) -> pd.DataFrame | None:
     return rows if (rows["model"] == model).any() else None
 
 
+def _value(value: Any) -> str:
+    """A table cell: a whole number >= 1000 with thousands separators, other numbers to 4 significant
+    digits, text as it is, "-" for none."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return html.escape(str(value))
+    if math.isnan(number):
+        return "-"
+    return f"{number:,.0f}" if abs(number) >= 1000 and number == int(number) else f"{number:.4g}"
+
+
+def _mean_std_cells(table: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of a report table's CSV rows, each `<label>` with its `<label> std` as `mean ± std`
+    (as on the report page)."""
+    columns = [c for c in table.columns if not (c.endswith(" std") and c.removesuffix(" std") in table)]
+    rows = []
+    for _, row in table.iterrows():
+        cells = []
+        for c in columns:
+            text = _value(row[c])
+            std = row.get(f"{c} std")
+            if std is not None and not pd.isna(std) and text != "-":
+                text += f" ± {_value(std)}"
+            cells.append(text)
+        rows.append(cells)
+    return [html.escape(str(c)) for c in columns], rows
+
+
 def method_page(model: str, records: list[tuple[Entry, dict[str, Any]]], out_dir: Path, bench) -> str:
     """`methods/<model>.html`: the model's configurations, parameter count, times, benchmark numbers and
     its row of every table of every report it appears in, each linking back to its report."""
@@ -351,15 +381,16 @@ def method_page(model: str, records: list[tuple[Entry, dict[str, Any]]], out_dir
                 continue
             link = _link(relative(f"{entry.path}/index.html", here), entry.title)
             body.append(f"<h3>{link}: {html.escape(heading)}</h3>")
-            cells = [[_number(v) for v in row] for row in table.itertuples(index=False)]
+            header, cells = _mean_std_cells(table)
             classes = ["noisy" if m == NOISY_ROW else "" for m in table["model"]]
-            body.append(html_table([html.escape(str(c)) for c in table.columns], cells, classes))
+            body.append(html_table(header, cells, classes))
     smoke = any(entry.smoke for entry, _ in records)
     return page(f"Method: {model}", body, banner=SMOKE_NOTE if smoke else None)
 
 
 def _ledger_section(out_dir: Path) -> list[str]:
-    """The ledger's findings: its status counts and one row per claim, linking the study that ran it."""
+    """The ledger's findings: its status counts and one row per claim that ran (linking the study that ran
+    it); the claims not run are counted (the ledger gives their reasons)."""
     path = out_dir / "ledger.csv"
     if not path.is_file():
         return [
@@ -369,8 +400,9 @@ def _ledger_section(out_dir: Path) -> list[str]:
     frame = pd.read_csv(path, dtype=str).fillna("-")
     counts = frame["status"].value_counts()
     summary = ", ".join(f"{n} {s}" for s, n in counts.items())
+    not_run = frame[frame["status"] == NOT_RUN]
     rows = []
-    for _, row in frame.iterrows():
+    for _, row in frame[frame["status"] != NOT_RUN].iterrows():
         source = str(row.get("from", "-"))
         study = source.removeprefix("study ") if source.startswith("study ") else None
         target = f"sweeps/{study}/index.html" if study else None
@@ -383,6 +415,7 @@ def _ledger_section(out_dir: Path) -> list[str]:
         '<h2><a href="ledger.html">Reproduction ledger</a></h2>',
         f"<p><b>{html.escape(summary)}</b> (from <code>ledger.csv</code>).</p>",
         html_table(["claim", "status", "profile", "from", "numbers"], rows),
+        f"<p>{len(not_run)} claims not run: the ledger says why and which command runs them.</p>",
     ]
 
 
