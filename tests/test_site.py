@@ -40,7 +40,7 @@ def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
     vol = client.create_experiment(VOLUMETRIC, artifact_location=(runs["tmp"] / "mlartifacts-vol").as_uri())
     for model, seed, psnr in (("kpcn", 0, 26.85), ("dpcn", 0, 27.5)):
         run_id = _log_run(client, vol, runs["tmp"], model, seed, "0.0001", psnr, 0.05, 0.3)
-        client.set_tag(run_id, "nrbench.profile", "smoke")
+        client.set_tag(run_id, "nrbench.profile", "smoke" if model == "kpcn" else "cpu")
         client.log_batch(run_id, metrics=[Metric("eval_noisy_psnr", 34.08, 0, 0)])
     bench = client.create_experiment(BENCH_EXPERIMENT, artifact_location=(runs["tmp"] / "mlart-b").as_uri())
     run_id = client.create_run(bench, tags={"nrbench.profile": "cpu", "nrbench.device": "cpu"}).info.run_id
@@ -91,7 +91,7 @@ def test_the_index_links_every_report_study_ledger_bench_and_method(site):
     # sections by experiment, each entry with its profile(s), run count and date
     assert index.index("Still-image denoisers") < index.index("Volumetric sequences") < index.index("Studies")
     row = re.search(r'<tr><td><a href="volumetric/index.html">.*?</tr>', index, re.S).group(0)
-    assert "smoke" in row and "plumbing only" in row and "<td>2</td>" in row
+    assert "cpu, smoke" in row and "plumbing only" in row and "<td>2</td>" in row
     row = re.search(r'<tr><td><a href="denoise/index.html">.*?</tr>', index, re.S).group(0)
     assert "<td>cpu</td>" in row and "<td>4</td>" in row and "smoke" not in row
     assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", row)
@@ -118,6 +118,7 @@ def test_a_method_page_shows_config_size_speed_bench_and_its_table_rows(site):
 def test_a_smoke_report_says_so_at_its_top_and_shows_the_noisy_input(site):
     vol = (site["reports"] / "volumetric" / "index.html").read_text()
     assert vol.index(SMOKE_NOTE) < vol.index("<h1>")
+    assert f"{SMOKE_NOTE} (1 of the 2 runs here are smoke runs)" in vol
     assert '<tr class="noisy"><td class="key">noisy input</td><td class="num">34.08</td>' in vol
     assert "<b>34.08</b>" not in vol and "<b>27.50</b>" in vol  # the best method, not the input
     assert SMOKE_NOTE not in (site["reports"] / "denoise" / "index.html").read_text()
