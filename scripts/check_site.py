@@ -1,6 +1,7 @@
 """Check the report site in a real browser: open `<reports>/index.html` in headless Chromium, follow every
 link to a local page (breadth first, each page once), and fail on a linked page that does not exist, an
-image that did not load (`naturalWidth == 0`) or a console error (or an uncaught exception) on any page.
+image that did not load (`naturalWidth == 0`), a console error (or an uncaught exception), or a page wider
+than a 1280 px window (a wide table must scroll inside the page).
 
     python scripts/check_site.py reports [--screenshots DIR]
 
@@ -26,6 +27,9 @@ BROKEN_IMAGES = """() => Array.from(document.images)
     .map(img => (img.getAttribute('src') || '').slice(0, 120))"""
 LINKS = "() => Array.from(document.querySelectorAll('a[href]')).map(a => a.href)"
 IMAGE_COUNT = "() => document.images.length"
+#: How far the page reaches past the window's right edge: a table that does not fit must scroll in its box.
+OVERFLOW = "() => document.documentElement.scrollWidth - window.innerWidth"
+WIDTH = 1280
 
 
 def local_path(url: str, root: Path) -> Path | None:
@@ -52,7 +56,7 @@ def check_site(root: Path, screenshots: Path | None = None) -> tuple[list[str], 
         raise RuntimeError("no chromium on PATH (apt-get install -y --no-install-recommends chromium)")
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=executable, headless=True)
-        page = browser.new_page(viewport={"width": 1280, "height": 900})
+        page = browser.new_page(viewport={"width": WIDTH, "height": 900})
         errors: list[str] = []
         page.on("console", lambda msg: errors.append(msg.text) if msg.type == "error" else None)
         page.on("pageerror", lambda err: errors.append(str(err)))
@@ -66,6 +70,8 @@ def check_site(root: Path, screenshots: Path | None = None) -> tuple[list[str], 
             counts["images"] += page.evaluate(IMAGE_COUNT)
             problems += [f"{name}: image did not load: {src}" for src in page.evaluate(BROKEN_IMAGES)]
             problems += [f"{name}: console error: {text}" for text in errors]
+            if (overflow := page.evaluate(OVERFLOW)) > 0:
+                problems.append(f"{name}: page {overflow} px wider than a {WIDTH} px window")
             if screenshots is not None and (path == start or (not shot_report and path.parent != root)):
                 screenshots.mkdir(parents=True, exist_ok=True)
                 target = "index.png" if path == start else "report.png"
