@@ -166,7 +166,7 @@ def browser():
     if missing and os.environ.get("CI") == "true":
         pytest.fail(f"CI must run the browser check; missing {', '.join(missing)}")
     if missing:
-        pytest.skip(f"no {', '.join(missing)}")
+        pytest.skip(f"missing {', '.join(missing)}")
 
 
 def _check(reports: Path, *args: str) -> subprocess.CompletedProcess:
