@@ -128,7 +128,7 @@ def test_a_method_page_shows_config_size_speed_bench_and_its_table_rows(site):
 def test_a_smoke_report_says_so_at_its_top_and_shows_the_noisy_input(site):
     vol = (site["reports"] / "volumetric" / "index.html").read_text()
     assert vol.index(SMOKE_NOTE) < vol.index("<h1>")
-    assert f"{SMOKE_NOTE} (1 of the 2 runs here are smoke runs)" in vol
+    assert f"{SMOKE_NOTE} (smoke-profile runs here: 1 of 2)" in vol
     assert '<tr class="noisy"><td class="key">noisy input</td><td class="num">34.08</td>' in vol
     assert "<b>34.08</b>" not in vol and "<b>27.50</b>" in vol  # the best method, not the input
     assert SMOKE_NOTE not in (site["reports"] / "denoise" / "index.html").read_text()

@@ -277,7 +277,7 @@ def _page(
     smoke = runs[PROFILE_TAG] == SMOKE if PROFILE_TAG in runs else pd.Series(False, index=runs.index)
     banner = None
     if smoke.any():
-        share = "" if smoke.all() else f" ({int(smoke.sum())} of the {len(runs)} runs here are smoke runs)"
+        share = "" if smoke.all() else f" (smoke-profile runs here: {int(smoke.sum())} of {len(runs)})"
         banner = SMOKE_NOTE + share
     links = [f'<a href="{relative("index.html", name)}">All reports</a>']
     links += [
