@@ -251,6 +251,38 @@ def test_comparison_table_aggregates_seeds_and_renders(store):
     assert "**12.5" not in to_markdown(cost)  # all runs tie: no best value
 
 
+def test_the_noisy_input_is_a_row_of_the_quality_tables_never_a_best_method(store):
+    """The eval logs the noisy input's scores (`eval_noisy_*`, per spp too): the quality tables show them
+    as a "noisy input" row on top, a mean over the runs, and never mark that row best, even where it beats
+    every method (a smoke run's KPCN below its input)."""
+    mlflow.set_tracking_uri(store["uri"])
+    runs = find_runs({"experiment": EXPERIMENT})
+    runs = runs.assign(
+        **{
+            "metrics.eval_noisy_psnr": [40.0, 40.0, 40.0, 41.0],  # beats every model (best is 32)
+            "metrics.eval_noisy_relmse": 0.5,
+            "metrics.eval_noisy_psnr_spp4": 20.0,
+        }
+    )
+    table = comparison_table(runs, ["model.name"])
+    assert list(table.index) == ["noisy input", "kpcn", "dpcn", "resnet"]
+    assert table.loc["noisy input", "PSNR"] == pytest.approx(40.25) and table.loc["noisy input", "runs"] == 4
+    assert table.loc["noisy input", "PSNR std"] == pytest.approx(0.5)  # runs on different noisy data
+    assert np.isnan(table.loc["noisy input", "relMSE (Bako) std"])  # identical: no spread shown
+    assert np.isnan(table.loc["noisy input", "SSIM"])  # not logged for the input: "-", never 0
+    md = to_markdown(table)
+    assert "| noisy input | 40.25 ± 0.50 | - |" in md
+    assert "**32.00**" in md and "**40.25" not in md  # resnet is the best method; the input is no method
+    assert "**0.015**" in md  # relMSE: 0.5 for the input, best model 0.015
+    per_spp = comparison_table(runs, ["model.name"], group_by="spp")
+    assert per_spp.loc["noisy input", "PSNR 4spp"] == pytest.approx(20.0)
+    assert np.isnan(per_spp.loc["noisy input", "PSNR 16spp"])
+    two_axes = comparison_table(runs, ["model.name", "task.train.lr"])
+    assert two_axes.index[0] == ("noisy input", "")
+    assert list(comparison_table(runs, ["model.name"], noisy=False).index) == ["kpcn", "dpcn", "resnet"]
+    assert list(cost_table(runs, ["model.name"]).index) == ["kpcn", "dpcn", "resnet"]
+
+
 def _embedded_pngs(page):
     return [base64.b64decode(b) for b in re.findall(r'<img [^>]*src="data:image/png;base64,([^"]+)"', page)]
 
@@ -274,7 +306,12 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert len(csv) == 3
     # per image: rows model x image, each image's scores averaged over the row's runs (kpcn: seeds 0, 1)
     images = pd.read_csv(out / "per_image.csv", comment="#").set_index(["model", "image"])
-    assert list(images.index) == [(m, f"scene{i} 4spp") for m in ("kpcn", "dpcn", "resnet") for i in (0, 1)]
+    models = ("noisy input", "kpcn", "dpcn", "resnet")  # the noisy input's energy (noisy_energy) on top
+    assert list(images.index) == [(m, f"scene{i} 4spp") for m in models for i in (0, 1)]
+    assert images.loc[("noisy input", "scene1 4spp"), "Energy"] == pytest.approx(0.99)  # 4 runs of 0.99
+    assert images.loc[("noisy input", "scene0 4spp"), "runs"] == 4
+    assert np.isnan(images.loc[("noisy input", "scene0 4spp"), "PSNR"])  # no noisy_psnr in the csv
+    images = images.drop(index="noisy input", level="model")
     assert images.loc[("kpcn", "scene0 4spp"), "Energy"] == pytest.approx(0.91)
     assert images.loc[("kpcn", "scene1 4spp"), "relMSE / noisy"] == pytest.approx(0.8)
     assert images.loc[("kpcn", "scene1 4spp"), "relMSE (Bako)"] == pytest.approx(0.03)

@@ -90,7 +90,7 @@ def test_a_smoke_multirun_trains_evaluates_and_reports_the_toy_denoiser_and_dpcn
     result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     table = pd.read_csv(tmp_path / "reports" / "denoise-toy" / "comparison.csv", comment="#", index_col=0)
-    assert sorted(table.index) == ["dpcn", "toy"] and (table["PSNR"] > 0).all()
+    assert sorted(table.index) == ["dpcn", "noisy input", "toy"] and (table["PSNR"] > 0).all()
     assert any("flicker" in c.lower() for c in table.columns), list(table.columns)
     for job in ("0", "1"):
         metrics = json.loads((tmp_path / "sweep" / job / "eval" / "metrics.json").read_text())

@@ -11,15 +11,23 @@ selects, written to `<report.out_dir>/<report.name>/`:
     paired.{md,tex,csv}               each row against the best row per metric, paired by seed and
                                       held-out image: ratio or difference, Wilcoxon p, shown / not shown
     feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
+    best_expressions.{md,csv}         task=filter_search: each run's best expression (infix) with its search
+                                      fitness and its held-out numbers, best held-out first
     learning_curves.png, image_grid.png, index.html (self-contained)
     search_curves.png                 task=filter_search: best fitness per generation, one curve per run
+    report.json                       what the report site (src/report/site.py) lists: title, profiles,
+                                      runs, date, tables, and per method its configs, size and times
 
-Every file is written atomically. When no run matches, `DataError` names the filter that matched
-nothing and no file is written.
+The quality tables carry the noisy input as a row when the runs logged its scores; a report with
+smoke-profile runs says at its top that their numbers mean nothing. Every file is written atomically,
+then the site's index (`<out_dir>/index.html`) and method pages are rebuilt. When no run matches,
+`DataError` names the filter that matched nothing and no file is written.
 """
 
 from __future__ import annotations
 
+import html
+import json
 import logging
 import re
 from datetime import UTC, datetime
@@ -27,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import mlflow
+import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.multirun import quiet_mlflow_logs
@@ -38,9 +47,18 @@ from src.report.collect import (
     param_column,
     per_image_rows,
 )
-from src.report.figures import DEFAULT_CROP, image_grid, learning_curves, run_labels, search_curves
+from src.report.figures import (
+    DEFAULT_CROP,
+    GRID_HEADINGS,
+    image_grid,
+    learning_curves,
+    run_labels,
+    search_curves,
+)
 from src.report.html import render_html
+from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
 from src.report.tables import (
+    BEST_EXPRESSION_TAG,
     axis_label,
     comparison_table,
     config_values,
@@ -69,8 +87,23 @@ TABLE_HEADINGS = {
     "feature_usage": "Features of the best expressions (occurrences)",
 }
 SEARCH_HEADING = "Filter search: best fitness per generation"
+EXPRESSIONS_HEADING = "Filter search: best expressions (infix), best held-out relMSE / noisy first"
 _STEM_UNSAFE = re.compile(r"[^\w.-]")  # characters a per-value table's file name replaces by "_"
-GRID_HEADING = "Test images (noisy | denoised | reference)"
+GRID_HEADING = GRID_HEADINGS["denoised"]
+PROFILE_TAG = "tags.nrbench.profile"
+#: The tag of the expression the filter-search eval scored on the held-out split (its run's eval_*
+#: metrics); runs without an eval have only the search's best (`BEST_EXPRESSION_TAG`).
+EVALUATED_EXPRESSION_TAG = "tags.search.evaluated_expression"
+#: Held-out columns of the best-expressions table: label -> MLflow metric.
+EXPRESSION_METRICS = {
+    "search fitness (min)": "search_best_so_far",
+    "held-out relMSE / noisy": "eval_relmse_ratio",
+    "held-out relMSE (Bako)": "eval_relmse",
+    "held-out PSNR": "eval_psnr",
+    "held-out Energy": "eval_energy",
+}
+#: The run metrics a method page shows per report (means over the method's runs in the report).
+METHOD_METRICS = ("param_count", "train_time_s", "eval_ms_per_image", "eval_ms_per_mpixel")
 
 
 #: Defaults of optional `report:` keys for a config that lacks them (a hand-built one, e.g. in the tests);
@@ -130,14 +163,28 @@ def build_report(cfg: Any) -> dict[str, Any]:
     if (usage := feature_usage_table(runs)) is not None:  # no confounding notes: it compares no rows
         tables["feature_usage"] = usage
         files |= _write_tables({"feature_usage": usage}, out_dir, [])
+    sections = {}
+    if (expressions := best_expressions(runs, axes)) is not None:
+        files["best_expressions.csv"] = atomic_write_text(
+            out_dir / "best_expressions.csv", expressions.to_csv(index=False)
+        )
+        files["best_expressions.md"] = atomic_write_text(
+            out_dir / "best_expressions.md", _expressions_markdown(expressions)
+        )
+        sections[EXPRESSIONS_HEADING] = _expressions_html(expressions)
     curves, grid = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
     search = search_curves(runs, out_dir / "search_curves.png", axes)
-    for path in (curves, search, grid):
+    for path in (curves, search, grid and grid.path):
         if path is not None:
             files[path.name] = path
-    figures = {"Learning curves": curves, SEARCH_HEADING: search, GRID_HEADING: grid}
-    page = _page(name, runs, axes, tables, figures, warnings)
+    grid_heading = grid.heading if grid is not None else GRID_HEADING
+    figures = {"Learning curves": curves, SEARCH_HEADING: search, grid_heading: grid and grid.path}
+    root = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser()
+    manifest = report_manifest(name, runs, axes, tables, config_value(rc, "experiment"))
+    page = _page(name, runs, axes, tables, figures, warnings, sections, manifest)
+    files[MANIFEST] = atomic_write_text(out_dir / MANIFEST, json.dumps(manifest, indent=1) + "\n")
     files["index.html"] = atomic_write_text(out_dir / "index.html", page)
+    refresh_site(root)
     return {
         "runs": len(runs),
         "out_dir": str(out_dir),
@@ -214,21 +261,142 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
 
 
 def _page(
-    name: str, runs, axes: list[str], tables: dict[str, Any], figures: dict, warnings: list[str]
+    name: str,
+    runs,
+    axes: list[str],
+    tables: dict[str, Any],
+    figures: dict,
+    warnings: list[str],
+    sections: dict[str, str],
+    manifest: dict[str, Any],
 ) -> str:
-    """The self-contained HTML page: the tables under their headings, the figures, the runs."""
+    """The self-contained HTML page: the smoke banner, the tables under their headings, the figures, the
+    runs; links to the site's index and the method pages."""
     compared = ", ".join(axis_label(a) for a in axes)
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    profiles = manifest["profiles"]
+    smoke = runs[PROFILE_TAG] == SMOKE if PROFILE_TAG in runs else pd.Series(False, index=runs.index)
+    banner = None
+    if smoke.any():
+        share = "" if smoke.all() else f" (smoke-profile runs here: {int(smoke.sum())} of {len(runs)})"
+        banner = SMOKE_NOTE + share
+    links = [f'<a href="{relative("index.html", name)}">All reports</a>']
+    links += [
+        f'<a href="{relative(method_file(m), name)}">{html.escape(m)}</a>'
+        for m in sorted(manifest["methods"])
+    ]
     return render_html(
-        title=f"nrbench report: {name}",
-        subtitle=f"{len(runs)} MLflow runs from {mlflow.get_tracking_uri()}, compared by {compared}; "
-        f"generated {stamp}. Values: mean ± std over runs (seeds) per row; best per column in bold.",
+        title=manifest["title"],
+        subtitle=f"{len(runs)} MLflow runs ({', '.join(profiles) or 'no'} profile) from "
+        f"{mlflow.get_tracking_uri()}, compared by {compared}; generated {manifest['generated']}. Values: "
+        "mean ± std over runs (seeds) per row; best per column in bold; the noisy input's row (italics), "
+        "where logged, is what a denoiser must beat and is never marked best.",
         tables={_heading(k): v for k, v in tables.items()},
         figures=figures,
         runs=runs,
         labels=run_labels(runs, axes),
         notes=warnings,
+        banner=banner,
+        links=" · ".join(links[:1]) + (" · methods: " + ", ".join(links[1:]) if links[1:] else ""),
+        sections=sections,
     )
+
+
+def _mean(runs, column: str) -> float | None:
+    if column not in runs:
+        return None
+    values = runs[column].dropna()
+    return float(values.astype(float).mean()) if len(values) else None
+
+
+def report_manifest(name: str, runs, axes: list[str], tables: dict[str, Any], experiment) -> dict[str, Any]:
+    """`report.json`: what the site lists about this report (src/report/site.py), from its runs only: the
+    title, experiments, profiles (`nrbench.profile` tags), run count, date, tables (file stem: heading),
+    and per method (`model.name`) its run count, distinct configurations (its `model.*` params) and the
+    means of its `METHOD_METRICS`."""
+    experiments = [str(e) for e in ([experiment] if isinstance(experiment, str) else list(experiment or []))]
+    profiles = sorted({str(p) for p in runs[PROFILE_TAG].dropna()}) if PROFILE_TAG in runs else []
+    methods: dict[str, Any] = {}
+    if "params.model.name" in runs:
+        model_columns = sorted(c for c in runs.columns if c.startswith("params.model."))
+        for model, part in runs.groupby("params.model.name", sort=True):
+            configs: dict[str, dict[str, Any]] = {}
+            for _, run in part.iterrows():
+                params = {
+                    c.removeprefix("params."): str(run[c]) for c in model_columns if isinstance(run[c], str)
+                }
+                key = json.dumps(params, sort_keys=True)
+                configs.setdefault(key, {"params": params, "runs": 0})["runs"] += 1
+            methods[str(model)] = {
+                "runs": len(part),
+                "run_ids": [str(r) for r in part["run_id"]],
+                "configs": list(configs.values()),
+                **{m: _mean(part, f"metrics.{m}") for m in METHOD_METRICS},
+            }
+    headings = {stem: _heading(stem) for stem in tables}
+    if BEST_EXPRESSION_TAG in runs:
+        headings["best_expressions"] = EXPRESSIONS_HEADING
+    return {
+        "name": name,
+        "title": f"nrbench report: {name}",
+        "experiments": experiments,
+        "profiles": profiles,
+        "runs": len(runs),
+        "generated": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "tables": headings,
+        "methods": methods,
+    }
+
+
+def best_expressions(runs, axes: list[str]):
+    """task=filter_search: per run its label, the expression its eval scored on the held-out split (else
+    the search's best, infix as the search logs it: src/gp/text.py::to_infix), the search's minimum
+    fitness and the held-out numbers (`EXPRESSION_METRICS`), best held-out relMSE / noisy first (runs
+    without one last, by fitness). None when no run logged an expression."""
+    if BEST_EXPRESSION_TAG not in runs and EVALUATED_EXPRESSION_TAG not in runs:
+        return None
+    rows = []
+    for label, (_, run) in zip(run_labels(runs, axes), runs.iterrows(), strict=True):
+        evaluated = run.get(EVALUATED_EXPRESSION_TAG)
+        expression = evaluated if isinstance(evaluated, str) else run.get(BEST_EXPRESSION_TAG)
+        if not isinstance(expression, str):
+            continue
+        row = {"run": label, "seed": run.get("params.seed"), "expression": expression}
+        row |= {k: run.get(f"metrics.{m}") for k, m in EXPRESSION_METRICS.items()}
+        row["scored on"] = "held-out split" if isinstance(evaluated, str) else "search only (no eval)"
+        rows.append(row)
+    if not rows:
+        return None
+    frame = pd.DataFrame(rows)
+    return frame.sort_values(
+        ["held-out relMSE / noisy", "search fitness (min)"], na_position="last", kind="stable"
+    ).reset_index(drop=True)
+
+
+def _text(value) -> str:
+    """A cell of the best-expressions table: numbers to 4 significant digits, "-" for none."""
+    if isinstance(value, float):
+        return "-" if value != value else f"{value:.4g}"
+    return "-" if value is None else str(value)
+
+
+def _expressions_markdown(frame) -> str:
+    lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
+    for row in frame.itertuples(index=False):
+        lines.append("| " + " | ".join(_text(v).replace("|", "\\|") for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _expressions_html(frame) -> str:
+    """The best-expressions table: numbers to 4 significant digits, expressions as code."""
+
+    def cell(column: str, value) -> str:
+        text = html.escape(_text(value))
+        return f"<code>{text}</code>" if column == "expression" else text
+
+    rows = [
+        [cell(c, v) for c, v in zip(frame.columns, row, strict=True)] for row in frame.itertuples(index=False)
+    ]
+    return '<div class="plain">' + html_table([html.escape(c) for c in frame.columns], rows) + "</div>"
 
 
 def report_line(summary: dict) -> str:

@@ -13,6 +13,7 @@ import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib
 
@@ -233,6 +234,31 @@ def _pick(names: Sequence[str], max_images: int) -> list[str]:
 DEFAULT_CROP = (32, 4)
 
 
+#: The grid's heading by the kind of output its panels show, in the panels' order: a denoiser's grid starts
+#: at its input, a radiance field's (which has none) at the reference it is to match.
+GRID_HEADINGS = {
+    "denoised": "Test images (noisy | denoised | reference; each tile's PSNR against the reference)",
+    "rendered": "Test views (reference | rendered; each tile's PSNR against the reference)",
+}
+
+
+class Grid(NamedTuple):
+    path: Path
+    heading: str
+
+
+def tile_psnr(tile: np.ndarray, reference: np.ndarray) -> float:
+    """PSNR (dB) of a grid tile against the reference tile, on the 8-bit tone-mapped PNGs the grid shows
+    (peak 1 after /255: src/metrics/image.py::psnr's formula, 10 log10(1 / MSE), here in numpy so the
+    report does not import torch; +inf for a copy of the reference)."""
+    mse = float(np.mean((tile.astype(np.float64) / 255.0 - reference.astype(np.float64) / 255.0) ** 2))
+    return 10.0 * np.log10(1.0 / mse) if mse > 0 else float("inf")
+
+
+def _with_psnr(label: str, value: float) -> str:
+    return f"{label} {value:.2f} dB" if np.isfinite(value) else f"{label} (= reference)"
+
+
 def image_grid(
     runs: pd.DataFrame,
     out_png: str | Path,
@@ -240,11 +266,13 @@ def image_grid(
     axes: Sequence[str] | None = None,
     crop_size: int = DEFAULT_CROP[0],
     zoom: int = DEFAULT_CROP[1],
-) -> Path | None:
-    """For up to `max_images` test images: noisy (when logged) | each compared row's denoised image or
-    rendered view | reference, with a zoomed crop row (around the largest first-vs-last panel error),
-    one strip per image stacked vertically. One run per distinct label (the first, e.g. the lowest
-    seed). Runs without the `eval/png` artifacts are left out (logged); None when no run has them."""
+) -> Grid | None:
+    """For up to `max_images` test images: noisy (when logged) | each compared row's denoised image |
+    reference, or, for rendered views, reference | each row's view, with a zoomed crop row (around the
+    largest first-vs-last panel error), one strip per image stacked vertically; every tile but the
+    reference labelled with its PSNR (`tile_psnr`). One run per distinct label (the first, e.g. the lowest
+    seed). Runs without the `eval/png` artifacts are left out (logged); None when no run has them, else
+    the PNG's path and its heading (`GRID_HEADINGS`)."""
     chosen = _runs_with_images(runs, axes)
     if not chosen:
         log.info("report: no run has %s artifacts; no image grid", PNG_DIR)
@@ -255,7 +283,7 @@ def image_grid(
     if not common:
         log.info("report: the runs share no test image with a reference PNG; no image grid")
         return None
-    strips = []
+    strips, kinds = [], set()
     with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
         for name in _pick(sorted(common), max(int(max_images), 1)):
             panels = _panels(name, chosen, Path(tmp))
@@ -263,9 +291,11 @@ def image_grid(
                 log.warning("report: %s differs in size across runs; left out of the image grid", name)
                 continue
             strips.append(comparison_strip(panels, crop_size, zoom))
+            kinds.add(_output_kind(first_names[name]))
     if not strips:
         return None
-    return write_png(out_png, _stack_strips(strips))
+    heading = GRID_HEADINGS["denoised" if "denoised" in kinds else "rendered"]
+    return Grid(write_png(out_png, _stack_strips(strips)), heading)
 
 
 def _runs_with_images(
@@ -294,17 +324,20 @@ def _panels(
     name: str, chosen: dict[str, tuple[str, dict[str, set[str]]]], tmp: Path
 ) -> list[tuple[str, np.ndarray]]:
     """(label, image) panels of test image `name`: noisy (when the first run logged it), each chosen run's
-    output, then the reference (the first run's)."""
+    output, then the reference (the first run's); rendered views (no noisy input) put the reference
+    first. Each label but the reference's ends in the tile's PSNR against the reference."""
     first_id, first_names = next(iter(chosen.values()))
+    reference = _load(first_id, f"{name}-reference.png", tmp / "r")
     panels = []
     if "noisy" in first_names[name]:
         noisy = _load(first_id, f"{name}-noisy.png", tmp / "n")
-        panels.append((f"noisy {_spp(name)} spp", noisy))
+        panels.append((_with_psnr(f"noisy {_spp(name)} spp", tile_psnr(noisy, reference)), noisy))
     for short, (run_id, names) in chosen.items():
-        output = f"{name}-{_output_kind(names[name])}.png"
-        panels.append((short, _load(run_id, output, tmp / run_id)))
-    panels.append(("reference", _load(first_id, f"{name}-reference.png", tmp / "r")))
-    return panels
+        output = _load(run_id, f"{name}-{_output_kind(names[name])}.png", tmp / run_id)
+        panels.append((_with_psnr(short, tile_psnr(output, reference)), output))
+    if _output_kind(first_names[name]) == "rendered":
+        return [("reference", reference), *panels]
+    return [*panels, ("reference", reference)]
 
 
 def _stack_strips(strips: list[np.ndarray]) -> np.ndarray:

@@ -1,5 +1,7 @@
-"""One self-contained HTML page: title, warnings, tables (best values bold), figures embedded as
-base64 PNGs, and the runs it was built from (run ids, git commits)."""
+"""One self-contained HTML page: title, a smoke-profile banner, warnings, tables (best values bold, the
+noisy input's row in italics, wide tables scrolling inside the page), extra sections (the filter search's
+best expressions), figures embedded as base64 PNGs, and the runs it was built from (run ids, git
+commits)."""
 
 from __future__ import annotations
 
@@ -10,11 +12,15 @@ from pathlib import Path
 
 import pandas as pd
 
-from src.report.tables import MISSING, cells
+from src.report.tables import MISSING, NOISY_ROW, cells
 
 _STYLE = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; }
 table { border-collapse: collapse; margin: 0.5em 0 1.5em; font-size: 0.92em; }
+.scroll { overflow-x: auto; max-width: 100%; } td.num { white-space: nowrap; }
+tr.noisy td { font-style: italic; color: #555; }
+.plain td, .plain th { text-align: left; }
+.smoke { background: #f8d7da; border: 1px solid #d08080; padding: 0.6em 1em; margin: 1em 0; }
 th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right; }
 th { border-bottom: 2px solid #444; } td.key, th.key { text-align: left; }
 .warning { background: #fff3cd; border: 1px solid #e0c060; padding: 0.6em 1em; margin: 1em 0; }
@@ -30,15 +36,16 @@ def table_html(table: pd.DataFrame) -> str:
     for i, (head, higher) in enumerate(zip(header, directions, strict=True)):
         arrow = "" if higher is None else (" &uarr;" if higher else " &darr;")
         heads.append(f'<th class="{"key" if i < n_axes else "num"}">{html.escape(head)}{arrow}</th>')
-    lines = ["<table>", "<thead><tr>" + "".join(heads) + "</tr></thead>", "<tbody>"]
+    lines = ['<div class="scroll"><table>', "<thead><tr>" + "".join(heads) + "</tr></thead>", "<tbody>"]
     for row in rows:
         tds = []
         for i, (mean, std, bold) in enumerate(row):
             text = html.escape(mean if std is None else f"{mean} ± {std}")
             text = f"<b>{text}</b>" if bold else text
             tds.append(f'<td class="{"key" if i < n_axes else "num"}">{text}</td>')
-        lines.append("<tr>" + "".join(tds) + "</tr>")
-    lines += ["</tbody>", "</table>"]
+        noisy = ' class="noisy"' if row[0][0] == NOISY_ROW else ""
+        lines.append(f"<tr{noisy}>" + "".join(tds) + "</tr>")
+    lines += ["</tbody>", "</table></div>"]
     return "\n".join(lines)
 
 
@@ -49,7 +56,7 @@ def _img(path: Path, alt: str) -> str:
 
 def _runs_html(runs: pd.DataFrame, labels: Sequence[str]) -> str:
     lines = [
-        "<table>",
+        '<div class="scroll"><table>',
         '<thead><tr><th class="key">run</th><th class="key">run id</th><th class="key">name</th>'
         '<th class="key">seed</th><th class="key">git commit</th><th class="key">data</th></tr></thead>',
         "<tbody>",
@@ -68,7 +75,7 @@ def _runs_html(runs: pd.DataFrame, labels: Sequence[str]) -> str:
             for v in values
         ]
         lines.append("<tr>" + "".join(f'<td class="key"><code>{t}</code></td>' for t in texts) + "</tr>")
-    lines += ["</tbody>", "</table>"]
+    lines += ["</tbody>", "</table></div>"]
     return "\n".join(lines)
 
 
@@ -80,21 +87,31 @@ def render_html(
     labels: Sequence[str],
     notes: Iterable[str] = (),
     subtitle: str = "",
+    banner: str | None = None,
+    links: str = "",
+    sections: Mapping[str, str] | None = None,
 ) -> str:
     """The whole page; `tables` and `figures` map section headings to content (a None figure is left
-    out)."""
+    out). `banner` (the smoke-profile note) comes first, above the title; `links` (HTML: the site's
+    index, the method pages) under the subtitle; `sections` (heading: HTML) after the tables."""
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
         f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
-        f"<h1>{html.escape(title)}</h1>",
     ]
+    if banner:
+        parts.append(f'<div class="smoke"><b>{html.escape(banner)}</b></div>')
+    parts.append(f"<h1>{html.escape(title)}</h1>")
     if subtitle:
         parts.append(f"<p>{html.escape(subtitle)}</p>")
+    if links:
+        parts.append(f"<p>{links}</p>")
     for note in notes:
         parts.append(f'<div class="warning"><b>Warning:</b> {html.escape(note)}</div>')
     for heading, table in tables.items():
         parts += [f"<h2>{html.escape(heading)}</h2>", table_html(table)]
+    for heading, content in (sections or {}).items():
+        parts += [f"<h2>{html.escape(heading)}</h2>", content]
     for heading, path in figures.items():
         if path is not None:
             parts += [f"<h2>{html.escape(heading)}</h2>", f"<figure>{_img(path, heading)}</figure>"]

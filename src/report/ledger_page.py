@@ -26,6 +26,7 @@ body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1400px; 
 table { border-collapse: collapse; font-size: 0.88em; }
 th, td { padding: 0.35em 0.6em; border-bottom: 1px solid #ddd; text-align: left; vertical-align: top; }
 th { border-bottom: 2px solid #444; } code { font-size: 0.9em; }
+.scroll { overflow-x: auto; max-width: 100%; }
 """
 
 
@@ -89,9 +90,10 @@ def ledger_html(frame: pd.DataFrame, subtitle: str) -> str:
                 "<h1>Reproduction ledger</h1>",
                 f"<p>{html.escape(subtitle)}</p>",
                 f"<p><b>{html.escape(status_counts(frame))}</b></p>",
-                f"<table><thead><tr>{head}</tr></thead><tbody>",
+                '<p><a href="index.html">All reports</a></p>',
+                f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>',
                 *body,
-                "</tbody></table></body></html>",
+                "</tbody></table></div></body></html>",
             ]
         )
         + "\n"

@@ -136,17 +136,63 @@ def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, Me
     return table
 
 
+#: The row of a quality table that holds the noisy input's scores (the `eval_noisy_*` metrics the denoising
+#: evaluation logs beside each output's, src/eval/denoise_eval.py): what a denoiser must beat. It is no
+#: compared method: never the best of a column, never a row of the paired table, no method page.
+NOISY_ROW = "noisy input"
+
+
+def noisy_key(key: str) -> str:
+    """The metric key of the noisy input's score beside an output's: `eval_psnr` -> `eval_noisy_psnr`,
+    `eval_psnr_spp4` -> `eval_noisy_psnr_spp4`, a per-image score `relmse` -> `noisy_relmse`."""
+    return f"eval_noisy_{key.removeprefix('eval_')}" if key.startswith("eval_") else f"noisy_{key}"
+
+
+def with_noisy_row(
+    table: pd.DataFrame, frame: pd.DataFrame, axes: Sequence[str], keep: Sequence[str] = ()
+) -> pd.DataFrame:
+    """`table` (built by `_aggregate` from `frame` over `axes`) with the noisy input's scores as rows on
+    top: its first axis `NOISY_ROW`, the other axes blank but those in `keep` (e.g. the held-out image of
+    the per-image table: one noisy row per image). Each cell is the mean over the runs (or image rows) that
+    logged the noisy score of the column's metric (`noisy_key`); a std only where they differ (runs on
+    different data). `table` unchanged when no run logged any noisy score (NeRF, cost tables)."""
+    specs = metric_specs(table)
+    columns = {label: f"metrics.{noisy_key(key)}" for label, (key, _, _) in specs.items() if key}
+    columns = {label: c for label, c in columns.items() if c in frame and frame[c].notna().any()}
+    if not columns:
+        return table
+    logged = frame[list(columns.values())].notna().any(axis=1)
+    pseudo = pd.DataFrame(index=frame.index[logged])
+    for i, axis in enumerate(axes):
+        column = param_column(axis)
+        if axis in keep and column in frame:
+            pseudo[column] = frame.loc[logged, column]
+        else:
+            pseudo[column] = NOISY_ROW if i == 0 else ""
+    for label, column in columns.items():
+        pseudo[f"metrics.{specs[label][0]}"] = pd.to_numeric(frame.loc[logged, column])
+    noisy = _aggregate(pseudo, axes, {label: specs[label] for label in columns})
+    for label in columns:  # identical data give identical noisy scores: a std of 0 is no spread
+        std = noisy[f"{label} std"]
+        noisy[f"{label} std"] = std.where(std.abs() > 1e-9 * noisy[label].abs())
+    out = pd.concat([noisy, table]).reindex(columns=table.columns)
+    out.attrs = dict(table.attrs)
+    return out
+
+
 def comparison_table(
     runs: pd.DataFrame,
     axes: Sequence[str] | None = None,
     metrics: Mapping[str, MetricSpec] | None = None,
     group_by: str | None = None,
+    noisy: bool = True,
 ) -> pd.DataFrame:
     """Quality metrics per distinct value of `axes` (default `model.name`), mean ± std over seeds.
 
     `group_by="spp"` gives one column per metric and noisy spp (`eval_<metric>_spp<N>` keys); any other
     value is a config key added to the rows (e.g. `dataset.name`). Metrics no run logged are dropped;
-    the LPIPS label names the variant(s) in the runs' `nrbench.lpips_variant` tags.
+    the LPIPS label names the variant(s) in the runs' `nrbench.lpips_variant` tags. With `noisy`, the
+    noisy input's scores come first as their own row (`with_noisy_row`) when the runs logged them.
     """
     axes = list(axes or DEFAULT_AXES)
     metrics = dict(COMPARISON_METRICS if metrics is None else metrics)
@@ -156,7 +202,8 @@ def comparison_table(
         metrics = per_spp_metrics(runs, metrics)
     elif group_by:
         axes.append(group_by)
-    return _aggregate(runs, axes, metrics)
+    table = _aggregate(runs, axes, metrics)
+    return with_noisy_row(table, runs, axes) if noisy else table
 
 
 def per_value_table(
@@ -232,7 +279,8 @@ def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> 
     images = images.assign(
         **{param_column(IMAGE_AXIS): images["scene"].astype(str) + " " + images["spp"].astype(str) + "spp"}
     )
-    return _aggregate(images, [*(axes or DEFAULT_AXES), IMAGE_AXIS], PER_IMAGE_METRICS)
+    axes = [*(axes or DEFAULT_AXES), IMAGE_AXIS]
+    return with_noisy_row(_aggregate(images, axes, PER_IMAGE_METRICS), images, axes, keep=[IMAGE_AXIS])
 
 
 #: label -> (per-image score, compared as logs (a ratio metric), higher is better): the scores the paired
@@ -399,11 +447,14 @@ def metric_specs(table: pd.DataFrame) -> dict[str, MetricSpec]:
 
 
 def best_rows(table: pd.DataFrame) -> dict[str, set[int]]:
-    """Per metric label, the row positions holding its best mean (all of them on a tie)."""
+    """Per metric label, the row positions holding its best mean (all of them on a tie); the noisy input's
+    row (`NOISY_ROW`) is never one."""
     out: dict[str, set[int]] = {}
+    first = table.index.get_level_values(0).astype(str)
+    method = pd.Series(first != NOISY_ROW)  # the noisy input is no method: never the best
     for label, (_, higher, _) in metric_specs(table).items():
         # Means are floats already; a NaN (no run of the row logged the metric) is never the best.
-        values = pd.to_numeric(table[label], errors="coerce").reset_index(drop=True)
+        values = pd.to_numeric(table[label], errors="coerce").reset_index(drop=True).where(method)
         if higher is None or values.dropna().nunique() < 2:  # one value, or all tied: nothing stands out
             continue
         target = values.max() if higher else values.min()

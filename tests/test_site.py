@@ -1,0 +1,244 @@
+"""The report site (src/report/site.py): the index linking every report, study, the ledger and the
+benchmark runs; the method pages; the smoke banner and the best expressions of the report pages; and the
+browser check (scripts/check_site.py) in headless Chromium on a site built from the fixture store of
+tests/test_report.py."""
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import mlflow
+import pandas as pd
+import pytest
+from mlflow.entities import Metric, Param
+from mlflow.tracking import MlflowClient
+
+from src.report.build import build_report
+from src.report.ledger_page import COLUMNS
+from src.report.site import BENCH_EXPERIMENT, SMOKE_NOTE, build_site
+from tests.test_report import GP_EXPERIMENT, _cfg, _log_run, gp_runs, store  # noqa: F401 (fixtures)
+
+ROOT = Path(__file__).resolve().parents[1]
+VOLUMETRIC = "nrbench-denoise-volumetric"
+
+
+def test_the_bench_experiment_is_the_one_the_benchmarks_log_to():
+    from src.bench.bench_log import EXPERIMENT
+
+    assert BENCH_EXPERIMENT == EXPERIMENT
+
+
+@pytest.fixture(scope="module")
+def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
+    """A site from the fixture store: the still-image report (cpu), a smoke-profile volumetric report
+    (its own experiment), a filter-search study under sweeps/, a ledger and one benchmark run."""
+    runs = gp_runs
+    tmp = tmp_path_factory.mktemp("site")
+    client = MlflowClient()
+    vol = client.create_experiment(VOLUMETRIC, artifact_location=(runs["tmp"] / "mlartifacts-vol").as_uri())
+    for model, seed, psnr in (("kpcn", 0, 26.85), ("dpcn", 0, 27.5)):
+        run_id = _log_run(client, vol, runs["tmp"], model, seed, "0.0001", psnr, 0.05, 0.3)
+        client.set_tag(run_id, "nrbench.profile", "smoke" if model == "kpcn" else "cpu")
+        client.log_batch(run_id, metrics=[Metric("eval_noisy_psnr", 34.08, 0, 0)])
+    bench = client.create_experiment(BENCH_EXPERIMENT, artifact_location=(runs["tmp"] / "mlart-b").as_uri())
+    run_id = client.create_run(bench, tags={"nrbench.profile": "cpu", "nrbench.device": "cpu"}).info.run_id
+    client.log_batch(
+        run_id, params=[Param("bench", "denoise")], metrics=[Metric("seconds_kpcn", 0.0125, 0, 0)]
+    )
+    client.log_text(run_id, "kpcn 12.5 ms per frame\n", "bench/report.txt")
+    client.set_terminated(run_id, "FINISHED")
+
+    # held-out relMSE / noisy in the reverse order of the search fitness (0.3, 0.35, 0.55 last generation):
+    # the best-expressions table sorts by the held-out number; one run has its eval's expression tag
+    gp = mlflow.search_runs(experiment_names=[GP_EXPERIMENT], output_format="pandas")
+    for run_id, fitness in zip(gp["run_id"], gp["metrics.search_best"], strict=True):
+        held_out = {0.3: 0.6, 0.35: 0.4, 0.55: 0.5}[round(fitness, 2)]
+        client.log_batch(run_id, metrics=[Metric("eval_relmse_ratio", held_out, 0, 1)])
+        if fitness == pytest.approx(0.35):
+            client.set_tag(run_id, "search.evaluated_expression", "bilateral(normal, 2.0)")
+
+    reports = tmp / "reports"
+    build_report(_cfg(runs, reports, name="denoise"))
+    build_report(_cfg(runs, reports, name="volumetric", experiment=VOLUMETRIC))
+    axes = ["task.search.replication", "task.search.crossover", "task.search.mutation"]
+    build_report(_cfg(runs, reports, name="sweeps/gp_rules", experiment=GP_EXPERIMENT, axes=axes))
+    ledger = pd.DataFrame(
+        [
+            ["c1", "thesis", "KPCN beats the input", "cpu", "study gp_rules", "reproduced", "x", 3, "-", "-"],
+            ["gpu_claim", "paper", "U-Net is 10x faster", "-", "-", "not run", "needs a GPU", 0, "-", "-"],
+        ],
+        columns=list(COLUMNS),
+    )
+    ledger.to_csv(reports / "ledger.csv", index=False)
+    (reports / "ledger.html").write_text("<!DOCTYPE html><title>ledger</title><p>ledger</p>")
+    summary = build_site(reports)
+    return {"reports": reports, "summary": summary, **runs}
+
+
+def _links(page: str) -> list[str]:
+    return re.findall(r'<a href="([^"]+)"', page)
+
+
+def test_the_index_links_every_report_study_ledger_bench_and_method(site):
+    reports = site["reports"]
+    index = (reports / "index.html").read_text()
+    links = _links(index)
+    for target in (
+        "denoise/index.html",
+        "volumetric/index.html",
+        "sweeps/gp_rules/index.html",
+        "ledger.html",
+        "bench/index.html",
+        "methods/kpcn.html",
+        "methods/dpcn.html",
+        "methods/resnet.html",
+    ):
+        assert target in links, target
+        assert (reports / target).is_file(), target
+    # sections by experiment, each entry with its profile(s), run count and date
+    assert index.index("Still-image denoisers") < index.index("Volumetric sequences") < index.index("Studies")
+    row = re.search(r'<tr><td><a href="volumetric/index.html">.*?</tr>', index, re.S).group(0)
+    assert "cpu, smoke" in row and "plumbing only" in row and "<td>2</td>" in row
+    row = re.search(r'<tr><td><a href="denoise/index.html">.*?</tr>', index, re.S).group(0)
+    assert "<td>cpu</td>" in row and "<td>4</td>" in row and "smoke" not in row
+    assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", row)
+    # the ledger's findings, its study linked
+    assert "1 reproduced, 1 not run" in index
+    assert '<a href="sweeps/gp_rules/index.html">study gp_rules</a>' in index
+    assert "gpu_claim" not in index and "1 claims not run" in index  # counted; the ledger says why
+    assert "1 runs" in index  # the benchmark entry
+
+
+def test_a_method_page_shows_config_size_speed_bench_and_its_table_rows(site):
+    page = (site["reports"] / "methods" / "kpcn.html").read_text()
+    assert '<a href="../denoise/index.html">' in page and '<a href="../volumetric/index.html">' in page
+    assert "<code>model.kernel_size</code>" in page and "<code>11</code>" in page  # its config
+    assert "4,000" in page and "12.5" in page and "3.0" in page  # params, train s, ms / image
+    assert "12.50" in page  # the benchmark's 0.0125 s per frame, in ms
+    # its rows of the comparison table (mean of seeds 0, 1: 30.5 dB), the noisy input beside them
+    assert "30.5" in page and "Quality" in page
+    assert SMOKE_NOTE in page  # one of its reports is a smoke run
+    dpcn = (site["reports"] / "methods" / "dpcn.html").read_text()
+    assert "12.50" not in dpcn and "Benchmark" not in dpcn  # no bench run timed dpcn
+
+
+def test_a_smoke_report_says_so_at_its_top_and_shows_the_noisy_input(site):
+    vol = (site["reports"] / "volumetric" / "index.html").read_text()
+    assert vol.index(SMOKE_NOTE) < vol.index("<h1>")
+    assert f"{SMOKE_NOTE} (smoke-profile runs here: 1 of 2)" in vol
+    assert '<tr class="noisy"><td class="key">noisy input</td><td class="num">34.08</td>' in vol
+    assert "<b>34.08</b>" not in vol and "<b>27.50</b>" in vol  # the best method, not the input
+    assert SMOKE_NOTE not in (site["reports"] / "denoise" / "index.html").read_text()
+    assert vol.count("<table>") == vol.count('<div class="scroll"><table>') > 3  # each table scrolls
+    # the image grid's tiles carry their PSNR; the heading says so
+    assert "each tile&#x27;s PSNR against the reference" in vol
+
+
+def test_the_filter_search_report_lists_the_best_expressions_with_held_out_numbers(site):
+    out = site["reports"] / "sweeps" / "gp_rules"
+    table = pd.read_csv(out / "best_expressions.csv")
+    # GP_RUNS: the last generation's best 0.35, 0.55, 0.3 -> held-out PSNR 30 - that; relMSE / noisy as set
+    assert list(table["held-out relMSE / noisy"]) == pytest.approx([0.4, 0.5, 0.6])  # best held-out first
+    assert list(table["held-out PSNR"]) == pytest.approx([29.65, 29.45, 29.7])
+    assert list(table["search fitness (min)"]) == pytest.approx([0.35, 0.5, 0.3])
+    # the expression the eval scored wins over the search's best; the others say they were not scored
+    assert table.loc[0, "expression"] == "bilateral(normal, 2.0)"
+    assert list(table["scored on"]) == ["held-out split"] + ["search only (no eval)"] * 2
+    assert table["expression"].str.contains(r"distance2\(pixel, pixel\)").any()  # infix as logged
+    page = (out / "index.html").read_text()
+    assert "best expressions (infix)" in page and "<code>exp(" in page
+    assert "best fitness per generation" in page  # the curves
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Skips without Chromium and playwright, except under CI=true, where the check must run."""
+    missing = []
+    if shutil.which("chromium") is None:
+        missing.append("chromium (apt-get install chromium)")
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        missing.append("the playwright package (uv sync)")
+    if missing and os.environ.get("CI") == "true":
+        pytest.fail(f"CI must run the browser check; missing {', '.join(missing)}")
+    if missing:
+        pytest.skip(f"missing {', '.join(missing)}")
+
+
+def _check(reports: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "check_site.py"), str(reports), *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_the_site_loads_in_chromium_and_a_broken_image_or_link_fails_the_check(site, browser, tmp_path):
+    result = _check(site["reports"], "--screenshots", str(tmp_path / "shots"))
+    assert result.returncode == 0, result.stdout + result.stderr
+    pages = int(re.search(r"ok, (\d+) pages", result.stdout).group(1))
+    assert pages == 10  # index, 3 reports, ledger, bench, 4 method pages (gp_filter too)
+    assert {p.name for p in (tmp_path / "shots").iterdir()} == {"index.png", "report.png"}
+
+    broken = tmp_path / "broken"
+    shutil.copytree(site["reports"], broken)
+    page = broken / "denoise" / "index.html"
+    text = page.read_text()
+    page.write_text(re.sub(r'src="data:image/png;base64,[^"]+"', 'src="missing.png"', text, count=1))
+    (broken / "methods" / "resnet.html").unlink()
+    ledger = broken / "ledger.html"
+    ledger.write_text(ledger.read_text() + '<div style="width: 3000px">a table that does not scroll</div>')
+    result = _check(broken)
+    assert result.returncode == 1, result.stdout
+    assert "ledger.html: page " in result.stdout and "px wider than a 1280 px window" in result.stdout
+    assert "denoise/index.html: image did not load: missing.png" in result.stdout
+    assert "link to a missing page: methods/resnet.html" in result.stdout
+
+
+def test_grid_tiles_carry_their_psnr_and_radiance_fields_start_at_the_reference(store, tmp_path):  # noqa: F811
+    """A denoising grid reads noisy | denoised | reference, a radiance field's reference | rendered; each
+    tile but the reference is labelled with its PSNR against the reference (the skimage PSNR of the
+    evaluation, on the PNGs shown)."""
+    import numpy as np
+    from PIL import Image
+
+    from src.metrics.image import psnr
+    from src.report.figures import GRID_HEADINGS, _panels, image_grid
+
+    client = MlflowClient()
+    experiment = client.create_experiment("nerf-grid", artifact_location=(tmp_path / "art").as_uri())
+    rng = np.random.default_rng(0)
+    reference = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    ids = {}
+    for model, sigma in (("nerf", 20), ("mipnerf", 5)):
+        run_id = client.create_run(experiment).info.run_id
+        client.log_batch(run_id, params=[Param("model.name", model), Param("seed", "0")])
+        folder = tmp_path / model
+        folder.mkdir()
+        rendered = np.clip(reference + rng.normal(0, sigma, reference.shape), 0, 255).astype(np.uint8)
+        Image.fromarray(reference).save(folder / "lego-r_0-reference.png")
+        Image.fromarray(rendered).save(folder / "lego-r_0-rendered.png")
+        client.log_artifacts(run_id, str(folder), "eval/png")
+        client.set_terminated(run_id, "FINISHED")
+        ids[model] = (run_id, rendered)
+    runs = pd.DataFrame(
+        {"run_id": [ids[m][0] for m in ids], "params.model.name": list(ids), "params.seed": ["0", "0"]}
+    )
+    chosen = {m: (ids[m][0], {"lego-r_0": {"rendered", "reference"}}) for m in ids}
+    panels = _panels("lego-r_0", chosen, tmp_path / "dl")
+    assert [label.split(" ")[0] for label, _ in panels] == ["reference", "nerf", "mipnerf"]
+    for (label, image), model in zip(panels[1:], ids, strict=True):
+        expected = psnr(ids[model][1] / 255.0, reference / 255.0)
+        assert label == f"{model} {expected:.2f} dB"
+        assert np.array_equal(image, ids[model][1])
+    grid = image_grid(runs, tmp_path / "grid.png", 1, ["model.name"], 4, 2)
+    assert grid.heading == GRID_HEADINGS["rendered"] and "reference | rendered" in grid.heading
+    with Image.open(grid.path) as image:
+        first = np.asarray(image.convert("RGB"))[:12, :16]  # the first tile, its crop box drawn on it
+    same = (first == reference).all(axis=-1).mean()
+    assert same > 0.5 and (first == ids["nerf"][1]).all(axis=-1).mean() < 0.2
