@@ -282,10 +282,6 @@ def test_a_stale_key_in_a_documented_command_fails(monkeypatch):
     assert _composes(("task=nerf", "task.scene=tabletop", "profile=smoke")) is None
 
 
-#: Pages another part of issue 34 adds (the report site's own page); linked before they land.
-PENDING_PAGES = {"docs/report-site.md"}
-
-
 def test_relative_links_between_pages_resolve():
     """Every relative link of README.md and docs/*.md names a file that exists (pages moved in issue 34)."""
     broken = []
@@ -295,6 +291,6 @@ def test_relative_links_between_pages_resolve():
             if re.match(r"^[a-z]+://|^#|^mailto:", target):
                 continue
             path = ((ROOT / page).parent / target.split("#")[0]).resolve()
-            if not path.exists() and path.relative_to(ROOT).as_posix() not in PENDING_PAGES:
+            if not path.exists():
                 broken.append(f"{page}: {target}")
     assert not broken, broken
