@@ -264,3 +264,93 @@ def volume_reference_buffers(frame: Frame, following: Frame | None) -> dict[str,
     out["color"] = out["surface"] = reference
     out["colorVariance"] = out["surfaceVariance"] = np.zeros_like(out["colorVariance"])
     return out
+
+
+# --- a set into the volumetric raw layout (`stage=render dataset=noisebase`) -------------------------------
+
+#: The record of what a raw folder was converted from (skips a conversion whose sources are unchanged).
+CONVERT_RECORD = "noisebase_convert.json"
+
+
+def sequence_sources(ds: dict) -> dict[str, list[tuple[Path, int]]]:
+    """{scene name: [(store, frame within it) per frame]}: a training set's `scene{index:04d}` sequences
+    (one store each, `dataset.sequences` its indices) or a test set's named sequences (a store per frame);
+    the first `dataset.frames` frames of each."""
+    root, template, frames = Path(ds["root"]), str(ds["files"]), int(ds["frames"])
+    out = {}
+    for seq in ds["sequences"]:
+        if ds["format"] == "training":
+            path = root / template.format(index=int(seq))
+            out[f"scene{int(seq):04d}"] = [(path, f) for f in range(frames)]
+        else:
+            out[str(seq)] = [(root / template.format(sequence_name=seq, index=f), 0) for f in range(frames)]
+    return out
+
+
+def _source_stamp(paths) -> list:
+    return [
+        [str(p), p.stat().st_size, p.stat().st_mtime_ns] if p.is_file() else [str(p), None] for p in paths
+    ]
+
+
+def convert_to_volume_exrs(ds: dict, raw: Path) -> dict[str, Any]:
+    """Every frame of every configured sequence into `raw`: per (scene, frame), one EXR per noisy count
+    (`volume_frame_buffers`) and one reference EXR labelled `dataset.reference_spp`
+    (`volume_reference_buffers`), named as `src.data.volume_buffers.volume_exr_name`. EXRs of other
+    sequences, frames or counts are deleted; nothing is written when the record says the same sources
+    and settings made the folder."""
+    import json
+    import time
+
+    from src.data.volume_buffers import volume_exr_name, write_volume_exr
+    from src.io.atomic import atomic_write_json
+
+    sources = sequence_sources(ds)
+    noisy = sorted(int(n) for n in ds["noisy_spp"])
+    settings = {
+        k: ds[k] for k in ("format", "files", "sequences", "frames", "crop", "noisy_spp", "reference_spp")
+    }
+    settings |= {"rendering": [ds["rendering_height"], ds["rendering_width"]]}
+    stores = sorted({p for frames in sources.values() for p, _ in frames})
+    record = {"settings": settings, "sources": _source_stamp(stores)}
+    wanted = {
+        volume_exr_name(scene, f, n)
+        for scene, frames in sources.items()
+        for f in range(len(frames))
+        for n in (*noisy, int(ds["reference_spp"]))
+    }
+    raw.mkdir(parents=True, exist_ok=True)
+    record_path = raw / CONVERT_RECORD
+    have = {p.name for p in raw.glob("*.exr")}
+    try:
+        same = json.loads(record_path.read_text()) == record
+    except (OSError, ValueError):
+        same = False
+    if same and wanted <= have:
+        return {"files_written": 0, "files_cached": len(wanted), "seconds": 0.0, "sequences": len(sources)}
+    start = time.perf_counter()
+    for name in have - wanted:
+        (raw / name).unlink()
+    crop, rendering = ds.get("crop"), (int(ds["rendering_height"]), int(ds["rendering_width"]))
+    for scene, frames in sources.items():
+        if ds["format"] == "training":
+            read = read_frames(frames[0][0], "training", [f for _, f in frames], max(noisy), crop, rendering)
+        else:
+            read = [read_frames(path, "test", [0], max(noisy), crop)[0] for path, _ in frames]
+        for f, frame in enumerate(read):
+            following = read[f + 1] if f + 1 < len(read) else None
+            for n in noisy:
+                write_volume_exr(
+                    raw / volume_exr_name(scene, f, n), volume_frame_buffers(frame, following, n)
+                )
+            write_volume_exr(
+                raw / volume_exr_name(scene, f, int(ds["reference_spp"])),
+                volume_reference_buffers(frame, following),
+            )
+    atomic_write_json(record_path, record)
+    return {
+        "files_written": len(wanted),
+        "files_cached": 0,
+        "seconds": time.perf_counter() - start,
+        "sequences": len(sources),
+    }
