@@ -503,9 +503,9 @@ class NoisebaseDataset(DenoisingData):
     root: str
     format: Literal["training", "test"]
     files: Annotated[str, Field(min_length=1)]
-    sequences: Annotated[list[NonNegativeInt | Annotated[str, Field(min_length=1)]], Field(min_length=1)]
+    sequences: Annotated[list[int | str], Field(min_length=1)]  # checked below, with the format
     frames: PositiveInt
-    crop: Annotated[list[NonNegativeInt], Field(min_length=4, max_length=4)] | None
+    crop: list[int] | None  # [top, left, height, width], checked below
     noisy_spp: SppList
     reference_spp: PositiveInt
     rendering_height: PositiveInt
@@ -530,9 +530,17 @@ class NoisebaseDataset(DenoisingData):
                 f"dataset.files={self.files!r}: a {self.format}-format set's file names need "
                 f"{' and '.join(n + '}' for n in needs)}"
             )
-        if self.format == "training" and not all(isinstance(s, int) for s in self.sequences):
+        if self.format == "training" and not all(isinstance(s, int) and s >= 0 for s in self.sequences):
             raise own_error(
-                f"dataset.sequences={self.sequences}: a training-format set's sequences are indices "
+                f"dataset.sequences={self.sequences}: a training-format set's sequences are indices >= 0 "
                 "(scene{index:04d}.zip)"
+            )
+        if self.format == "test" and not all(isinstance(s, str) and s for s in self.sequences):
+            raise own_error(f"dataset.sequences={self.sequences}: a test-format set's sequences are names")
+        c = self.crop
+        if c is not None and (len(c) != 4 or min(c[:2]) < 0 or min(c[2:]) < 1):
+            raise own_error(
+                f"dataset.crop={c}: expected [top, left, height, width] with top, left >= 0 and "
+                "height, width >= 1, or null"
             )
         return self
