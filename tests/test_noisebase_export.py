@@ -1,0 +1,176 @@
+"""Writing Noisebase sample sets (issue 35): the RGBE encoder against the package's own, its error bound,
+and round trips of exported training and test sets through the `noisebase` package's loaders (and ours)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from src.data.noisebase import read_frames
+from src.data.noisebase_export import (
+    encode_rgbe,
+    frame_arrays,
+    projection_matrix,
+    write_test_frame,
+    write_training_sequence,
+)
+from src.errors import DataError
+from tests.conftest import one_line_error
+
+BUFFERS = ["w_normal", "w_position", "w_motion", "diffuse", "color", "reference"]
+
+
+def _radiance(rng, shape=(3, 6, 5, 4)):
+    return np.exp(rng.normal(0, 1.5, shape))  # positive, a few stops of range
+
+
+def test_the_rgbe_bytes_are_the_packages_for_the_same_dither():
+    from noisebase.compression import compress_RGBE
+
+    color = _radiance(np.random.default_rng(0))
+    np.random.seed(5)  # noqa: NPY002 (the package draws its dither from numpy's global generator)
+    theirs, (lo, hi) = compress_RGBE(color)
+    ours, exposure = encode_rgbe(color, np.random.RandomState(5).random_sample)
+    np.testing.assert_array_equal(ours, theirs)
+    np.testing.assert_allclose(exposure, [lo, hi], rtol=1e-6)
+
+
+def test_a_decoded_channel_is_within_one_step_of_its_exponent_and_unbiased():
+    from noisebase.compression import decompress_RGBE
+
+    rng = np.random.default_rng(1)
+    color = _radiance(rng)
+    color[0, 0, 0, 0] = 0.0  # a black channel stays 0
+    color[:, 1, 1, 1] = 0.0  # a black sample
+    rgbe, exposure = encode_rgbe(color, rng.random)
+    decoded = decompress_RGBE(rgbe, exposure)
+    step = np.exp((rgbe[3].astype(np.float64) + 1) / 256 * (exposure[1] - exposure[0]) + exposure[0]) / 255
+    assert (np.abs(decoded - color) <= step * (1 + 1e-5)).all()
+    assert decoded[0, 0, 0, 0] == 0 and not decoded[:, 1, 1, 1].any()
+    # the dither makes a byte unbiased: the mean of many encodings is the value, far within one step
+    many = np.mean([decompress_RGBE(*encode_rgbe(color, rng.random)) for _ in range(400)], axis=0)
+    assert (np.abs(many - color) < 0.2 * step).mean() > 0.95
+    plain = np.floor(color / (step * 255) * 255) * step  # no dither: biased low by half a step on average
+    assert np.abs(many - color).mean() < 0.5 * np.abs(plain - color).mean()
+
+
+def test_an_all_black_frame_encodes_to_zero_and_bad_radiance_is_one_line():
+    rgbe, exposure = encode_rgbe(np.zeros((3, 2, 2, 2)), np.random.default_rng(0).random)
+    assert not rgbe.any() and not exposure.any()
+    with pytest.raises(DataError) as e:
+        encode_rgbe(np.full((3, 1, 1, 2), np.nan), np.random.default_rng(0).random)
+    one_line_error(e, "finite and non-negative")
+
+
+def _frames(rng, frames, height, width, spp):
+    out = []
+    for f in range(frames):
+        shape = (3, height, width, spp)
+        normal = rng.normal(size=shape)
+        samples = {
+            "radiance": _radiance(rng, shape),
+            "position": rng.uniform(-1, 1, shape),
+            "motion": rng.uniform(-0.1, 0.1, shape),
+            "normal": normal / np.linalg.norm(normal, axis=0),
+            "diffuse": rng.uniform(0, 1, shape),
+        }
+        camera = {
+            "camera_position": np.array([np.sin(0.1 * f) * 4, 1.0, np.cos(0.1 * f) * 4]),
+            "camera_target": np.zeros(3),
+            "camera_up": np.array([0.0, 1.0, 0.0]),
+            "proj_mat": projection_matrix(40.0, 96, 64),
+        }
+        out.append((samples, rng.uniform(0, 2, shape[:3]), camera))
+    return out
+
+
+def _check_sample_buffers(theirs, samples, arrays):
+    np.testing.assert_array_equal(theirs["w_position"], samples["position"].astype(np.float32))
+    np.testing.assert_array_equal(theirs["w_normal"], samples["normal"].astype(np.float16).astype(np.float32))
+    np.testing.assert_array_equal(theirs["diffuse"], samples["diffuse"].astype(np.float16).astype(np.float32))
+    lo, hi = arrays["exposure"]
+    step = np.exp((arrays["color"][3].astype(np.float64) + 1) / 256 * (hi - lo) + lo) / 255
+    assert (np.abs(theirs["color"] - samples["radiance"]) <= step * (1 + 1e-5)).all()
+
+
+def test_an_exported_training_sequence_reads_back_through_the_package_loader(tmp_path):
+    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
+    from noisebase.torch import Shuffler
+
+    rng = np.random.default_rng(2)
+    made = _frames(rng, 2, 8, 8, 4)
+    arrays = [
+        frame_arrays(s, r, c, [10 + f, 20 + 3 * f], (64, 96), rng.random) for f, (s, r, c) in enumerate(made)
+    ]
+    write_training_sequence(tmp_path / "train" / "scene0000.zip", arrays)
+    src = {
+        "files": "train/scene{index:04d}.zip",
+        "frames_per_sequence": 2,
+        "crop": 8,
+        "rendering_height": 64,
+        "rendering_width": 96,
+        "sequences": 1,
+    }
+    ds = TrainingSampleDataset(
+        src=src,
+        sequence_idxs=[0],
+        rng=Shuffler(0),
+        flip_rotate=False,
+        buffers=BUFFERS,
+        samples=4,
+        data_path=str(tmp_path),
+        batch_size=1,
+    )
+    for f in range(2):
+        theirs = ds[{"idx": f, "epoch": 0}]
+        samples, reference, _ = made[f]
+        _check_sample_buffers(theirs, samples, arrays[f])
+        np.testing.assert_array_equal(theirs["reference"], reference.astype(np.float32))
+        np.testing.assert_array_equal(theirs["view_proj_mat"], arrays[f]["view_proj_mat"])
+        assert list(theirs["crop_offset"]) == [10 + f, 20 + 3 * f]
+        if f:  # the stored world motion of the second frame comes back
+            np.testing.assert_array_equal(theirs["w_motion"], samples["motion"].astype(np.float32))
+    # ours and theirs agree on the same file
+    (ours,) = read_frames(tmp_path / "train" / "scene0000.zip", "training", [1], 4, rendering=(64, 96))
+    np.testing.assert_array_equal(ours.radiance, ds[{"idx": 1, "epoch": 0}]["color"])
+
+
+def test_an_exported_test_sequence_reads_back_through_the_package_loader(tmp_path):
+    from noisebase.loaders.torch.test_sample_v1 import TestSampleDataset
+
+    rng = np.random.default_rng(3)
+    made = _frames(rng, 2, 64, 8, 2)
+    arrays = [frame_arrays(s, r, c, [0, 0], (64, 8), rng.random) for s, r, c in made]
+    for f, a in enumerate(arrays):
+        write_test_frame(tmp_path / "test8" / "seq" / f"frame{f:04d}.zip", a)
+    ds = TestSampleDataset(
+        sequence={"name": "seq", "frames": 2},
+        src={
+            "files": "test8/{sequence_name}/frame{index:04d}.zip",
+            "rendering_height": 64,
+            "rendering_width": 8,
+        },
+        buffers=BUFFERS,
+        data_path=str(tmp_path),
+        samples=2,
+    )
+    rows = slice(28, -28)  # the package's fixed crop of a test frame
+    theirs = ds[1]
+    samples, reference, _ = made[1]
+    cropped = {k: v[:, rows] for k, v in samples.items()}
+    _check_sample_buffers(
+        theirs, cropped, {"exposure": arrays[1]["exposure"], "color": arrays[1]["color"][:, rows]}
+    )
+    np.testing.assert_array_equal(theirs["reference"], reference[:, rows].astype(np.float32))
+    np.testing.assert_array_equal(theirs["view_proj_mat"], arrays[1]["view_proj_mat"])
+    (ours,) = read_frames(tmp_path / "test8" / "seq" / "frame0001.zip", "test", [0], 2, [28, 0, 8, 8])
+    np.testing.assert_array_equal(ours.radiance, theirs["color"])
+
+
+def test_a_mismatched_buffer_is_one_line():
+    rng = np.random.default_rng(4)
+    samples, reference, camera = _frames(rng, 1, 4, 4, 2)[0]
+    samples["normal"] = samples["normal"][..., :1]
+    with pytest.raises(DataError) as e:
+        frame_arrays(samples, reference, camera, [0, 0], (4, 4), rng.random)
+    one_line_error(e, "normal", "(3, 4, 4, 1)", "expected (3, 4, 4, 2)")
