@@ -174,3 +174,82 @@ def test_a_mismatched_buffer_is_one_line():
     with pytest.raises(DataError) as e:
         frame_arrays(samples, reference, camera, [0, 0], (4, 4), rng.random)
     one_line_error(e, "normal", "(3, 4, 4, 1)", "expected (3, 4, 4, 2)")
+
+
+def _volumetric_smoke():
+    from omegaconf import OmegaConf
+
+    from tests.conftest import compose_config
+
+    cfg = compose_config(["dataset=volumetric", "profile=smoke"])
+    return OmegaConf.to_container(cfg.dataset, resolve=True)
+
+
+def test_an_exported_camera_projects_as_the_renderers_camera():
+    """The Noisebase camera of a volumetric frame (position, target, up, projection -> the package's
+    view-projection and pixel mapping) puts world points on the pixels nrbench's renderer does."""
+    from noisebase.projective import screen_space_position
+
+    from src.data.noisebase_export import view_projection
+    from src.render.noisebase_export import noisebase_camera
+    from src.render.volume_camera import project
+    from src.render.volume_scenes import camera_at
+
+    ds = _volumetric_smoke()
+    w, h = int(ds["width"]), int(ds["height"])
+    camera = camera_at("cloud", 0, 1, ds)
+    pv = view_projection(noisebase_camera(camera, w, h), (h, w), h)
+    rng = np.random.default_rng(0)
+    ahead = camera.to_world[:3, 3] + camera.to_world[:3, 2] * 6  # points around the view direction
+    points = ahead[:, None, None] + rng.normal(0, 1.0, (3, 4, 5))
+    ij = screen_space_position(points[..., None].astype(np.float32), pv, h, w)[..., 0]
+    xy, depth = project(np.moveaxis(points, 0, -1), camera, w, h)
+    assert (depth > 0).all()
+    np.testing.assert_allclose(ij[1], xy[..., 0], atol=2e-3)  # columns
+    np.testing.assert_allclose(ij[0], xy[..., 1], atol=2e-3)  # rows
+    assert np.ptp(xy[..., 0]) > 5  # the points spread over the frame
+
+
+@pytest.mark.slow
+def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, mitsuba_variant):
+    """Render a smoke volumetric scene per sample, export it, read it back with the package's loader and
+    ours: per-sample colour within the RGBE step, the reference the volumetric reference render, and our
+    flow of the exported set the renderer's own motion (`frame_motion`) of the same mean positions."""
+    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
+    from noisebase.torch import Shuffler
+
+    from src.data.noisebase import volume_frame_buffers
+    from src.render.noisebase_export import export_volumetric_sequences
+    from src.render.render_dataset import scene_sources
+    from src.render.volume_dataset import frame_motion
+    from src.render.volume_scenes import camera_at
+
+    ds = _volumetric_smoke() | {"width": 16, "height": 12, "reference_spp": 8}
+    (path,) = export_volumetric_sequences(ds, tmp_path / "train", "training", 2, scenes=["fog_objects-0000"])
+    src = {
+        "files": "train/scene{index:04d}.zip",
+        "frames_per_sequence": 2,
+        "crop": 12,
+        "rendering_height": 12,
+        "rendering_width": 16,
+        "sequences": 1,
+    }
+    theirs = TrainingSampleDataset(
+        src=src,
+        sequence_idxs=[0],
+        rng=Shuffler(0),
+        flip_rotate=False,
+        buffers=BUFFERS,
+        samples=2,
+        data_path=str(tmp_path),
+        batch_size=1,
+    )[{"idx": 0, "epoch": 0}]
+    assert theirs["color"].shape == (3, 12, 16, 2) and theirs["color"].max() > 0
+    assert not np.array_equal(theirs["color"][..., 0], theirs["color"][..., 1])  # distinct seeds
+    frames = read_frames(path, "training", [0, 1], 2, rendering=(12, 16))
+    np.testing.assert_array_equal(frames[0].radiance, theirs["color"])
+    buffers = volume_frame_buffers(frames[0], frames[1], 2)
+    (source,) = [s for s in scene_sources(ds) if s.name == "fog_objects-0000"]
+    cameras = [camera_at(source.base, source.seed, f, ds) for f in (0, 1)]
+    np.testing.assert_allclose(buffers["motion"], frame_motion(buffers["position"], *cameras), atol=5e-3)
+    assert np.abs(buffers["motion"]).max() > 0.01
