@@ -253,3 +253,76 @@ def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, m
     cameras = [camera_at(source.base, source.seed, f, ds) for f in (0, 1)]
     np.testing.assert_allclose(buffers["motion"], frame_motion(buffers["position"], *cameras), atol=5e-3)
     assert np.abs(buffers["motion"]).max() > 0.01
+
+
+def test_a_pan_turns_the_camera_about_the_world_up_through_its_origin():
+    from src.render.noisebase_export import panned
+
+    rng = np.random.default_rng(0)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    to_world = np.eye(4)
+    to_world[:3, :3], to_world[:3, 3] = q, [1.0, 2.0, 3.0]
+    turned = panned(to_world, 30.0)
+    np.testing.assert_array_equal(turned[:3, 3], to_world[:3, 3])
+    np.testing.assert_allclose(turned[:3, :3].T @ turned[:3, :3], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(turned[1, :3], to_world[1, :3])  # heights of the axes kept
+    for column in range(3):  # each axis turned by 30 degrees about +Y, counter-clockwise seen from above
+        a, b = to_world[[0, 2], column], turned[[0, 2], column]
+        if np.linalg.norm(a) > 1e-6:
+            angle = np.degrees(np.arctan2(a[1] * b[0] - a[0] * b[1], a @ b))
+            assert angle == pytest.approx(30.0)
+
+
+@pytest.mark.slow
+def test_an_exported_still_scene_pans_and_reads_back(tmp_path, mitsuba_variant):
+    """A procedural still scene exported as a 2-frame panning sequence: the package loader reads it, and
+    our flow of the exported set is the renderer's camera motion of the same mean positions."""
+    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
+    from noisebase.torch import Shuffler
+    from omegaconf import OmegaConf
+
+    from src.data.noisebase import volume_frame_buffers
+    from src.render.noisebase_export import export_still_sequences, panned
+    from src.render.volume_camera import Camera, motion_vectors
+    from tests.conftest import compose_config
+
+    ds = OmegaConf.to_container(compose_config(["dataset=procedural", "profile=smoke"]).dataset, resolve=True)
+    ds |= {"width": 16, "height": 12, "reference_spp": 8}
+    (path,) = export_still_sequences(ds, tmp_path / "train", "training", 2, 2, 3.0, scenes=["tabletop-0000"])
+    src = {
+        "files": "train/scene{index:04d}.zip",
+        "frames_per_sequence": 2,
+        "crop": 12,
+        "rendering_height": 12,
+        "rendering_width": 16,
+        "sequences": 1,
+    }
+    theirs = TrainingSampleDataset(
+        src=src,
+        sequence_idxs=[0],
+        rng=Shuffler(0),
+        flip_rotate=False,
+        buffers=BUFFERS,
+        samples=2,
+        data_path=str(tmp_path),
+        batch_size=1,
+    )[{"idx": 1, "epoch": 0}]
+    assert theirs["color"].shape == (3, 12, 16, 2) and theirs["color"].max() > 0
+    frames = read_frames(path, "training", [0, 1], 2, rendering=(12, 16))
+    np.testing.assert_array_equal(frames[1].radiance, theirs["color"])
+    buffers = volume_frame_buffers(frames[0], frames[1], 2)
+    import mitsuba as mi
+
+    from src.render.render_dataset import load_scene, scene_sources
+
+    (source,) = [s for s in scene_sources(ds) if s.name == "tabletop-0000"]
+    params = mi.traverse(load_scene(source, ds)[1])
+    start, fov = (
+        np.array(params["to_world"].matrix).reshape(4, 4),
+        float(np.array(params["x_fov"]).ravel()[0]),
+    )
+    cameras = [Camera(panned(start, 3.0 * f), fov) for f in (0, 1)]
+    want = motion_vectors(buffers["position"].astype(np.float64), *cameras, 16, 12)
+    hit = np.isfinite(want).all(-1) & np.any(buffers["position"] != 0, -1)
+    np.testing.assert_allclose(buffers["motion"][hit], want[hit], atol=5e-3)
+    assert np.abs(buffers["motion"][hit]).max() > 0.2  # 3 degrees of a ~40 degree view over 16 px
