@@ -333,12 +333,14 @@ def convert_to_volume_exrs(ds: dict, raw: Path) -> dict[str, Any]:
         (raw / name).unlink()
     crop, rendering = ds.get("crop"), (int(ds["rendering_height"]), int(ds["rendering_width"]))
     for scene, frames in sources.items():
-        if ds["format"] == "training":
-            read = read_frames(frames[0][0], "training", [f for _, f in frames], max(noisy), crop, rendering)
-        else:
-            read = [read_frames(path, "test", [0], max(noisy), crop)[0] for path, _ in frames]
-        for f, frame in enumerate(read):
-            following = read[f + 1] if f + 1 < len(read) else None
+        # two frames in memory at a time (a 1080p test frame at 32 spp is ~3 GB of float32 samples)
+        def read(f: int, frames=frames) -> Frame:
+            path, index = frames[f]
+            return read_frames(path, ds["format"], [index], max(noisy), crop, rendering)[0]
+
+        following = read(0)
+        for f in range(len(frames)):
+            frame, following = following, (read(f + 1) if f + 1 < len(frames) else None)
             for n in noisy:
                 write_volume_exr(
                     raw / volume_exr_name(scene, f, n), volume_frame_buffers(frame, following, n)
