@@ -213,8 +213,9 @@ def test_an_exported_camera_projects_as_the_renderers_camera():
 @pytest.mark.slow
 def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, mitsuba_variant):
     """Render a smoke volumetric scene per sample, export it, read it back with the package's loader and
-    ours: per-sample colour within the RGBE step, the reference the volumetric reference render, and our
-    flow of the exported set the renderer's own motion (`frame_motion`) of the same mean positions."""
+    ours: per-sample colour within the RGBE step of a 1-spp render with that sample's seed, the reference
+    the volumetric dataset's own reference file, and our flow of the exported set the renderer's own motion
+    (`frame_motion`) of the same mean positions."""
     from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
     from noisebase.torch import Shuffler
 
@@ -224,7 +225,7 @@ def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, m
     from src.render.volume_dataset import frame_motion
     from src.render.volume_scenes import camera_at
 
-    ds = _volumetric_smoke() | {"width": 16, "height": 12, "reference_spp": 8}
+    ds = _volumetric_smoke() | {"width": 16, "height": 12, "noisy_spp": [2, 4], "reference_spp": 8}
     (path,) = export_volumetric_sequences(ds, tmp_path / "train", "training", 2, scenes=["fog_objects-0000"])
     src = {
         "files": "train/scene{index:04d}.zip",
@@ -253,6 +254,28 @@ def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, m
     cameras = [camera_at(source.base, source.seed, f, ds) for f in (0, 1)]
     np.testing.assert_allclose(buffers["motion"], frame_motion(buffers["position"], *cameras), atol=5e-3)
     assert np.abs(buffers["motion"]).max() > 0.01
+
+    import mitsuba as mi
+
+    from src.data.volume_buffers import load_volume_exr
+    from src.render.render_dataset import pass_seed
+    from src.render.volume_dataset import INTEGRATOR, load_volume_frame, render_volumetric_dataset
+    from src.render.volume_film import render_volume_buffers
+
+    render_volumetric_dataset(ds, tmp_path / "raw", scenes=["fog_objects-0000"], frames=[0])
+    reference, _ = load_volume_exr(tmp_path / "raw" / "fog_objects-0000-f0000-00008spp.exr")
+    np.testing.assert_array_equal(theirs["reference"], np.moveaxis(reference["color"], -1, 0))
+    integrator = mi.load_dict({"type": INTEGRATOR, **ds["integrator"]})
+    seed = pass_seed(int(ds["seed"]), "fog_objects-0000", 1, "noisy", 1, 0)  # sample 1 of frame 0
+    sample = render_volume_buffers(load_volume_frame(source, 0, ds), integrator, 1, [seed])
+    want = np.moveaxis(sample["color"], -1, 0)
+    got = theirs["color"][..., 1]
+    import zarr
+
+    lo, hi = zarr.open_group(zarr.ZipStore(str(path), mode="r"), mode="r")["exposure"][0]
+    step = want.max(0) * np.exp((hi - lo) / 256) / 255  # a pixel's RGBE step: its exponent's, over 255
+    assert (np.abs(got - want) <= step * (1 + 1e-4) + 1e-7).all()
+    assert np.abs(got - want).mean() < 0.1 * np.abs(want).mean()
 
 
 def test_a_pan_turns_the_camera_about_the_world_up_through_its_origin():
