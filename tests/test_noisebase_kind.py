@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 
 from src.data.noisebase import convert_to_volume_exrs, read_frames, volume_frame_buffers
 from src.data.volume_buffers import load_volume_exr
-from src.errors import ConfigError
+from src.errors import ConfigError, DataError
 from src.schema.checks import check
 from src.schema.dataset import NoisebaseDataset
 from tests.conftest import compose_config, one_line_cli_error, one_line_error
@@ -68,6 +68,15 @@ def test_conversion_writes_the_readers_buffers_and_keeps_only_what_the_config_ma
         "scene0000-f0000-00064spp.exr",
     ]
     assert not list(raw.glob("scene0001-*"))
+    # a conversion that fails part-way (scene0005.zip is missing) after rewriting the others in a 4x4
+    # window leaves no record: the next one converts them again
+    with pytest.raises(DataError):
+        convert_to_volume_exrs(
+            _ds(tmp_path / "nb", sequences=[0, 2, 5], noisy_spp=[4], crop=[0, 0, 4, 4]), raw
+        )
+    assert load_volume_exr(raw / "scene0000-f0000-00004spp.exr")[0]["color"].shape == (4, 4, 3)
+    assert convert_to_volume_exrs(_ds(tmp_path / "nb", sequences=[0, 2], noisy_spp=[4]), raw)["files_written"]
+    assert load_volume_exr(raw / "scene0000-f0000-00004spp.exr")[0]["color"].shape == (8, 8, 3)
 
 
 def test_a_test_format_set_is_one_store_per_frame(tmp_path):

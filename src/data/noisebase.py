@@ -329,6 +329,7 @@ def convert_to_volume_exrs(ds: dict, raw: Path) -> dict[str, Any]:
     if same and wanted <= have:
         return {"files_written": 0, "files_cached": len(wanted), "seconds": 0.0, "sequences": len(sources)}
     start = time.perf_counter()
+    record_path.unlink(missing_ok=True)  # written again only when every file is: a failure converts again
     for name in have - wanted:
         (raw / name).unlink()
     crop, rendering = ds.get("crop"), (int(ds["rendering_height"]), int(ds["rendering_width"]))
