@@ -13,6 +13,7 @@ from tests.conftest import ROOT, one_line_error, smoke_config
 SHIPPED = {
     "procedural": ("src.kinds.stills.RenderedStills", "denoise"),
     "volumetric": ("src.kinds.sequences.RenderedSequences", "denoise"),
+    "noisebase": ("src.kinds.noisebase.NoisebaseSequences", "denoise"),
     "nerf_procedural": ("src.kinds.multiview.RenderedScenes", "nerf"),
     "blender": ("src.kinds.multiview.BlenderScenes", "nerf"),
 }

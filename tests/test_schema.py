@@ -105,7 +105,9 @@ BOUNDED: dict[Bound, str] = {
         dataset.NerfTabletop.noise_base_cells dataset.NerfProceduralDataset.width
         dataset.NerfProceduralDataset.height dataset.NerfProceduralDataset.spp
         dataset.NerfProceduralDataset.max_pass_samples dataset.BlenderDataset.downscale
-        dataset.BlenderDataset.max_images
+        dataset.BlenderDataset.max_images dataset.NoisebaseDataset.frames
+        dataset.NoisebaseDataset.reference_spp dataset.NoisebaseDataset.rendering_height
+        dataset.NoisebaseDataset.rendering_width
     """,
     POSITIVE: """
         run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps
@@ -170,6 +172,7 @@ BOUNDED: dict[Bound, str] = {
     """,
     POSITIVE_INT_ITEMS: """
         filter_search.Search.spp dataset.ProceduralDataset.noisy_spp dataset.VolumetricDataset.noisy_spp
+        dataset.NoisebaseDataset.noisy_spp
     """,
     NON_NEGATIVE_VALUES: """
         filter_search.Search.mutation_kinds

@@ -492,3 +492,55 @@ class BlenderDataset(NearFar):
         if root in ("", "???"):
             raise expected("missing; expected the folder holding your Blender scenes (dataset.root=...)")
         return root
+
+
+class NoisebaseDataset(DenoisingData):
+    """`dataset=noisebase` (docs/noisebase.md): which sequences, frames, window and sample counts of a
+    downloaded Noisebase set nrbench reads."""
+
+    name: Literal["noisebase"]
+    experiment_suffix: str
+    root: str
+    format: Literal["training", "test"]
+    files: Annotated[str, Field(min_length=1)]
+    sequences: Annotated[list[int | str], Field(min_length=1)]  # checked below, with the format
+    frames: PositiveInt
+    crop: list[int] | None  # [top, left, height, width], checked below
+    noisy_spp: SppList
+    reference_spp: PositiveInt
+    rendering_height: PositiveInt
+    rendering_width: PositiveInt
+    second_reference: Literal[False]  # no second reference of a downloaded set
+
+    @field_validator("root")
+    @classmethod
+    def _given(cls, root: str) -> str:
+        if root in ("", "???"):
+            raise expected("missing; expected the folder holding the Noisebase set (dataset.root=...)")
+        return root
+
+    @model_validator(mode="after")
+    def _counts_and_files(self) -> NoisebaseDataset:
+        from src.render.render_dataset import spp_counts
+
+        passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
+        needs = ["{index"] if self.format == "training" else ["{sequence_name", "{index"]
+        if not all(n in self.files for n in needs):
+            raise own_error(
+                f"dataset.files={self.files!r}: a {self.format}-format set's file names need "
+                f"{' and '.join(n + '}' for n in needs)}"
+            )
+        if self.format == "training" and not all(isinstance(s, int) and s >= 0 for s in self.sequences):
+            raise own_error(
+                f"dataset.sequences={self.sequences}: a training-format set's sequences are indices >= 0 "
+                "(scene{index:04d}.zip)"
+            )
+        if self.format == "test" and not all(isinstance(s, str) and s for s in self.sequences):
+            raise own_error(f"dataset.sequences={self.sequences}: a test-format set's sequences are names")
+        c = self.crop
+        if c is not None and (len(c) != 4 or min(c[:2]) < 0 or min(c[2:]) < 1):
+            raise own_error(
+                f"dataset.crop={c}: expected [top, left, height, width] with top, left >= 0 and "
+                "height, width >= 1, or null"
+            )
+        return self

@@ -1,0 +1,218 @@
+"""Noisebase sample sets (issue 35): the reader against known samples of tiny stores written by the
+independent fixture writer (tests/noisebase_fixture.py), against the `noisebase` package's own loaders on
+the same files, and its one-line errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from src.data.noisebase import (
+    forward_flow,
+    pixel_moments,
+    read_frames,
+    volume_frame_buffers,
+    volume_reference_buffers,
+)
+from src.errors import DataError
+from tests.conftest import one_line_error
+from tests.noisebase_fixture import write_test_sequence, write_training_sequence
+
+BUFFERS = ["w_normal", "w_position", "diffuse", "color", "reference", "depth", "motion"]
+
+
+@pytest.fixture(scope="module")
+def training(tmp_path_factory):
+    root = tmp_path_factory.mktemp("nb")
+    data = write_training_sequence(root / "train" / "scene0000.zip", frames=3, size=16, spp=4, seed=1)
+    return root, data
+
+
+def _moments(samples, n):
+    x = samples[..., :n].astype(np.float64)
+    mean = x.mean(-1)
+    var = ((x - mean[..., None]) ** 2).sum(-1) / (n - 1) / n
+    return np.moveaxis(mean, 0, -1), var.mean(0)[..., None]
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_pixel_means_and_variances_are_those_of_the_fixture_samples(training, n):
+    root, data = training
+    crop = [2, 3, 10, 12]
+    (frame,) = read_frames(root / "train" / "scene0000.zip", "training", [1], n, crop, rendering=(64, 96))
+    win = (slice(None), slice(2, 12), slice(3, 15))
+    buffers = volume_frame_buffers(frame, None, n)
+    for ours, known in (
+        ("color", data["radiance"][1]),
+        ("albedo", data["diffuse"][1].astype(np.float64)),
+        ("normal", data["normal"][1].astype(np.float64)),
+        ("position", data["position"][1]),
+    ):
+        mean, var = _moments(known[win], n)
+        np.testing.assert_allclose(buffers[ours], mean, rtol=1e-5, atol=1e-6, err_msg=ours)
+        np.testing.assert_allclose(buffers[f"{ours}Variance"], var, rtol=1e-4, atol=1e-9, err_msg=ours)
+    distance = np.linalg.norm(
+        data["position"][1][win] - data["camera_position"][1][:, None, None, None], axis=0
+    )
+    mean, var = _moments(distance[None], n)
+    np.testing.assert_allclose(buffers["depth"], mean, rtol=1e-5)
+    np.testing.assert_allclose(buffers["depthVariance"], var, rtol=1e-4, atol=1e-12)
+    np.testing.assert_array_equal(buffers["surface"], buffers["color"])
+    assert not buffers["volume"].any() and not buffers["sigma_t"].any()
+    ref = volume_reference_buffers(frame, None)
+    np.testing.assert_array_equal(ref["color"], np.moveaxis(data["reference"][1][:, 2:12, 3:15], 0, -1))
+    assert not ref["colorVariance"].any()
+
+
+def test_pixel_moments_needs_two_samples():
+    with pytest.raises(DataError) as e:
+        pixel_moments(np.zeros((3, 2, 2, 4)), 1)
+    one_line_error(e, "dataset.noisy_spp", "at least 2")
+
+
+def _pixels(points, vp, height, width):
+    """(row, column) of world points (3, H, W) in a camera frame, written out from the format's docs."""
+    clip = np.einsum("chw,cj->jhw", np.concatenate([points, np.ones((1, *points.shape[1:]))]), vp)
+    x, y = clip[0] / clip[3], clip[1] / clip[3]
+    return np.stack([(1 - y) * height / 2, (x + 1) * width / 2])
+
+
+def test_forward_flow_follows_the_mean_position_into_the_next_moving_crop(training):
+    root, data = training
+    frames = read_frames(root / "train" / "scene0000.zip", "training", [0, 1], 4, rendering=(64, 96))
+    buffers = volume_frame_buffers(frames[0], frames[1], 4)
+    mean = data["position"][0].astype(np.float64).mean(-1)
+    now = (
+        _pixels(mean, data["view_proj_mat"][0].astype(np.float64), 64, 96)
+        - data["crop_offset"][0][:, None, None]
+    )
+    then = (
+        _pixels(mean, data["view_proj_mat"][1].astype(np.float64), 64, 96)
+        - data["crop_offset"][1][:, None, None]
+    )
+    flow = then - now
+    np.testing.assert_allclose(buffers["motion"][..., 0], flow[1], atol=2e-3)  # x: columns
+    np.testing.assert_allclose(buffers["motion"][..., 1], flow[0], atol=2e-3)  # y: rows
+    assert np.abs(flow).max() > 1.0  # the camera and the crop move: a zero flow would not pass
+    last = volume_frame_buffers(frames[1], None, 4)
+    assert not last["motion"].any()
+
+
+def test_flow_is_zero_where_the_point_is_behind_a_camera(training):
+    root, _ = training
+    frames = read_frames(root / "train" / "scene0000.zip", "training", [0, 1], 4, rendering=(64, 96))
+    behind = 2 * frames[0].camera_position - 0.0  # beyond the camera, away from the origin it looks at
+    position = np.broadcast_to(behind, (4, 4, 3)).copy()
+    assert not forward_flow(position, frames[0], frames[1]).any()
+
+
+def test_our_samples_equal_the_package_training_loader(training):
+    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
+    from noisebase.torch import Shuffler
+
+    root, _ = training
+    src = {
+        "files": "train/scene{index:04d}.zip",
+        "frames_per_sequence": 3,
+        "crop": 16,
+        "rendering_height": 64,
+        "rendering_width": 96,
+        "sequences": 1,
+    }
+    theirs = TrainingSampleDataset(
+        src=src,
+        sequence_idxs=[0],
+        rng=Shuffler(0),
+        flip_rotate=False,
+        buffers=BUFFERS,
+        samples=3,
+        data_path=str(root),
+        batch_size=1,
+    )[{"idx": 2, "epoch": 0}]
+    (ours,) = read_frames(root / "train" / "scene0000.zip", "training", [2], 3, rendering=(64, 96))
+    np.testing.assert_array_equal(ours.radiance, theirs["color"])
+    np.testing.assert_array_equal(ours.position, theirs["w_position"])
+    np.testing.assert_array_equal(ours.normal, theirs["w_normal"])
+    np.testing.assert_array_equal(ours.diffuse, theirs["diffuse"])
+    np.testing.assert_array_equal(ours.reference, theirs["reference"])
+    np.testing.assert_array_equal(ours.view_proj, theirs["view_proj_mat"])
+    np.testing.assert_array_equal(ours.offset, theirs["crop_offset"])
+    # their log depth is of our per-sample distance
+    distance = np.linalg.norm(ours.position - ours.camera_position[:, None, None, None], axis=0)
+    np.testing.assert_allclose(np.log(1 + 1 / distance), theirs["depth"][0], rtol=1e-5)
+
+
+def test_our_samples_equal_the_package_test_loader_on_its_rows(tmp_path):
+    from noisebase.loaders.torch.test_sample_v1 import TestSampleDataset
+
+    data = write_test_sequence(tmp_path / "test8", "bistro1", frames=2, height=72, width=16, spp=4, seed=2)
+    theirs = TestSampleDataset(
+        sequence={"name": "bistro1", "frames": 2},
+        src={
+            "files": "test8/{sequence_name}/frame{index:04d}.zip",
+            "rendering_height": 72,
+            "rendering_width": 16,
+        },
+        buffers=BUFFERS,
+        data_path=str(tmp_path),
+        samples=4,
+    )[1]
+    # the package keeps rows 28:-28 of a test frame; our window [28, 0, 16, 16] is those rows
+    (ours,) = read_frames(tmp_path / "test8" / "bistro1" / "frame0001.zip", "test", [0], 4, [28, 0, 16, 16])
+    np.testing.assert_array_equal(ours.radiance, theirs["color"])
+    np.testing.assert_array_equal(ours.position, theirs["w_position"])
+    np.testing.assert_array_equal(ours.normal, theirs["w_normal"])
+    np.testing.assert_array_equal(ours.reference, theirs["reference"])
+    np.testing.assert_array_equal(ours.view_proj, data["view_proj_mat"][1])
+    np.testing.assert_allclose(ours.radiance, data["radiance"][1][:, 28:44], rtol=1e-6)
+    assert ours.rendering == (72, 16) and list(ours.offset) == [28, 0]
+
+
+@pytest.mark.parametrize(
+    ("skip", "replace", "needles"),
+    [
+        (("normal",), None, ["'normal'", "missing"]),
+        (
+            (),
+            {"diffuse": np.zeros((3, 3, 16, 16, 4), np.float16)},
+            ["'diffuse'", "(3, 3, 16, 16, 4)", "expected (2, 3, 16, 16, 4)"],
+        ),
+        (
+            (),
+            {"normal": np.zeros((2, 3, 16, 16, 4), np.float32)},
+            ["'normal'", "float32", "expected float16"],
+        ),
+        ((), {"exposure": np.zeros((2, 3), np.float32)}, ["'exposure'", "(2, 3)", "expected (2, 2)"]),
+    ],
+)
+def test_a_bad_array_is_one_line_naming_file_and_array(tmp_path, skip, replace, needles):
+    path = tmp_path / "scene0000.zip"
+    write_training_sequence(path, frames=2, skip=skip, replace=replace)
+    with pytest.raises(DataError) as e:
+        read_frames(path, "training", [0, 1], 4, rendering=(64, 96))
+    one_line_error(e, str(path), *needles)
+
+
+def test_a_missing_or_corrupt_store_is_one_line(tmp_path):
+    with pytest.raises(DataError) as e:
+        read_frames(tmp_path / "scene0007.zip", "training", [0], 4)
+    one_line_error(e, "scene0007.zip", "no such Noisebase ZipStore")
+    bad = tmp_path / "scene0008.zip"
+    bad.write_bytes(b"not a zip at all")
+    with pytest.raises(DataError) as e:
+        read_frames(bad, "training", [0], 4)
+    one_line_error(e, "scene0008.zip", "not a readable Zarr ZipStore")
+
+
+def test_asking_for_more_frames_samples_or_window_than_stored_is_one_line(training):
+    root, _ = training
+    path = root / "train" / "scene0000.zip"
+    for kwargs, needle in (
+        ({"frames": [3]}, "has 3 frames"),
+        ({"samples": 5}, "has 4 samples per pixel"),
+        ({"crop": [8, 8, 9, 4]}, "dataset.crop"),
+    ):
+        args = {"frames": [0], "samples": 4, "crop": None} | kwargs
+        with pytest.raises(DataError) as e:
+            read_frames(path, "training", args["frames"], args["samples"], args["crop"], rendering=(64, 96))
+        one_line_error(e, str(path), needle)
