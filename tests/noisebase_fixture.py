@@ -117,3 +117,30 @@ def write_test_sequence(folder, name, frames=2, height=72, width=16, spp=4, seed
             {k: v[f] for k, v in data.items() if k != "radiance"},
         )
     return data
+
+
+def package_training_loader(root, frames: int, crop: int, rendering: tuple[int, int], samples: int, buffers):
+    """The `noisebase` package's own training loader (1.1.1) over `<root>/train/scene0000.zip`, one
+    sequence, no flips: what the tests compare our reader and our exporter against; index it with
+    `{"idx": frame, "epoch": 0}`."""
+    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
+    from noisebase.torch import Shuffler
+
+    src = {
+        "files": "train/scene{index:04d}.zip",
+        "frames_per_sequence": frames,
+        "crop": crop,
+        "rendering_height": rendering[0],
+        "rendering_width": rendering[1],
+        "sequences": 1,
+    }
+    return TrainingSampleDataset(
+        src=src,
+        sequence_idxs=[0],
+        rng=Shuffler(0),
+        flip_rotate=False,
+        buffers=list(buffers),
+        samples=samples,
+        data_path=str(root),
+        batch_size=1,
+    )

@@ -16,7 +16,7 @@ from src.data.noisebase import (
 )
 from src.errors import DataError
 from tests.conftest import one_line_error
-from tests.noisebase_fixture import write_test_sequence, write_training_sequence
+from tests.noisebase_fixture import package_training_loader, write_test_sequence, write_training_sequence
 
 BUFFERS = ["w_normal", "w_position", "diffuse", "color", "reference", "depth", "motion"]
 
@@ -107,28 +107,9 @@ def test_flow_is_zero_where_the_point_is_behind_a_camera(training):
 
 
 def test_our_samples_equal_the_package_training_loader(training):
-    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
-    from noisebase.torch import Shuffler
 
     root, _ = training
-    src = {
-        "files": "train/scene{index:04d}.zip",
-        "frames_per_sequence": 3,
-        "crop": 16,
-        "rendering_height": 64,
-        "rendering_width": 96,
-        "sequences": 1,
-    }
-    theirs = TrainingSampleDataset(
-        src=src,
-        sequence_idxs=[0],
-        rng=Shuffler(0),
-        flip_rotate=False,
-        buffers=BUFFERS,
-        samples=3,
-        data_path=str(root),
-        batch_size=1,
-    )[{"idx": 2, "epoch": 0}]
+    theirs = package_training_loader(root, 3, 16, (64, 96), 3, BUFFERS)[{"idx": 2, "epoch": 0}]
     (ours,) = read_frames(root / "train" / "scene0000.zip", "training", [2], 3, rendering=(64, 96))
     np.testing.assert_array_equal(ours.radiance, theirs["color"])
     np.testing.assert_array_equal(ours.position, theirs["w_position"])

@@ -16,6 +16,7 @@ from src.data.noisebase_export import (
 )
 from src.errors import DataError
 from tests.conftest import one_line_error
+from tests.noisebase_fixture import package_training_loader
 
 BUFFERS = ["w_normal", "w_position", "w_motion", "diffuse", "color", "reference"]
 
@@ -94,8 +95,6 @@ def _check_sample_buffers(theirs, samples, arrays):
 
 
 def test_an_exported_training_sequence_reads_back_through_the_package_loader(tmp_path):
-    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
-    from noisebase.torch import Shuffler
 
     rng = np.random.default_rng(2)
     made = _frames(rng, 2, 8, 8, 4)
@@ -103,24 +102,7 @@ def test_an_exported_training_sequence_reads_back_through_the_package_loader(tmp
         frame_arrays(s, r, c, [10 + f, 20 + 3 * f], (64, 96), rng.random) for f, (s, r, c) in enumerate(made)
     ]
     write_training_sequence(tmp_path / "train" / "scene0000.zip", arrays)
-    src = {
-        "files": "train/scene{index:04d}.zip",
-        "frames_per_sequence": 2,
-        "crop": 8,
-        "rendering_height": 64,
-        "rendering_width": 96,
-        "sequences": 1,
-    }
-    ds = TrainingSampleDataset(
-        src=src,
-        sequence_idxs=[0],
-        rng=Shuffler(0),
-        flip_rotate=False,
-        buffers=BUFFERS,
-        samples=4,
-        data_path=str(tmp_path),
-        batch_size=1,
-    )
+    ds = package_training_loader(tmp_path, 2, 8, (64, 96), 4, BUFFERS)
     for f in range(2):
         theirs = ds[{"idx": f, "epoch": 0}]
         samples, reference, _ = made[f]
@@ -216,8 +198,6 @@ def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, m
     ours: per-sample colour within the RGBE step of a 1-spp render with that sample's seed, the reference
     the volumetric dataset's own reference file, and our flow of the exported set the renderer's own motion
     (`frame_motion`) of the same mean positions."""
-    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
-    from noisebase.torch import Shuffler
 
     from src.data.noisebase import volume_frame_buffers
     from src.render.noisebase_export import export_volumetric_sequences
@@ -227,24 +207,7 @@ def test_an_exported_volumetric_sequence_reads_back_with_its_renders(tmp_path, m
 
     ds = _volumetric_smoke() | {"width": 16, "height": 12, "noisy_spp": [2, 4], "reference_spp": 8}
     (path,) = export_volumetric_sequences(ds, tmp_path / "train", "training", 2, scenes=["fog_objects-0000"])
-    src = {
-        "files": "train/scene{index:04d}.zip",
-        "frames_per_sequence": 2,
-        "crop": 12,
-        "rendering_height": 12,
-        "rendering_width": 16,
-        "sequences": 1,
-    }
-    theirs = TrainingSampleDataset(
-        src=src,
-        sequence_idxs=[0],
-        rng=Shuffler(0),
-        flip_rotate=False,
-        buffers=BUFFERS,
-        samples=2,
-        data_path=str(tmp_path),
-        batch_size=1,
-    )[{"idx": 0, "epoch": 0}]
+    theirs = package_training_loader(tmp_path, 2, 12, (12, 16), 2, BUFFERS)[{"idx": 0, "epoch": 0}]
     assert theirs["color"].shape == (3, 12, 16, 2) and theirs["color"].max() > 0
     assert not np.array_equal(theirs["color"][..., 0], theirs["color"][..., 1])  # distinct seeds
     frames = read_frames(path, "training", [0, 1], 2, rendering=(12, 16))
@@ -300,8 +263,6 @@ def test_a_pan_turns_the_camera_about_the_world_up_through_its_origin():
 def test_an_exported_still_scene_pans_and_reads_back(tmp_path, mitsuba_variant):
     """A procedural still scene exported as a 2-frame panning sequence: the package loader reads it, and
     our flow of the exported set is the renderer's camera motion of the same mean positions."""
-    from noisebase.loaders.torch.training_sample_v1 import TrainingSampleDataset
-    from noisebase.torch import Shuffler
     from omegaconf import OmegaConf
 
     from src.data.noisebase import volume_frame_buffers
@@ -312,24 +273,7 @@ def test_an_exported_still_scene_pans_and_reads_back(tmp_path, mitsuba_variant):
     ds = OmegaConf.to_container(compose_config(["dataset=procedural", "profile=smoke"]).dataset, resolve=True)
     ds |= {"width": 16, "height": 12, "reference_spp": 8}
     (path,) = export_still_sequences(ds, tmp_path / "train", "training", 2, 2, 3.0, scenes=["tabletop-0000"])
-    src = {
-        "files": "train/scene{index:04d}.zip",
-        "frames_per_sequence": 2,
-        "crop": 12,
-        "rendering_height": 12,
-        "rendering_width": 16,
-        "sequences": 1,
-    }
-    theirs = TrainingSampleDataset(
-        src=src,
-        sequence_idxs=[0],
-        rng=Shuffler(0),
-        flip_rotate=False,
-        buffers=BUFFERS,
-        samples=2,
-        data_path=str(tmp_path),
-        batch_size=1,
-    )[{"idx": 1, "epoch": 0}]
+    theirs = package_training_loader(tmp_path, 2, 12, (12, 16), 2, BUFFERS)[{"idx": 1, "epoch": 0}]
     assert theirs["color"].shape == (3, 12, 16, 2) and theirs["color"].max() > 0
     frames = read_frames(path, "training", [0, 1], 2, rendering=(12, 16))
     np.testing.assert_array_equal(frames[1].radiance, theirs["color"])
