@@ -186,23 +186,6 @@ def test_setup_tracking_reuses_an_existing_experiment(store):
     assert setup_tracking(cfg.tracking) == setup_tracking(cfg.tracking)
 
 
-def test_experiments_open_on_mlflow_s_training_runs_view(store):
-    """MLflow 3's UI shows an experiment without `mlflow.experimentKind` as GenAI (traces); ours are
-    marked model development when created, and when found unmarked; a kind someone chose is kept."""
-    cfg = make_cfg(store)
-    client = MlflowClient(cfg.tracking.uri)
-    created = setup_tracking(cfg.tracking)
-    assert client.get_experiment(created).tags["mlflow.experimentKind"] == "custom_model_development"
-    unmarked = client.create_experiment("made-by-hand")
-    chosen = client.create_experiment("chosen", tags={"mlflow.experimentKind": "genai_development"})
-    for name, expected in [("made-by-hand", "custom_model_development"), ("chosen", "genai_development")]:
-        experiment_id = setup_tracking(OmegaConf.merge(cfg.tracking, {"experiment": name}))
-        assert client.get_experiment(experiment_id).tags["mlflow.experimentKind"] == expected
-    assert {unmarked, chosen} == {
-        client.get_experiment_by_name(n).experiment_id for n in ("made-by-hand", "chosen")
-    }
-
-
 def test_setup_tracking_survives_a_creation_race(store, monkeypatch):
     cfg = make_cfg(store)
     real_get = MlflowClient.get_experiment_by_name

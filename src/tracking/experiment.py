@@ -14,9 +14,6 @@ from src.multirun import quiet_mlflow_logs
 
 # Schemes whose artifact location the server decides (a local file URI would be unreadable by it).
 _REMOTE_SCHEMES = ("http://", "https://", "databricks")
-# MLflow 3's UI opens an experiment without this tag on its GenAI view (traces, prompts); the harness logs
-# training runs, so every experiment it creates or uses is marked as model development.
-EXPERIMENT_KIND = {"mlflow.experimentKind": "custom_model_development"}
 
 
 def first_line(err: BaseException) -> str:
@@ -51,9 +48,6 @@ def setup_tracking(tracking_cfg) -> str:
             f"tracking.experiment={name!r} is deleted in {uri}: restore it "
             f"(`mlflow experiments restore --experiment-id {experiment.experiment_id}`) or pick another name"
         )
-    for key, value in EXPERIMENT_KIND.items():
-        if key not in experiment.tags:  # an experiment made before the tag, or by someone else: mark it once
-            client.set_experiment_tag(experiment.experiment_id, key, value)
     return experiment.experiment_id
 
 
@@ -71,7 +65,7 @@ def _artifact_location(tracking_cfg, uri: str) -> str | None:
 def _create_experiment(client: MlflowClient, name: str, artifact_location: str | None) -> str:
     """Create the experiment; if another process won the race, return the one it created."""
     try:
-        return client.create_experiment(name, artifact_location=artifact_location, tags=EXPERIMENT_KIND)
+        return client.create_experiment(name, artifact_location=artifact_location)
     except Exception:  # "already exists", or SQLite's "database is locked" while the winner writes
         experiment = client.get_experiment_by_name(name)
         if experiment is None:
