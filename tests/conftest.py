@@ -1,4 +1,5 @@
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -140,3 +141,19 @@ def smoke_data(tmp_path_factory, mitsuba_variant):
     render(cfg)
     preprocess(cfg)
     return data
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """Skips without Chromium and playwright, except under CI=true, where the check must run."""
+    missing = []
+    if shutil.which("chromium") is None:
+        missing.append("chromium (apt-get install chromium)")
+    try:
+        import playwright  # noqa: F401
+    except ImportError:
+        missing.append("the playwright package (uv sync)")
+    if missing and os.environ.get("CI") == "true":
+        pytest.fail(f"CI must run the browser check; missing {', '.join(missing)}")
+    if missing:
+        pytest.skip(f"missing {', '.join(missing)}")

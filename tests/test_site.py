@@ -3,7 +3,6 @@ benchmark runs; the method pages; the smoke banner and the best expressions of t
 browser check (scripts/check_site.py) in headless Chromium on a site built from the fixture store of
 tests/test_report.py."""
 
-import os
 import re
 import shutil
 import subprocess
@@ -151,22 +150,6 @@ def test_the_filter_search_report_lists_the_best_expressions_with_held_out_numbe
     page = (out / "index.html").read_text()
     assert "best expressions (infix)" in page and "<code>exp(" in page
     assert "best fitness per generation" in page  # the curves
-
-
-@pytest.fixture(scope="module")
-def browser():
-    """Skips without Chromium and playwright, except under CI=true, where the check must run."""
-    missing = []
-    if shutil.which("chromium") is None:
-        missing.append("chromium (apt-get install chromium)")
-    try:
-        import playwright  # noqa: F401
-    except ImportError:
-        missing.append("the playwright package (uv sync)")
-    if missing and os.environ.get("CI") == "true":
-        pytest.fail(f"CI must run the browser check; missing {', '.join(missing)}")
-    if missing:
-        pytest.skip(f"missing {', '.join(missing)}")
 
 
 def _check(reports: Path, *args: str) -> subprocess.CompletedProcess:
