@@ -58,7 +58,7 @@ def _is_manifest(path: Path, directory: Path) -> bool:
 
 #: Config keys that say where things go, not what is computed: they never make two runs incomparable.
 #: The seed is listed too because reports aggregate over it.
-IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.", "report.", "ledger.", "compare.")
+IGNORED_PARAM_PREFIXES = ("paths.", "hydra", "tracking.", "report.", "ledger.", "export.", "compare.")
 IGNORED_PARAMS = frozenset(
     {
         "task.train.checkpoint_dir",

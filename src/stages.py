@@ -122,6 +122,32 @@ def ledger(cfg: DictConfig, tracker=None) -> dict:
     return summary
 
 
+def export(cfg: DictConfig, tracker=None) -> dict:
+    """The dataset's scenes as a Noisebase sample set under `export.out_dir` (src/render/noisebase_export.py):
+    dataset=volumetric's animations, or dataset=procedural's still scenes as camera pans."""
+    from src.kinds.base import kind_class
+    from src.kinds.sequences import RenderedSequences
+    from src.kinds.stills import RenderedStills
+    from src.render.noisebase_export import export_still_sequences, export_volumetric_sequences
+
+    e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
+    scenes, out = (list(e.scenes) if e.scenes is not None else None), Path(e.out_dir)
+    kind = kind_class(cfg.dataset)
+    if kind is RenderedSequences:  # exactly: dataset=noisebase reads sets, it renders none
+        written = export_volumetric_sequences(ds, out, e.format, e.spp, scenes, cfg.render.variant)
+    elif kind is RenderedStills:
+        written = export_still_sequences(
+            ds, out, e.format, e.spp, e.frames, e.pan_deg, scenes, cfg.render.variant
+        )
+    else:
+        raise ConfigError(
+            f"dataset={cfg.dataset.get('name')}: stage=export renders dataset=volumetric's sequences or "
+            f"dataset=procedural's scenes, not {kind.describes}"
+        )
+    print(f"export: {len(written)} Noisebase {e.format}-format stores ({e.spp} spp) -> {out}", flush=True)
+    return {"stores": [str(p) for p in written], "out_dir": str(out)}
+
+
 def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     """Print the model's architecture and parameter count (and FLOPs per pixel or per ray); trains
     nothing."""
@@ -156,11 +182,12 @@ STAGES: dict[str, Callable[..., dict]] = {
     "eval": evaluate,
     "report": report,
     "ledger": ledger,
+    "export": export,
     "summary": print_model_summary,
     "config": write_result_config,
 }
 #: Stages that run outside a task's pipeline and log nothing.
-STANDALONE = ("summary", "config", "ledger")
+STANDALONE = ("summary", "config", "ledger", "export")
 #: Stages whose results go to MLflow (one run per job).
 TRACKED = ("train", "search", "select_features", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.

@@ -77,7 +77,8 @@ HG_RANGE = Bound(float, lo=-0.99, hi=0.99, shape="range")
 #: is listed under the model that declares it).
 BOUNDED: dict[Bound, str] = {
     POSITIVE_INT: """
-        run.Ssim.win_size denoise.PatchCounts.train denoise.PatchCounts.val denoise.Preprocess.patch_size
+        run.Ssim.win_size run.Export.spp run.Export.frames denoise.PatchCounts.train denoise.PatchCounts.val
+        denoise.Preprocess.patch_size
         denoise.Preprocess.patches_per_image denoise.Preprocess.sequence_frames
         denoise.Preprocess.patches_per_sequence denoise.FeatureSelection.max_size
         denoise.FeatureSelection.val_batches denoise.Train.batch_size denoise.Train.epochs

@@ -77,6 +77,17 @@ class Ledger(Schema):
     alpha: float = Field(gt=0, lt=1)
 
 
+class Export(Schema):
+    """`stage=export`: the dataset's scenes as a Noisebase sample set (src/render/noisebase_export.py)."""
+
+    out_dir: str
+    format: Literal["training", "test"]
+    spp: PositiveInt
+    scenes: list[str] | None
+    frames: PositiveInt
+    pan_deg: float
+
+
 class Paths(Schema):
     root: str
     data: str
@@ -127,6 +138,7 @@ class RunSchema(Schema):
     metrics: Metrics
     report: Report
     ledger: Ledger
+    export: Export
     render: Render
     compare: Compare
     task: Open
