@@ -9,16 +9,23 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import json
 import math
 import sys
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
-from src.errors import DataError
+from src.errors import ConfigError, DataError
+from src.eval.denoise_eval import DenoiseEvaluation
 from src.metrics import noisebase_protocol as nbp
-from tests.conftest import one_line_error
+from src.report.noisebase_table import best_measured, noisebase_table
+from src.report.tables import to_markdown
+from src.tracking.tracker import Tracker
+from tests.conftest import one_line_error, smoke_config
+from tests.test_volume_shards import SPPS, synthetic_frame
 
 H, W = 168, 176  # MS-SSIM's five scales need >= 161 pixels a side
 
@@ -208,3 +215,132 @@ def test_versions_recorded_and_pyfvvdp_shim():
     assert fvvdp.__name__ == "fvvdp"
     shape_base = sys.modules["numpy.lib.shape_base"]
     assert shape_base.expand_dims is np.expand_dims  # the one name pyfvvdp takes from it
+
+
+# -- the sequence evaluation with metrics.protocol=noisebase ------------------------------------------------
+_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8])  # the stub denoiser: each reference frame scaled by its own
+
+
+class _Tags(Tracker):
+    def __init__(self):
+        super().__init__()
+        self.tags: dict[str, str] = {}
+
+    def set_tags(self, tags):
+        self.tags |= dict(tags)
+
+
+def _protocol_eval(vol_data, tmp_path, monkeypatch, *overrides):
+    cfg = smoke_config(
+        vol_data,
+        tmp_path,
+        ["dataset=volumetric", "model=cross_bilateral", "metrics.lpips.enabled=false"]
+        + ["metrics.flip.enabled=false", "task.eval.save_exr=false", "metrics.protocol=noisebase"]
+        + ["metrics.noisebase.warmup=1", *overrides],
+    )
+    monkeypatch.setattr(
+        DenoiseEvaluation, "infer", lambda self, item: item["item"]["reference"] * _SCALES.view(4, 1, 1, 1)
+    )
+    tracker = _Tags()
+    evaluation = DenoiseEvaluation(cfg, tracker)
+    summary = evaluation.run(desc="stub")
+    rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
+    return summary, evaluation.logged_metrics(summary), rows, tracker.tags
+
+
+def test_the_sequence_evaluation_scores_each_sequence_with_the_protocol(vol_data, tmp_path, monkeypatch):
+    summary, logged, rows, tags = _protocol_eval(vol_data, tmp_path, monkeypatch)
+    assert len(rows) == 2
+    for row in rows.itertuples():
+        reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in range(4)])
+        denoised = reference * _SCALES.numpy().reshape(4, 1, 1, 1)
+        expected = nbp.score_sequence(
+            np.stack([nbp.srgb8(f) for f in denoised]), np.stack([nbp.srgb8(f) for f in reference]), warmup=1
+        )
+        for key in ("psnr", "ssim", "flip", "mse", "tpsnr", "trmae", "fvvdp"):
+            assert getattr(row, f"nb_{key}") == pytest.approx(expected[key], rel=1e-6, abs=1e-9), key
+            assert logged[f"eval_nb_{key}_spp{row.spp}"] == pytest.approx(
+                getattr(row, f"nb_{key}"), rel=1e-12
+            )
+        assert "nb_msssim" not in rows  # frames under 161 pixels: left out, never faked
+        saved = json.loads(
+            (tmp_path / "eval" / "noisebase" / f"{row.scene}-{row.spp:05d}spp.json").read_text()
+        )
+        assert saved["psnr"] == pytest.approx(row.nb_psnr, rel=1e-12) and saved["warmup"] == 1
+        assert saved["versions"] == nbp.versions() and saved["frames"] == 3
+    assert (rows["nb_psnr"] != rows["psnr"]).all()  # 8-bit ACES frames, not metrics.tonemap
+    header = json.loads((tmp_path / "eval" / "metrics.json").read_text())["noisebase_protocol"]
+    assert header == {"warmup": 1, "fvvdp": True, "versions": nbp.versions()}
+    assert tags["nrbench.noisebase.pyfvvdp"] == "1.2.0" and tags["nrbench.noisebase.fvvdp"] == "true"
+    assert summary["mean"]["nb_fvvdp"] == pytest.approx(rows["nb_fvvdp"].mean(), rel=1e-12)
+
+
+def test_fvvdp_can_be_left_out_and_the_warmup_must_leave_two_frames(vol_data, tmp_path, monkeypatch):
+    _, logged, rows, tags = _protocol_eval(
+        vol_data, tmp_path / "a", monkeypatch, "metrics.noisebase.fvvdp=false"
+    )
+    assert "nb_fvvdp" not in rows and "nb_psnr" in rows
+    assert not any("nb_fvvdp" in k for k in logged) and tags["nrbench.noisebase.fvvdp"] == "false"
+    with pytest.raises(DataError) as excinfo:
+        _protocol_eval(vol_data, tmp_path / "b", monkeypatch, "metrics.noisebase.warmup=3")
+    one_line_error(excinfo, "metrics.noisebase.warmup=3", "4 frames")
+
+
+def test_the_protocol_on_still_images_is_a_one_line_config_error(tmp_path):
+    cfg = smoke_config(tmp_path, tmp_path, ["model=cross_bilateral", "metrics.protocol=noisebase"])
+    with pytest.raises(ConfigError) as excinfo:
+        DenoiseEvaluation(cfg, Tracker())
+    one_line_error(excinfo, "metrics.protocol=noisebase", "dataset=procedural", "still images")
+
+
+# -- the Noisebase table ------------------------------------------------------------------------------------
+def _runs(**extra) -> pd.DataFrame:
+    """Three runs: model a (two seeds) and b at 4 and 8 spp, a's FVVDP left out in one seed."""
+    rows = [
+        {"params.model.name": "a", "metrics.eval_nb_psnr_spp4": 20.0, "metrics.eval_nb_fvvdp_spp4": 6.0},
+        {"params.model.name": "a", "metrics.eval_nb_psnr_spp4": 22.0},
+        {"params.model.name": "b", "metrics.eval_nb_psnr_spp4": 25.0, "metrics.eval_nb_fvvdp_spp4": 5.0},
+    ]
+    for row, psnr8 in zip(rows, (30.0, 32.0, 28.0), strict=True):
+        row |= {"metrics.eval_nb_psnr_spp8": psnr8, "metrics.eval_nb_ssim_spp8": psnr8 / 100}
+        row |= {"metrics.eval_psnr": 1.0, "tags.nrbench.noisebase.pyfvvdp": "1.2.0"}
+        row |= {"params.metrics.noisebase.warmup": "16"} | extra
+    rows[1]["tags.nrbench.noisebase.fvvdp"] = "false"
+    return pd.DataFrame(rows)
+
+
+def test_the_noisebase_table_keeps_published_rows_apart():
+    table = noisebase_table(_runs())
+    frame = table.reset_index()
+    measured = frame[frame["source"] == "measured"]
+    assert list(zip(measured["model"], measured["spp"], strict=True)) == [
+        ("a", 4),
+        ("b", 4),
+        ("a", 8),
+        ("b", 8),
+    ]
+    assert measured["PSNR"].tolist() == [21.0, 25.0, 31.0, 28.0]  # mean over a's two seeds
+    assert measured["runs"].tolist() == [2, 1, 2, 1]
+    assert measured["FVVDP"].iloc[:2].tolist() == [6.0, 5.0]  # only the seed that computed it
+    published = frame[frame["source"] == "published"].iloc[0]
+    assert (published["spp"], published["PSNR"], published["SSIM"], published["FVVDP"]) == (
+        4,
+        29.35,
+        0.883,
+        7.66,
+    )
+    assert math.isnan(published["FLIP"]) and published["runs"] == 0
+    # Best per spp among measured rows only: b at 4 spp (25 < the published 29.35), a at 8 spp.
+    best = best_measured(table)
+    assert best["PSNR"] == {1, 2} and best["FVVDP"] == {0}
+    notes = " ".join(table.attrs["notes"])
+    assert "pyfvvdp 1.2.0" in notes and "FVVDP left out" in notes and "first 16 frames" in notes
+    assert "Balint et al. 2023" in notes and "cvvdp" in notes
+    markdown = to_markdown(table, best)
+    assert "| published | NPPD (Balint et al. 2023, test8) | 4 | 29.35 | 0.8830 |" in markdown
+    assert "**25.00**" in markdown and "**29.35**" not in markdown
+
+
+def test_no_noisebase_table_without_protocol_runs():
+    runs = _runs().drop(columns=[c for c in _runs().columns if "eval_nb_" in c])
+    assert noisebase_table(runs) is None
