@@ -344,3 +344,40 @@ def test_the_noisebase_table_keeps_published_rows_apart():
 def test_no_noisebase_table_without_protocol_runs():
     runs = _runs().drop(columns=[c for c in _runs().columns if "eval_nb_" in c])
     assert noisebase_table(runs) is None
+
+
+@pytest.mark.slow
+def test_the_smoke_pipeline_with_the_protocol_writes_the_noisebase_table(tmp_path):
+    """render -> preprocess -> eval -> report on a Noisebase fixture set through `python -m src.run`."""
+    import os
+    import subprocess
+
+    from tests.conftest import ROOT
+    from tests.noisebase_fixture import write_training_sequence
+
+    for i in range(3):
+        write_training_sequence(
+            tmp_path / "nb" / "train" / f"scene{i:04d}.zip", frames=2, size=16, spp=4, seed=i
+        )
+    env = os.environ | {
+        "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db",
+        "NRBENCH_DATA_DIR": str(tmp_path / "data"),
+        "OMP_NUM_THREADS": "1",
+    }
+    command = [sys.executable, "-m", "src.run", "dataset=noisebase", f"dataset.root={tmp_path}/nb"]
+    command += ["profile=smoke", "dataset.files='train/scene{index:04d}.zip'", "dataset.rendering_height=64"]
+    command += ["dataset.rendering_width=96", "dataset.crop=null", f"hydra.run.dir={tmp_path}/run"]
+    command += [f"tracking.artifact_root={tmp_path}/art", f"report.name={tmp_path}/report", "stage=all"]
+    command += ["model=cross_bilateral", "metrics.protocol=noisebase", "metrics.noisebase.warmup=0"]
+    command += ["task.volume_features=[color,color.var,albedo,albedo.var,normal,normal.var,depth,depth.var]"]
+    result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+    rows = pd.read_csv(tmp_path / "run" / "eval" / "per_image.csv")
+    table = (tmp_path / "report" / "noisebase.md").read_text()
+    for row in rows.itertuples():
+        assert (
+            f"| measured | cross_bilateral | {row.spp} | {row.nb_psnr:.2f} |" in table
+        )  # one sequence per spp
+    assert "| published | NPPD (Balint et al. 2023, test8) | 4 | 29.35 |" in table
+    assert "pyfvvdp 1.2.0" in table and "first 0 frames" in table
+    assert "Noisebase protocol" in (tmp_path / "report" / "index.html").read_text()
