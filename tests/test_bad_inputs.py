@@ -42,6 +42,8 @@ BAD_VALUES = [
     (["seed=-1"], ["seed=-1: expected a non-negative integer"]),
     (["metrics.tonemap=aces"], ["metrics.tonemap='aces'", "'clip_gamma'"]),
     (["metrics.ssim.win_size=0"], ["metrics.ssim.win_size=0: expected a positive integer"]),
+    (["metrics.protocol=nppd"], ["metrics.protocol='nppd'", "'noisebase'"]),
+    (["metrics.noisebase.warmup=-1"], ["metrics.noisebase.warmup=-1: expected a non-negative integer"]),
     (["render.variant=vulkan"], ["render.variant='vulkan'", "'llvm_ad_rgb'"]),
     (["tracking.experiment="], ["tracking.experiment=''", "non-empty"]),
     (["+foo=1"], ["foo: unknown key"]),

@@ -131,7 +131,8 @@ BOUNDED: dict[Bound, str] = {
         dataset.NerfProceduralDataset.radius dataset.NerfProceduralDataset.bound_radius
     """,
     NON_NEGATIVE_INT: """
-        run.Lpips.seed run.Metrics.relmse_crop run.Report.images run.VolumetricCompare.selected_size
+        run.Lpips.seed run.Metrics.relmse_crop run.NoisebaseProtocol.warmup run.Report.images
+        run.VolumetricCompare.selected_size
         run.RunSchema.seed run.RunSchema.data_seed denoise.Preprocess.split_seed
         denoise.Preprocess.sample_seed denoise.FeatureSelection.size denoise.FeatureSelection.random_seed
         denoise.Train.num_workers denoise.Eval.tile nerf.Train.precrop_iters filter_search.Search.radius

@@ -15,6 +15,14 @@ PSNR of the frame differences, Balint et al. 2023) and, only where the item hold
 rendered reference `reference2`, `flicker_unbiased` (the RMS flicker against the noise-free truth,
 estimated without bias from the two references; absent, never faked, without one).
 
+With `metrics.protocol=noisebase` every sequence is also scored as the Noisebase benchmark scores it
+(`src.metrics.noisebase_protocol`, Balint et al. 2023): the denoised and reference frames made 8-bit as
+its PNGs, the first `metrics.noisebase.warmup` frames skipped, then `nb_psnr`, `nb_ssim`, `nb_msssim`,
+`nb_flip`, `nb_mse`, `nb_tpsnr`, `nb_trmae` and `nb_fvvdp` (left out with `metrics.noisebase.fvvdp=false`;
+`nb_msssim` left out for frames under 161 pixels a side) in the item's row, one JSON per sequence under
+`noisebase/` (its numbers beside the versions of the packages that computed them, as Noisebase's own
+per-sequence metric files) and the versions as MLflow tags `nrbench.noisebase.<package>`.
+
 Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json` (resolved config,
 git commit, data fingerprint), denoised EXRs, tone-mapped PNGs and comparison strips (a sequence's middle
 frame) under `task.eval.out_dir`.
@@ -31,10 +39,13 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from src.errors import ConfigError
 from src.eval.common import mean_rows
 from src.eval.loop import Evaluation
+from src.io.atomic import atomic_write_json
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
+from src.metrics import noisebase_protocol
 from src.metrics.image import image_metrics, relmse_spp, tonemap
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
@@ -60,6 +71,7 @@ SCORES = (
     "temporal",
     "tpsnr",
     "flicker_unbiased",
+    *(f"nb_{name}" for name in noisebase_protocol.METRICS),
 )
 
 
@@ -106,7 +118,7 @@ class DenoiseEvaluation(Evaluation):
     """Every held-out item of `task.eval.split` (scene x noisy spp) of the run's kind of data, denoised
     frame by frame in tiles (module docstring)."""
 
-    artifact_folders = ("strips", "png")
+    artifact_folders = ("strips", "png", "noisebase")
 
     def __init__(self, cfg: DictConfig, tracker) -> None:
         super().__init__(cfg, tracker)
@@ -116,6 +128,12 @@ class DenoiseEvaluation(Evaluation):
         if self.checkpoint is not None:
             self.kind.check_trained_features(self.checkpoint, self.features, str(cfg.task.eval.checkpoint))
         self.space = self.kind.color_space(cfg)
+        self.protocol = cfg.metrics.get("protocol")
+        if self.protocol == "noisebase" and not self.kind.temporal:
+            raise ConfigError(
+                f"metrics.protocol=noisebase: scores sequences; dataset={cfg.dataset.name} holds still "
+                "images (use a sequence dataset: volumetric, noisebase)"
+            )
 
     def items(self) -> Sequence[dict[str, Any]]:
         return OnDevice(self.kind.held_out(self.cfg, self.features, self.model), self.device)
@@ -172,9 +190,50 @@ class DenoiseEvaluation(Evaluation):
                         noisy, reference, reference2, m.tonemap, m.gamma
                     ),
                 }
+        if self.protocol == "noisebase":
+            flicker |= self.noisebase_scores(item, denoised, reference)
         ms_per_frame = seconds * 1e3 / frames
         timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
         return {**name, **means, **flicker, **timing}
+
+    def noisebase_scores(
+        self, item: dict[str, Any], denoised: np.ndarray, reference: np.ndarray
+    ) -> dict[str, float]:
+        """The Noisebase protocol's numbers of one sequence (module docstring): written with the package
+        versions to `noisebase/<scene>-<spp>spp.json`, returned as `nb_<metric>` (None ones left out)."""
+        options = self.cfg.metrics.noisebase
+        scores = noisebase_protocol.score_sequence(
+            np.stack([noisebase_protocol.srgb8(f) for f in denoised]),
+            np.stack([noisebase_protocol.srgb8(f) for f in reference]),
+            warmup=int(options.warmup),
+            use_fvvdp=bool(options.fvvdp),
+            device=self.device,
+        )
+        name = f"{item['item']['scene']}-{int(item['item']['spp']):05d}spp"
+        atomic_write_json(
+            self.out_dir / "noisebase" / f"{name}.json", {"model": self.cfg.model.name, **scores}
+        )
+        return {f"nb_{k}": scores[k] for k in noisebase_protocol.METRICS if scores[k] is not None}
+
+    def header(self) -> dict[str, Any]:
+        """metrics.json names the Noisebase protocol's settings and package versions when it ran."""
+        if self.protocol != "noisebase":
+            return super().header()
+        options = self.cfg.metrics.noisebase
+        protocol = {
+            "warmup": int(options.warmup),
+            "fvvdp": bool(options.fvvdp),
+            "versions": noisebase_protocol.versions(),
+        }
+        return {**super().header(), "noisebase_protocol": protocol}
+
+    def logged_tags(self) -> dict[str, str]:
+        """The package versions behind the `eval_nb_*` metrics, as MLflow tags."""
+        if self.protocol != "noisebase":
+            return {}
+        versions = noisebase_protocol.versions()
+        tags = {f"nrbench.noisebase.{name}": version for name, version in versions.items()}
+        return tags | {"nrbench.noisebase.fvvdp": str(bool(self.cfg.metrics.noisebase.fvvdp)).lower()}
 
     def save_outputs(self, item: dict[str, Any], images: dict[str, np.ndarray]) -> None:
         """Every frame's EXR and PNGs (a sequence's named `<scene>-f<FFFF>`), the middle frame's strip."""
@@ -196,6 +255,10 @@ class DenoiseEvaluation(Evaluation):
             spp: mean_rows([r for r in rows if r["spp"] == spp]) for spp in sorted({r["spp"] for r in rows})
         }
         return {**super().summarise(rows), "per_spp": per_spp}
+
+    def _log(self, summary: dict[str, Any]) -> None:
+        super()._log(summary)
+        self.tracker.set_tags(self.logged_tags())
 
     def logged_metrics(self, summary: dict[str, Any]) -> dict[str, float]:
         metrics = super().logged_metrics(summary)

@@ -10,6 +10,9 @@ selects, written to `<report.out_dir>/<report.name>/`:
                                       (the runs' eval/per_image.csv; denoising and filter evaluations)
     paired.{md,tex,csv}               each row against the best row per metric, paired by seed and
                                       held-out image: ratio or difference, Wilcoxon p, shown / not shown
+    noisebase.{md,tex,csv}            runs scored with metrics.protocol=noisebase: spp rows x PSNR, SSIM,
+                                      MS-SSIM, FVVDP, FLIP, tPSNR in Noisebase's layout, the published
+                                      NPPD row in its own block (src/report/noisebase_table.py)
     feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
     best_expressions.{md,csv}         task=filter_search: each run's best expression (infix) with its search
                                       fitness and its held-out numbers, best held-out first
@@ -56,6 +59,8 @@ from src.report.figures import (
     search_curves,
 )
 from src.report.html import render_html
+from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
+from src.report.noisebase_table import noisebase_html, noisebase_table, write_noisebase_table
 from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
 from src.report.tables import (
     BEST_EXPRESSION_TAG,
@@ -164,6 +169,9 @@ def build_report(cfg: Any) -> dict[str, Any]:
         tables["feature_usage"] = usage
         files |= _write_tables({"feature_usage": usage}, out_dir, [])
     sections = {}
+    if (noisebase := noisebase_table(runs, axes)) is not None:  # runs scored with metrics.protocol=noisebase
+        files |= write_noisebase_table(noisebase, out_dir, warnings)
+        sections[NOISEBASE_HEADING] = noisebase_html(noisebase)
     if (expressions := best_expressions(runs, axes)) is not None:
         files["best_expressions.csv"] = atomic_write_text(
             out_dir / "best_expressions.csv", expressions.to_csv(index=False)

@@ -32,6 +32,13 @@ class Flip(Schema):
     mode: Literal["hdr", "ldr"]
 
 
+class NoisebaseProtocol(Schema):
+    """`metrics.noisebase`: options of `metrics.protocol=noisebase` (src/metrics/noisebase_protocol.py)."""
+
+    warmup: NonNegativeInt = 16
+    fvvdp: bool = True
+
+
 class Metrics(Schema):
     tonemap: Literal["clip_gamma", "reinhard_gamma", "clip"]
     gamma: PositiveFloat
@@ -41,6 +48,8 @@ class Metrics(Schema):
     ssim: Ssim
     lpips: Lpips
     flip: Flip
+    protocol: Literal["noisebase"] | None = None
+    noisebase: NoisebaseProtocol = NoisebaseProtocol()
 
 
 class Tracking(Schema):
