@@ -124,28 +124,14 @@ def ledger(cfg: DictConfig, tracker=None) -> dict:
 
 def export(cfg: DictConfig, tracker=None) -> dict:
     """The dataset's scenes as a Noisebase sample set under `export.out_dir` (src/render/noisebase_export.py):
-    dataset=volumetric's animations, or dataset=procedural's still scenes as camera pans."""
-    from src.kinds.base import kind_class
-    from src.kinds.sequences import RenderedSequences
-    from src.kinds.stills import RenderedStills
-    from src.render.noisebase_export import export_still_sequences, export_volumetric_sequences
-
-    e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
-    scenes, out = (list(e.scenes) if e.scenes is not None else None), Path(e.out_dir)
-    kind = kind_class(cfg.dataset)
-    if kind is RenderedSequences:  # exactly: dataset=noisebase reads sets, it renders none
-        written = export_volumetric_sequences(ds, out, e.format, e.spp, scenes, cfg.render.variant)
-    elif kind is RenderedStills:
-        written = export_still_sequences(
-            ds, out, e.format, e.spp, e.frames, e.pan_deg, scenes, cfg.render.variant
-        )
-    else:
-        raise ConfigError(
-            f"dataset={cfg.dataset.get('name')}: stage=export renders dataset=volumetric's sequences or "
-            f"dataset=procedural's scenes, not {kind.describes}"
-        )
-    print(f"export: {len(written)} Noisebase {e.format}-format stores ({e.spp} spp) -> {out}", flush=True)
-    return {"stores": [str(p) for p in written], "out_dir": str(out)}
+    dataset=volumetric's animations, or dataset=procedural's still scenes as camera pans; the data kind
+    says how (`DataKind.export_noisebase`)."""
+    kind = task_of(cfg).kind(cfg)
+    if kind is None:
+        raise ConfigError(f"task={cfg.task.name}: stage=export needs a denoising task's rendered data")
+    written, e = kind.export_noisebase(cfg), cfg.export
+    print(f"export: {len(written)} Noisebase {e.format}-format stores ({e.spp} spp) -> {e.out_dir}")
+    return {"stores": [str(p) for p in written], "out_dir": str(e.out_dir)}
 
 
 def print_model_summary(cfg: DictConfig, tracker=None) -> dict:

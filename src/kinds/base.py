@@ -50,6 +50,15 @@ class DataKind:
         """Render the data (or say where a user's data are read from)."""
         raise NotImplementedError
 
+    def export_noisebase(self, cfg: DictConfig) -> list[Path]:
+        """`stage=export`: the data rendered one sample per pass as a Noisebase sample set under
+        `export.out_dir` (src/render/noisebase_export.py); the stores written. Only kinds that render
+        scenes can."""
+        raise ConfigError(
+            f"dataset={cfg.dataset.get('name')}: stage=export renders dataset=volumetric's sequences or "
+            f"dataset=procedural's scenes, not {self.describes}"
+        )
+
 
 def kind_class(dataset: Any) -> type[DataKind]:
     """The class `dataset._target_` names; a one-line ConfigError when it is not a data kind."""

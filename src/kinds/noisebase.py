@@ -12,6 +12,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from src.kinds.base import DataKind
 from src.kinds.sequences import RenderedSequences
 from src.provenance import write_summary
 from src.schema.dataset import NoisebaseDataset
@@ -23,6 +24,7 @@ class NoisebaseSequences(RenderedSequences):
 
     schema = NoisebaseDataset
     describes = "image sequences (Noisebase sample sets)"
+    export_noisebase = DataKind.export_noisebase  # it reads sets and renders none: refused in one line
 
     def render(self, cfg: DictConfig) -> dict[str, Any]:
         """The configured sequences of the set at `dataset.root` into `paths.raw`

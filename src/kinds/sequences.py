@@ -59,6 +59,14 @@ class RenderedSequences(DenoisingKind):
     schema = VolumetricDataset
     describes = "image sequences"
 
+    def export_noisebase(self, cfg: DictConfig) -> list[Path]:
+        """Every frame of the `export.scenes` animations, `export.spp` 1-spp passes each."""
+        from src.render.noisebase_export import export_volumetric_sequences
+
+        e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
+        scenes = list(e.scenes) if e.scenes is not None else None
+        return export_volumetric_sequences(ds, Path(e.out_dir), e.format, e.spp, scenes, cfg.render.variant)
+
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
         """Every sequence, or the `render_scenes` / `render_frames` subset a fanned-out job was given: then
         one summary file per subset, so jobs keep theirs. With `dataset.second_reference`, also the second

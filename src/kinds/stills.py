@@ -43,6 +43,17 @@ class RenderedStills(DenoisingKind):
     schema = ProceduralDataset
     describes = "still images"
 
+    def export_noisebase(self, cfg: DictConfig) -> list[Path]:
+        """The `export.scenes` still scenes as `export.frames`-frame camera pans of `export.pan_deg` per
+        frame, `export.spp` 1-spp passes each."""
+        from src.render.noisebase_export import export_still_sequences
+
+        e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
+        scenes = list(e.scenes) if e.scenes is not None else None
+        return export_still_sequences(
+            ds, Path(e.out_dir), e.format, e.spp, e.frames, e.pan_deg, scenes, cfg.render.variant
+        )
+
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
         from src.render.render_dataset import render_denoise_dataset
 
