@@ -122,6 +122,21 @@ def ledger(cfg: DictConfig, tracker=None) -> dict:
     return summary
 
 
+def site(cfg: DictConfig, tracker=None) -> dict:
+    """The report site under `report.out_dir` (src/report/site.py): `index.html` linking every report, study
+    and the ledger, a page per method and the benchmark runs' page. Reports and the ledger rebuild it
+    themselves (`report.site`); DVC runs it as its own stage, after them."""
+    import mlflow
+
+    from src.report.site import build_site
+
+    if cfg.tracking.enabled:  # the benchmark runs come from the store
+        mlflow.set_tracking_uri(str(cfg.tracking.uri))
+    summary = build_site(cfg.report.out_dir)
+    print(f"site: {summary['reports']} reports -> {summary['index']}")
+    return summary
+
+
 def export(cfg: DictConfig, tracker=None) -> dict:
     """The dataset's scenes as a Noisebase sample set under `export.out_dir` (src/render/noisebase_export.py):
     dataset=volumetric's animations, or dataset=procedural's still scenes as camera pans; the data kind
@@ -168,12 +183,13 @@ STAGES: dict[str, Callable[..., dict]] = {
     "eval": evaluate,
     "report": report,
     "ledger": ledger,
+    "site": site,
     "export": export,
     "summary": print_model_summary,
     "config": write_result_config,
 }
 #: Stages that run outside a task's pipeline and log nothing.
-STANDALONE = ("summary", "config", "ledger", "export")
+STANDALONE = ("summary", "config", "ledger", "site", "export")
 #: Stages whose results go to MLflow (one run per job).
 TRACKED = ("train", "search", "select_features", "eval")
 #: Stages that read the logged runs, so they run after the job's own MLflow run has finished.

@@ -32,6 +32,7 @@ SAMPLE = [
     "nerf_train@nerf-tabletop",
     "nerf_eval@nerf-tabletop",
     "nerf_report",
+    "site",
 ]
 # The MLflow store is deliberately no DVC out: the report stages read runs, which DVC cannot hash.
 NOT_DVC_MANAGED = ("mlflow.db", "mlartifacts")

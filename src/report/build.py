@@ -192,7 +192,8 @@ def build_report(cfg: Any) -> dict[str, Any]:
     page = _page(name, runs, axes, tables, figures, warnings, sections, manifest)
     files[MANIFEST] = atomic_write_text(out_dir / MANIFEST, json.dumps(manifest, indent=1) + "\n")
     files["index.html"] = atomic_write_text(out_dir / "index.html", page)
-    refresh_site(root)
+    if config_value(rc, "site", True):
+        refresh_site(root)
     return {
         "runs": len(runs),
         "out_dir": str(out_dir),

@@ -19,6 +19,7 @@ from typing import Any
 
 import mlflow
 import pandas as pd
+from omegaconf import OmegaConf
 
 from src.errors import DataError
 from src.report.claims import Claim
@@ -258,9 +259,10 @@ def build_ledger(cfg: Any) -> dict[str, Any]:
         "not distinguishable (inside the spread of seeds and items), not run (with the reason)."
     )
     paths = write_ledger(frame, Path(str(cfg.ledger.out_dir)), subtitle)
-    from src.report.site import refresh_site
+    if OmegaConf.select(cfg, "report.site", default=True):
+        from src.report.site import refresh_site
 
-    refresh_site(Path(str(cfg.ledger.out_dir)))  # the site's index shows the ledger's findings
+        refresh_site(Path(str(cfg.ledger.out_dir)))  # the site's index shows the ledger's findings
     return {
         "paths": paths,
         "statuses": dict(zip(frame["claim"], frame["status"], strict=True)),

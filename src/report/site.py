@@ -228,6 +228,14 @@ def _date(value: Any) -> str:
 def bench_page(runs: pd.DataFrame) -> str:
     """`bench/index.html`: per benchmark run its bench, profile, device, commit, date and each timed row's
     median ms per frame, then each run's printed report (`bench/report.txt`)."""
+    if runs.empty:
+        return page(
+            "Benchmark runs",
+            [
+                "<p>No benchmark run in this MLflow store yet: <code>python -m src.bench denoise --log</code> "
+                "adds one (docs/benchmark.md).</p>"
+            ],
+        )
     seconds = _seconds_columns(runs)
     header = [
         "date",
@@ -478,9 +486,8 @@ def build_site(out_dir: str | Path) -> dict[str, Any]:
     entries = scan(out_dir)
     models = methods(entries)
     bench = bench_runs()
-    written = []
-    if len(bench):
-        written.append(atomic_write_text(out_dir / BENCH_DIR / "index.html", bench_page(bench)))
+    # Always written, so that `bench/` is a fixed output (a DVC stage's outs must exist after it runs).
+    written = [atomic_write_text(out_dir / BENCH_DIR / "index.html", bench_page(bench))]
     for model, records in models.items():
         written.append(
             atomic_write_text(out_dir / method_file(model), method_page(model, records, out_dir, bench))

@@ -75,6 +75,7 @@ class Report(Schema):
     metrics: list[str] | None
     keep: Literal["latest", "all"]
     images: NonNegativeInt
+    site: bool
 
 
 class Ledger(Schema):
