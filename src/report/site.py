@@ -229,13 +229,8 @@ def bench_page(runs: pd.DataFrame) -> str:
     """`bench/index.html`: per benchmark run its bench, profile, device, commit, date and each timed row's
     median ms per frame, then each run's printed report (`bench/report.txt`)."""
     if runs.empty:
-        return page(
-            "Benchmark runs",
-            [
-                "<p>No benchmark run in this MLflow store yet: <code>python -m src.bench denoise --log</code> "
-                "adds one (docs/benchmark.md).</p>"
-            ],
-        )
+        command = "<code>python -m src.bench denoise --log</code>"
+        return page("Benchmark runs", [f"<p>No benchmark run in this store yet: {command} adds one.</p>"])
     seconds = _seconds_columns(runs)
     header = [
         "date",
