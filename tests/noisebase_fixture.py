@@ -144,3 +144,21 @@ def package_training_loader(root, frames: int, crop: int, rendering: tuple[int, 
         data_path=str(root),
         batch_size=1,
     )
+
+
+def package_test_loader(root, name: str, frames: int, rendering: tuple[int, int], samples: int, buffers):
+    """The `noisebase` package's own test loader (1.1.1) over `<root>/test8/<name>/frame*.zip`; index it
+    with a frame number (it keeps rows 28:-28 of each frame)."""
+    from noisebase.loaders.torch.test_sample_v1 import TestSampleDataset
+
+    return TestSampleDataset(
+        sequence={"name": name, "frames": frames},
+        src={
+            "files": "test8/{sequence_name}/frame{index:04d}.zip",
+            "rendering_height": rendering[0],
+            "rendering_width": rendering[1],
+        },
+        buffers=list(buffers),
+        data_path=str(root),
+        samples=samples,
+    )

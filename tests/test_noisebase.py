@@ -16,7 +16,12 @@ from src.data.noisebase import (
 )
 from src.errors import DataError
 from tests.conftest import one_line_error
-from tests.noisebase_fixture import package_training_loader, write_test_sequence, write_training_sequence
+from tests.noisebase_fixture import (
+    package_test_loader,
+    package_training_loader,
+    write_test_sequence,
+    write_training_sequence,
+)
 
 BUFFERS = ["w_normal", "w_position", "diffuse", "color", "reference", "depth", "motion"]
 
@@ -124,20 +129,9 @@ def test_our_samples_equal_the_package_training_loader(training):
 
 
 def test_our_samples_equal_the_package_test_loader_on_its_rows(tmp_path):
-    from noisebase.loaders.torch.test_sample_v1 import TestSampleDataset
 
     data = write_test_sequence(tmp_path / "test8", "bistro1", frames=2, height=72, width=16, spp=4, seed=2)
-    theirs = TestSampleDataset(
-        sequence={"name": "bistro1", "frames": 2},
-        src={
-            "files": "test8/{sequence_name}/frame{index:04d}.zip",
-            "rendering_height": 72,
-            "rendering_width": 16,
-        },
-        buffers=BUFFERS,
-        data_path=str(tmp_path),
-        samples=4,
-    )[1]
+    theirs = package_test_loader(tmp_path, "bistro1", 2, (72, 16), 4, BUFFERS)[1]
     # the package keeps rows 28:-28 of a test frame; our window [28, 0, 16, 16] is those rows
     (ours,) = read_frames(tmp_path / "test8" / "bistro1" / "frame0001.zip", "test", [0], 4, [28, 0, 16, 16])
     np.testing.assert_array_equal(ours.radiance, theirs["color"])

@@ -16,7 +16,7 @@ from src.data.noisebase_export import (
 )
 from src.errors import DataError
 from tests.conftest import one_line_error
-from tests.noisebase_fixture import package_training_loader
+from tests.noisebase_fixture import package_test_loader, package_training_loader
 
 BUFFERS = ["w_normal", "w_position", "w_motion", "diffuse", "color", "reference"]
 
@@ -118,24 +118,13 @@ def test_an_exported_training_sequence_reads_back_through_the_package_loader(tmp
 
 
 def test_an_exported_test_sequence_reads_back_through_the_package_loader(tmp_path):
-    from noisebase.loaders.torch.test_sample_v1 import TestSampleDataset
 
     rng = np.random.default_rng(3)
     made = _frames(rng, 2, 64, 8, 2)
     arrays = [frame_arrays(s, r, c, [0, 0], (64, 8), rng.random) for s, r, c in made]
     for f, a in enumerate(arrays):
         write_test_frame(tmp_path / "test8" / "seq" / f"frame{f:04d}.zip", a)
-    ds = TestSampleDataset(
-        sequence={"name": "seq", "frames": 2},
-        src={
-            "files": "test8/{sequence_name}/frame{index:04d}.zip",
-            "rendering_height": 64,
-            "rendering_width": 8,
-        },
-        buffers=BUFFERS,
-        data_path=str(tmp_path),
-        samples=2,
-    )
+    ds = package_test_loader(tmp_path, "seq", 2, (64, 8), 2, BUFFERS)
     rows = slice(28, -28)  # the package's fixed crop of a test frame
     theirs = ds[1]
     samples, reference, _ = made[1]
