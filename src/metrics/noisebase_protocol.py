@@ -93,19 +93,11 @@ def import_pyfvvdp():
 
 # -- frames ----------------------------------------------------------------------------------------------
 def srgb8(linear: np.ndarray) -> np.ndarray:
-    """(H, W, 3) linear HDR -> (H, W, 3) uint8 as Noisebase saves a frame: its ACES fit
-    (`noisebase/data.py::ACES`, float64 as there), clip to [0, 1], gamma 1/2.2, times 255, truncated."""
-    aces_in = np.array(
-        [[0.59719, 0.35458, 0.04823], [0.07600, 0.90834, 0.01566], [0.02840, 0.13383, 0.83777]]
-    )
-    aces_out = np.array(
-        [[1.60475, -0.53108, -0.07367], [-0.10208, 1.10813, -0.00605], [-0.00327, -0.07276, 1.07602]]
-    )
-    x = np.einsum("ji, hwi -> hwj", aces_in, np.asarray(linear))
-    a = x * (x + 0.0245786) - 0.000090537
-    b = x * (0.983729 * x + 0.4329510) + 0.238081
-    x = np.einsum("ji, hwi -> hwj", aces_out, a / b)
-    return (np.power(np.clip(x, 0.0, 1.0), 1.0 / 2.2) * 255).astype(np.uint8)
+    """(H, W, 3) linear HDR -> (H, W, 3) uint8 as Noisebase saves a frame: the package's own ACES fit
+    (`noisebase/data.py::ACES`: float64, clip to [0, 1], gamma 1/2.2), times 255, truncated."""
+    from noisebase.data import ACES
+
+    return (ACES(np.asarray(linear)) * 255).astype(np.uint8)
 
 
 def to_unit(frame: np.ndarray, device: torch.device | str = "cpu") -> torch.Tensor:
