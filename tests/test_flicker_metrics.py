@@ -183,18 +183,21 @@ def test_temporal_psnr_rejects_a_warmup_that_leaves_no_pair():
 _OUT_SCALES, _REF2_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8]), torch.tensor([1.1, 0.9, 1.0, 1.2])
 
 
-def _evaluate(vol_data, tmp_path, monkeypatch, second: bool):
+def _evaluate(vol_data, tmp_path, monkeypatch, second: bool, undefined_spp: int | None = None):
     cfg = smoke_config(
         vol_data,
         tmp_path,
         ["dataset=volumetric", "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"]
         + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"],
     )
-    monkeypatch.setattr(
-        DenoiseEvaluation,
-        "infer",
-        lambda self, item: item["item"]["reference"] * _OUT_SCALES.view(4, 1, 1, 1),
-    )
+
+    def infer(self, item):
+        out = item["item"]["reference"] * _OUT_SCALES.view(4, 1, 1, 1)
+        if item["item"]["spp"] == undefined_spp:  # as a GP expression undefined on one frame
+            out[1, :, 2, 3] = float("nan")
+        return out
+
+    monkeypatch.setattr(DenoiseEvaluation, "infer", infer)
     if second:
 
         def items(self):
@@ -256,3 +259,28 @@ def test_sequence_evaluation_reports_the_floored_flicker_where_items_have_a_seco
         )
     assert summary["mean"]["flicker_unbiased"] == pytest.approx(rows["flicker_unbiased"].mean(), rel=1e-12)
     assert logged["eval_flicker_unbiased"] == pytest.approx(rows["flicker_unbiased"].mean(), rel=1e-12)
+
+
+def test_an_item_with_an_undefined_frame_scores_nan_and_is_counted_not_fatal(vol_data, tmp_path, monkeypatch):
+    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=True, undefined_spp=min(SPPS))
+    bad, good = rows[rows.spp == min(SPPS)].iloc[0], rows[rows.spp != min(SPPS)].iloc[0]
+    assert bad.undefined == pytest.approx(0.25) and good.undefined == 0.0  # one of its four frames
+    for key in (
+        "psnr",
+        "ssim",
+        "relmse",
+        "relmse_spp",
+        "relmse_ratio",
+        "temporal",
+        "tpsnr",
+        "flicker_unbiased",
+    ):
+        assert np.isnan(bad[key]) and not np.isnan(good[key]), key  # psnr: inf (frame 0 is exact)
+        assert summary["mean"][key] == pytest.approx(good[key], rel=1e-12), key  # the defined item's value
+    for key in ("noisy_psnr", "noisy_relmse_spp", "noisy_temporal", "noisy_flicker_unbiased"):
+        assert np.isfinite(bad[key]), key  # the input is still scored
+    _, noisy, reference, _ = _sequences(bad)
+    assert bad.noisy_tpsnr == pytest.approx(temporal_psnr(noisy, reference, "reinhard_gamma", 2.2), rel=1e-5)
+    assert logged["eval_undefined"] == pytest.approx(0.125)
+    assert logged[f"eval_undefined_spp{min(SPPS)}"] == pytest.approx(0.25)
+    assert np.isnan(logged[f"eval_psnr_spp{min(SPPS)}"])

@@ -15,7 +15,7 @@ from omegaconf import OmegaConf
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
 
-from src.errors import ConfigError, DataError
+from src.errors import ConfigError
 from src.gp import grammar
 from src.gp.evaluate import filter_images, required_terminals, window_weights
 from src.gp.features import normalize_feature, sobel_gradient
@@ -701,9 +701,18 @@ def test_gp_filter_config_errors_and_halo():
     assert GPFilter(EXPR1, radius=4).halo is None  # normalisation reads the whole image
     assert GPFilter(EXPR1, radius=4, normalize=False).halo == 4
     assert GPFilter(EXPR2, radius=4, normalize=False).halo == 5  # Sobel gradient: one more pixel
-    with pytest.raises(DataError) as excinfo:
-        GPFilter("sqrt(distance2(depth, depth) - 0.5)", radius=1)(make_batch(1))
-    one_line_error(excinfo, "model.expression", "undefined weights")
+
+
+def test_gp_filter_output_is_nan_only_on_the_images_where_the_weights_are_undefined(caplog):
+    batch = make_batch(2)
+    batch["depth_var"] = torch.ones(2, 1, 9, 11)
+    batch["depth_var"][1] = -1.0  # sqrt of a negative variance: NaN weights on image 1 only
+    with caplog.at_level("WARNING"):
+        out = GPFilter("sqrt(dovVariance)", radius=1, normalize=False)(batch)["color"]
+    assert out[1].isnan().all()
+    box = GPFilter("1.0", radius=1, normalize=False)({"color": batch["color"][:1]})["color"]
+    torch.testing.assert_close(out[:1], box)  # a constant weight on image 0: the box filter
+    assert "sqrt(dovVariance)" in caplog.text and "[1]" in caplog.text
 
 
 def test_model_configs_build_the_published_filters():

@@ -54,6 +54,8 @@ from src.train.trainer import data_kind
 
 log = logging.getLogger(__name__)
 
+NAN = float("nan")
+
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
 #: (flicker) and `tpsnr` only where there are sequences, `flicker_unbiased` only where they have a second
 #: reference.
@@ -71,6 +73,7 @@ SCORES = (
     "temporal",
     "tpsnr",
     "flicker_unbiased",
+    "undefined",
     *(f"nb_{name}" for name in noisebase_protocol.METRICS),
 )
 
@@ -89,12 +92,14 @@ def _frames_hwc(x: torch.Tensor) -> np.ndarray:
 
 
 def gp_relmse(
-    denoised: np.ndarray, noisy: np.ndarray, reference: np.ndarray, spp: int, eps: float
+    denoised: np.ndarray | None, noisy: np.ndarray, reference: np.ndarray, spp: int, eps: float
 ) -> dict[str, float]:
     """The GP thesis's relMSE (Davletaliyev 2016, Eq. 3.5) of the denoised and the noisy image, and their
-    ratio: that image's term of the thesis's fitness (its scenes' ratios averaged)."""
-    ours, noisy_value = relmse_spp(denoised, reference, spp, eps), relmse_spp(noisy, reference, spp, eps)
-    ratio = ours / noisy_value if noisy_value > 0 else float("nan")
+    ratio: that image's term of the thesis's fitness (its scenes' ratios averaged). `denoised` None (an
+    undefined output): its relMSE and the ratio are NaN."""
+    noisy_value = relmse_spp(noisy, reference, spp, eps)
+    ours = NAN if denoised is None else relmse_spp(denoised, reference, spp, eps)
+    ratio = ours / noisy_value if noisy_value > 0 else NAN
     return {"relmse_spp": ours, "noisy_relmse_spp": noisy_value, "relmse_ratio": ratio}
 
 
@@ -165,36 +170,49 @@ class DenoiseEvaluation(Evaluation):
         denoised, noisy, reference = images["denoised"], images["noisy"], images["reference"]
         m, spp = self.cfg.metrics, int(item["item"]["spp"])
         frames, height, width = reference.shape[:3]
+        defined = [bool(np.isfinite(frame).all()) for frame in denoised]
         per_frame = []
         for f in range(frames):
-            row = image_metrics(denoised[f], reference[f], m)
-            row |= {f"noisy_{k}": v for k, v in image_metrics(noisy[f], reference[f], m).items()}
-            row |= gp_relmse(denoised[f], noisy[f], reference[f], spp, float(m.relmse_eps))
+            noisy_row = image_metrics(noisy[f], reference[f], m)
+            row = image_metrics(denoised[f], reference[f], m) if defined[f] else dict.fromkeys(noisy_row, NAN)
+            row |= {f"noisy_{k}": v for k, v in noisy_row.items()}
+            ours = denoised[f] if defined[f] else None
+            row |= gp_relmse(ours, noisy[f], reference[f], spp, float(m.relmse_eps))
             per_frame.append(row)
+        # np.mean, not nanmean: an item with an undefined frame has undefined (NaN) metrics
         means = {k: float(np.mean([r[k] for r in per_frame])) for k in per_frame[0]}
         name: dict[str, Any] = {"scene": item["item"]["scene"], "spp": spp}
+        undefined = {"undefined": float(frames - sum(defined)) / frames}
         flicker = {}
         if self.kind.temporal:
             name["frames"] = frames
-            flicker = {
-                "temporal": temporal_error(denoised, reference, m.tonemap, m.gamma),
-                "noisy_temporal": temporal_error(noisy, reference, m.tonemap, m.gamma),
-                "tpsnr": temporal_psnr(denoised, reference, m.tonemap, m.gamma),
-                "noisy_tpsnr": temporal_psnr(noisy, reference, m.tonemap, m.gamma),
-            }
-            if "reference2" in item["item"]:  # a second, independent render of the reference
-                reference2 = _frames_hwc(item["item"]["reference2"])
-                flicker |= {
-                    "flicker_unbiased": flicker_unbiased(denoised, reference, reference2, m.tonemap, m.gamma),
-                    "noisy_flicker_unbiased": flicker_unbiased(
-                        noisy, reference, reference2, m.tonemap, m.gamma
-                    ),
-                }
+            noisy_scores = self.temporal_scores(item, noisy, reference)
+            flicker = (
+                self.temporal_scores(item, denoised, reference)
+                if all(defined)
+                else dict.fromkeys(noisy_scores, NAN)
+            )
+            flicker |= {f"noisy_{k}": v for k, v in noisy_scores.items()}
         if self.protocol == "noisebase":
-            flicker |= self.noisebase_scores(item, denoised, reference)
+            nb_undefined = dict.fromkeys((f"nb_{k}" for k in noisebase_protocol.METRICS), NAN)
+            flicker |= self.noisebase_scores(item, denoised, reference) if all(defined) else nb_undefined
         ms_per_frame = seconds * 1e3 / frames
         timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
-        return {**name, **means, **flicker, **timing}
+        return {**name, **means, **flicker, **undefined, **timing}
+
+    def temporal_scores(
+        self, item: dict[str, Any], frames: np.ndarray, reference: np.ndarray
+    ) -> dict[str, float]:
+        """The temporal metrics of one sequence of `frames` against the reference (module docstring)."""
+        m = self.cfg.metrics
+        scores = {
+            "temporal": temporal_error(frames, reference, m.tonemap, m.gamma),
+            "tpsnr": temporal_psnr(frames, reference, m.tonemap, m.gamma),
+        }
+        if "reference2" in item["item"]:  # a second, independent render of the reference
+            reference2 = _frames_hwc(item["item"]["reference2"])
+            scores["flicker_unbiased"] = flicker_unbiased(frames, reference, reference2, m.tonemap, m.gamma)
+        return scores
 
     def noisebase_scores(
         self, item: dict[str, Any], denoised: np.ndarray, reference: np.ndarray
@@ -284,7 +302,8 @@ def _save_images(
             out_dir / "images" / f"{name}.exr",
             {"R": denoised[..., 0], "G": denoised[..., 1], "B": denoised[..., 2]},
         )
-    ldr = {k: tonemap(v, m.tonemap, m.gamma) for k, v in images.items()}
+    # An undefined output's NaN pixels are black in the PNGs (the EXR keeps them NaN).
+    ldr = {k: tonemap(np.nan_to_num(v, nan=0.0), m.tonemap, m.gamma) for k, v in images.items()}
     # Tone-mapped PNGs per image: what report grids compare across models (small, unlike EXRs).
     for kind, image in ldr.items():
         write_png(out_dir / "png" / f"{name}-{kind}.png", image)

@@ -45,6 +45,9 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     # RMS flicker against the noise-free truth from two independent references (no floor; negative: within
     # the estimate's noise of the truth); only runs on data with a second reference log it, else "-"
     "Flicker vs truth": ("eval_flicker_unbiased", False, "{:.4g}"),
+    # the share of held-out frames whose output is undefined (a searched GP expression's NaN/Inf weights
+    # or zero weight sum there, src/models/filters/gp_filter.py): the other columns average the rest
+    "Undefined": ("eval_undefined", False, "{:.3g}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
     # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best, and the
     # minimum over all generations (its Sec. 4.2 measure; with a hall of fame, the default, the expression

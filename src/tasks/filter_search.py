@@ -29,7 +29,7 @@ from src.tasks.denoise import DenoiseTask
 BEST_FILE = "best_expressions.yaml"
 ISLANDS_FILE = "islands.csv"
 #: Held-out means in islands.csv, beside each island's fitness and expression.
-ISLAND_COLUMNS = ("psnr", "ssim", "relmse", "relmse_ratio", "ms_per_mpixel")
+ISLAND_COLUMNS = ("psnr", "ssim", "relmse", "relmse_ratio", "undefined", "ms_per_mpixel")
 STATE_FILE = "state.json"
 HISTORY_FILE = "history.json"
 

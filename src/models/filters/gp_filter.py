@@ -25,17 +25,20 @@ own), except that two sample counts of a scene get the maxima of their own (nois
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Collection
 
 import torch
 
 from src.data.features import feature_channels
-from src.errors import ConfigError, DataError
+from src.errors import ConfigError
 from src.gp.evaluate import filter_images, required_terminals
 from src.gp.features import normalization_scale, sobel_gradient
 from src.gp.grammar import GRADIENT_OF, PSET
 from src.gp.text import ExpressionError, parse, to_infix
 from src.models.denoise.base import Batch, Denoiser
+
+log = logging.getLogger(__name__)
 
 #: Vector terminal -> batch key of its buffer (`directIllumination` may also come from `diffuse_in`).
 FEATURE_KEYS = {
@@ -164,16 +167,24 @@ class GPFilter(Denoiser):
 
     @torch.no_grad()
     def forward(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """The filtered colour; NaN for every image on which the expression is undefined (the thesis's
+        "undefined operation", Sec. 3.2.3: a NaN/Inf weight or a zero weight sum at some pixel). The
+        search gives such an expression the worst fitness; a searched expression valid on every search
+        image can still be undefined on a held-out one, and the evaluation then scores that image as
+        undefined (NaN metrics, counted in its `undefined` column) instead of ending the run."""
         color = batch["color"].float()
         result = filter_images([self.tree], self.features(batch), color, self.radius)
-        valid = result.valid[0]
+        valid, out = result.valid[0], result.color[0]
         if not bool(valid.all()):
             bad = [int(i) for i in torch.nonzero(~valid).flatten()]
-            raise DataError(
-                f"model.expression {self.expression!r}: undefined weights (NaN/Inf or a zero weight sum) "
-                f"on batch image(s) {bad}"
+            log.warning(
+                "model.expression %r: undefined weights (NaN/Inf or a zero weight sum) on batch image(s) "
+                "%s: their output is NaN",
+                self.expression,
+                bad,
             )
-        return {"color": result.color[0]}
+            out = torch.where(valid.view(-1, 1, 1, 1), out, torch.full_like(out, float("nan")))
+        return {"color": out}
 
 
 #: Batch keys that may instead be a channel of `diffuse_in` (named as in `src.data.features`).
