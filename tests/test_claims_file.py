@@ -49,8 +49,8 @@ RUN_KEYS = {*RUN_SOURCES, "experiment", "where"}
 PER = {"image", "run", "round"}
 NEEDS = {None, "gpu", "user_data"}
 RULE_KEYS = {
-    "better": {"kind", "a", "b", "size"},
-    "comparable": {"kind", "a", "b", "tolerance"},
+    "better": {"kind", "a", "b", "b_metric", "size"},
+    "comparable": {"kind", "a", "b", "b_metric", "tolerance"},
     "agreement": {"kind", "tolerance", "published"},
 }
 PROFILES = {p.stem for p in (CONF_DIR / "profile").glob("*.yaml")}
@@ -64,7 +64,11 @@ AGREEMENT_TOLERANCE = {"psnr": 0.2, "ssim": 0.05}
 # --- what the runs log -----------------------------------------------------------------------------------
 #: per_image.csv columns (src/eval/denoise_eval.py's SCORES and their noisy_* twins, the timings; a NeRF
 #: view's row adds rays_per_s).
-IMAGE_METRICS = {*SCORES, *(f"noisy_{s}" for s in SCORES), "ms_per_image", "ms_per_mpixel", "rays_per_s"}
+IMAGE_METRICS = {
+    *SCORES,
+    *(f"{prefix}_{s}" for s in SCORES for prefix in ("noisy", "baseline")),
+    *("ms_per_image", "ms_per_mpixel", "rays_per_s"),
+}
 #: Losses the training objectives log (src/train/objectives.py) as train_loss_<k> / val_loss_<k>.
 LOSSES = ("diffuse", "specular", "color", "temporal", "total")
 #: Run metrics logged under a literal name, and the module that logs each.
@@ -96,8 +100,8 @@ IDS = [c["id"] for c in CLAIMS]
 
 
 def score_name(metric: str) -> str:
-    """The score a metric measures: `eval_psnr` -> psnr, `noisy_relmse` -> relmse."""
-    return re.sub(r"^(eval_|noisy_)", "", metric)
+    """The score a metric measures: `eval_psnr` -> psnr, `noisy_relmse` -> relmse (also `baseline_`)."""
+    return re.sub(r"^(eval_)?(noisy_|baseline_)?", "", metric)
 
 
 def arms(claim: dict) -> list[tuple[dict, dict]]:
@@ -234,8 +238,13 @@ def schema_errors(claims: list[dict]) -> list[str]:
         if kind != "agreement":
             if c["higher"] != (score_name(metric) in HIGHER_BETTER):
                 errors.append(f"{name}: higher {c['higher']} for {metric}")
-            if not rule.get("a") or not rule.get("b") or rule["a"] == rule["b"]:
-                errors.append(f"{name}: arms a and b must differ and be non-empty")
+            b_metric = rule.get("b_metric")
+            if not rule.get("a") or not rule.get("b") or (rule["a"] == rule["b"] and b_metric is None):
+                errors.append(f"{name}: arms a and b must differ (or b have its b_metric) and be non-empty")
+            if b_metric is not None and (b_metric not in known or score_name(b_metric) != score_name(metric)):
+                errors.append(
+                    f"{name}: b_metric {b_metric!r}: not logged per {per}, or not {metric} of another method"
+                )
         if c["log"] and not RATIO_SCORES.match(score_name(metric)):
             errors.append(f"{name}: log: true for {metric}, which is not a ratio scale")
         if kind == "better" and rule.get("size") is not None:
@@ -304,10 +313,6 @@ def pipeline_errors(c: dict) -> list[str]:
     return errors
 
 
-#: Claims whose arm is knowingly not among the study's jobs today (the report explains each).
-NOT_RUN_TODAY = {("gp_search_beats_cross_bilateral", "model.name", "gp_filter")}
-
-
 def study_errors(c: dict) -> list[str]:
     """The study exists, composes at every listed profile that runs its task, logs to the claim's
     experiment, and has a job for every arm (with the claim's `where`)."""
@@ -327,8 +332,7 @@ def study_errors(c: dict) -> list[str]:
             for key in arm:
                 if key not in varied:
                     errors.append(f"{name}: arm key {key!r} is not varied by {study_name} ({sorted(varied)})")
-            known = {(name, k, v) for k, v in arm.items()} & NOT_RUN_TODAY
-            wanted = {k: v for k, v in {**arm, **where}.items() if (name, k, v) not in known}
+            wanted = {**arm, **where}
             if not any(matches(job, wanted) for job in jobs):
                 errors.append(f"{name}: no job of {study_name} at profile={profile} has {wanted}")
     return errors

@@ -183,12 +183,13 @@ def test_temporal_psnr_rejects_a_warmup_that_leaves_no_pair():
 _OUT_SCALES, _REF2_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8]), torch.tensor([1.1, 0.9, 1.0, 1.2])
 
 
-def _evaluate(vol_data, tmp_path, monkeypatch, second: bool, undefined_spp: int | None = None):
+def _evaluate(vol_data, tmp_path, monkeypatch, second: bool, undefined_spp: int | None = None, overrides=()):
     cfg = smoke_config(
         vol_data,
         tmp_path,
         ["dataset=volumetric", "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"]
-        + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"],
+        + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"]
+        + list(overrides),
     )
 
     def infer(self, item):

@@ -329,9 +329,15 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     import pandas as pd
 
     islands = pd.read_csv(tmp_path / "run" / "eval" / "islands.csv")  # every island's best, held out
-    assert list(islands["island"]) == [r["island"] for r in rows]
+    assert list(islands["island"]) == [str(r["island"]) for r in rows] + ["baseline"]
     assert islands["psnr"].iloc[0] == pytest.approx(result["mean"]["psnr"])
-    assert list(islands["expression"]) == [r["model"]["expression"] for r in rows]
+    assert list(islands["expression"]) == [r["model"]["expression"] for r in rows] + ["cross_bilateral"]
+    # the constant-sigma cross-bilateral filter, scored once, on the same held-out images
+    assert islands["psnr"].iloc[-1] == pytest.approx(result["mean"]["baseline_psnr"])
+    per_image = pd.read_csv(tmp_path / "run" / "eval" / "per_image.csv")
+    assert per_image["baseline_relmse_spp"].notna().all() and per_image["relmse_spp"].notna().all()
+    island_rows = pd.read_csv(tmp_path / "run" / "eval" / f"island{rows[1]['island']}" / "per_image.csv")
+    assert not [c for c in island_rows if c.startswith("baseline_")]
     assert (tmp_path / "run" / "eval" / f"island{rows[1]['island']}" / "metrics.json").exists()
     # resume: two more generations from the checkpoint
     more = smoke_config(

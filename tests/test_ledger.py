@@ -126,6 +126,11 @@ CLAIM = """
 """
 
 
+AGREEMENT_B_METRIC = (
+    "kind: agreement, tolerance: 1, published: [{arm: {model.name: dpcn}, value: 1}], b_metric: m"
+)
+
+
 def _claims_file(tmp_path, text):
     path = tmp_path / "claims.yaml"
     path.write_text(text)
@@ -152,6 +157,12 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
         (lambda t: t.replace("per: image", "per: round"), ["claims.kpcn_dpcn.per", "round"]),
         (lambda t: t.replace("experiment: nrbench-denoise", "where: {}"), ["runs.experiment"]),
         (lambda t: t.replace("b: {model.name: dpcn}", "b: {model.name: kpcn}"), ["two different"]),
+        (
+            lambda t: t.replace(
+                "kind: better, a: {model.name: kpcn}, b: {model.name: dpcn}", AGREEMENT_B_METRIC
+            ),
+            ["rule.b_metric", "agreement"],
+        ),
         (lambda t: t.replace("profiles: [paper, cpu]", "profiles: cpu"), ["profiles"]),
         (
             lambda t: t.replace("b: {model.name: dpcn}}", "b: {model.name: dpcn}, sise: 1}"),
@@ -245,7 +256,8 @@ def ledger_store(tmp_path_factory):
             {**study, "model.name": "kpcn", "seed": seed},
             cpu,
             {"eval_psnr": float(np.mean(base + 1))},
-            ("eval/per_image.csv", _images(base + 1)),
+            # with a baseline scored beside it on the same images, 0.4 dB below it
+            ("eval/per_image.csv", _images(base + 1).assign(baseline_psnr=base + 0.6)),
         )
         _log(
             client,
@@ -365,6 +377,24 @@ LEDGER_CLAIMS = textwrap.dedent(
         per: run
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
+      - id: beats_its_baseline
+        source: {{document: Doc A, section: "1"}}
+        statement: KPCN beats the baseline its runs score beside it.
+        profiles: [cpu]
+        runs: {{study: {STUDY}, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: kpcn}}, b_metric: baseline_psnr}}
+      - id: no_baseline_scored
+        source: {{document: Doc A, section: "1"}}
+        statement: DPCN's runs score no baseline.
+        profiles: [cpu]
+        runs: {{study: {STUDY}, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: better, a: {{model.name: dpcn}}, b: {{model.name: dpcn}}, b_metric: baseline_psnr}}
       - id: smoke_only
         source: {{document: Doc A, section: "2"}}
         statement: Only ever run at smoke.
@@ -453,6 +483,8 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
         "pipeline_fallback": REPRODUCED,  # +0.5 dB on the pipeline's 6 images
         "study_first": REPRODUCED,  # the study's +1 dB: the pipeline's 0.5 would be direction only
         "per_seed": NOT_DISTINGUISHABLE,  # 4 seeds: a signed-rank test cannot show it
+        "beats_its_baseline": REPRODUCED,  # +0.4 dB over its own runs' baseline on all 8 items
+        "no_baseline_scored": NOT_RUN,
         "smoke_only": NOT_RUN,
         "unet_10x": REPRODUCED,
         "unet_vs_oidn": REPRODUCED,
@@ -475,13 +507,18 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     smoke = ledger.loc["smoke_only", "numbers"]
     assert "runs at smoke only" in smoke and "python -m src.run -m +sweep=smoke_only profile=cpu" in smoke
     assert "+0.3 over 6 paired items" in ledger.loc["nerf_views", "numbers"]
+    assert (
+        "kpcn - kpcn (baseline_psnr) = +0.4 over 8 paired items"
+        in ledger.loc["beats_its_baseline", "numbers"]
+    )
+    assert "no psnr scores for arm dpcn (baseline_psnr)" in ledger.loc["no_baseline_scored", "numbers"]
     scenes = ledger.loc["needs_scenes", "numbers"]
     assert scenes.startswith("needs the user's data") and "+sweep=nerf_thesis profile=thesis" in scenes
     md = (tmp_path / "reports" / "ledger.md").read_text()
-    assert "**7 reproduced, 1 direction only, 1 not distinguishable, 2 not run**" in md
-    assert md.count("\n| ") == 1 + 11  # the header and one row per claim
+    assert "**8 reproduced, 1 direction only, 1 not distinguishable, 3 not run**" in md
+    assert md.count("\n| ") == 1 + 13  # the header and one row per claim
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    assert html.count("<tr>") == 1 + 11 and "#d4edda" in html
+    assert html.count("<tr>") == 1 + 13 and "#d4edda" in html
 
 
 def test_a_slower_unet_is_not_reproduced(ledger_store, tmp_path):

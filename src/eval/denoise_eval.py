@@ -50,6 +50,7 @@ from src.metrics.image import image_metrics, relmse_spp, tonemap
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
+from src.models.instantiate import build_method
 from src.train.trainer import data_kind
 
 log = logging.getLogger(__name__)
@@ -139,29 +140,52 @@ class DenoiseEvaluation(Evaluation):
                 f"metrics.protocol=noisebase: scores sequences; dataset={cfg.dataset.name} holds still "
                 "images (use a sequence dataset: volumetric, noisebase)"
             )
+        self.baseline = self._baseline(cfg)
+
+    def _baseline(self, cfg: DictConfig) -> Denoiser | None:
+        """`task.eval.baseline` (a filter's model config, e.g. the filter search's constant-sigma
+        cross-bilateral filter) built on the device, or None."""
+        spec = cfg.task.eval.get("baseline")
+        if spec is None:
+            return None
+        model = build_method(OmegaConf.to_container(spec, resolve=True), section="task.eval.baseline")
+        if getattr(model, "learned", True):
+            raise ConfigError(
+                f"task.eval.baseline: {spec.get('name', spec.get('_target_'))!r} is a learned method; "
+                "expected a filter (a baseline is evaluated without a checkpoint)"
+            )
+        return model.to(self.device).eval()
 
     def items(self) -> Sequence[dict[str, Any]]:
         return OnDevice(self.kind.held_out(self.cfg, self.features, self.model), self.device)
 
     @torch.no_grad()
-    def infer(self, item: dict[str, Any]) -> torch.Tensor:
-        frames, tile = item["batch"], int(self.cfg.task.eval.tile)
-        count = frames["color"].shape[0]
+    def denoise(self, model: Denoiser, frames: Batch) -> torch.Tensor:
+        """Every frame of an item denoised by `model`, one frame at a time, in tiles."""
+        tile, count = int(self.cfg.task.eval.tile), frames["color"].shape[0]
         outputs = [
-            denoise_tiled(self.model, {k: v[f : f + 1] for k, v in frames.items()}, tile, self.space)
+            denoise_tiled(model, {k: v[f : f + 1] for k, v in frames.items()}, tile, self.space)
             for f in range(count)
         ]
         return torch.cat(outputs)
+
+    def infer(self, item: dict[str, Any]) -> torch.Tensor:
+        return self.denoise(self.model, item["batch"])
 
     def data_dir(self) -> Path:
         return self.kind.raw_dir(self.cfg)
 
     def untimed(self, item: dict[str, Any], output: torch.Tensor) -> dict[str, np.ndarray]:
-        return {
+        """The noisy, denoised and reference frames, and the baseline's output (not timed) if there is
+        one."""
+        images = {
             "noisy": _frames_hwc(item["item"]["color"]),
             "denoised": _frames_hwc(output),
             "reference": _frames_hwc(item["item"]["reference"]),
         }
+        if self.baseline is not None:
+            images["baseline"] = _frames_hwc(self.denoise(self.baseline, item["batch"]))
+        return images
 
     def score(self, item: dict[str, Any], images: dict[str, np.ndarray], seconds: float) -> dict[str, Any]:
         """Per-frame metrics of the denoised and of the noisy frames against the reference, averaged over
@@ -178,6 +202,10 @@ class DenoiseEvaluation(Evaluation):
             row |= {f"noisy_{k}": v for k, v in noisy_row.items()}
             ours = denoised[f] if defined[f] else None
             row |= gp_relmse(ours, noisy[f], reference[f], spp, float(m.relmse_eps))
+            if "baseline" in images:  # scored as the run's method is, on the same frame
+                base = image_metrics(images["baseline"][f], reference[f], m)
+                base |= gp_relmse(images["baseline"][f], noisy[f], reference[f], spp, float(m.relmse_eps))
+                row |= {f"baseline_{k}": v for k, v in base.items() if not k.startswith("noisy_")}
             per_frame.append(row)
         # np.mean, not nanmean: an item with an undefined frame has undefined (NaN) metrics
         means = {k: float(np.mean([r[k] for r in per_frame])) for k in per_frame[0]}
@@ -234,16 +262,20 @@ class DenoiseEvaluation(Evaluation):
         return {f"nb_{k}": scores[k] for k in noisebase_protocol.METRICS if scores[k] is not None}
 
     def header(self) -> dict[str, Any]:
-        """metrics.json names the Noisebase protocol's settings and package versions when it ran."""
+        """metrics.json names the baseline, and the Noisebase protocol's settings and package versions,
+        when they ran."""
+        header = super().header()
+        if self.baseline is not None:
+            header["baseline"] = self.cfg.task.eval.baseline.get("name")
         if self.protocol != "noisebase":
-            return super().header()
+            return header
         options = self.cfg.metrics.noisebase
         protocol = {
             "warmup": int(options.warmup),
             "fvvdp": bool(options.fvvdp),
             "versions": noisebase_protocol.versions(),
         }
-        return {**super().header(), "noisebase_protocol": protocol}
+        return {**header, "noisebase_protocol": protocol}
 
     def logged_tags(self) -> dict[str, str]:
         """The package versions behind the `eval_nb_*` metrics, as MLflow tags."""
@@ -281,7 +313,7 @@ class DenoiseEvaluation(Evaluation):
     def logged_metrics(self, summary: dict[str, Any]) -> dict[str, float]:
         metrics = super().logged_metrics(summary)
         for spp, means in summary["per_spp"].items():
-            keys = (*SCORES, *(f"noisy_{s}" for s in SCORES))
+            keys = (*SCORES, *(f"{prefix}_{s}" for s in SCORES for prefix in ("noisy", "baseline")))
             metrics |= {f"eval_{k}_spp{spp}": means[k] for k in keys if k in means}  # lpips/flip may be off
         return metrics
 

@@ -155,19 +155,21 @@ def at_least(key: str, value: float, minimum: float = 1, odd: bool = False) -> f
     return value
 
 
-def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
+def build_method(model_cfg: Mapping[str, Any], section: str = "model", **context: Any) -> Any:
     """The method `model._target_` names, called with the group's other keys as keyword arguments.
 
-    `context` holds what the harness knows at run time (e.g. `whitening`, the training split's input
-    statistics); each item is passed only to a method whose signature asks for it by name.
+    `section` is the config key errors name (`model`, or e.g. `task.eval.baseline` for a method the task
+    evaluates beside the run's). `context` holds what the harness knows at run time (e.g. `whitening`,
+    the training split's input statistics); each item is passed only to a method whose signature asks for
+    it by name.
     """
     cfg = model_dict(model_cfg)
-    target = resolve_target(cfg)
+    target = resolve_target(cfg, section)
     kwargs = {k: v for k, v in cfg.items() if k not in HARNESS_KEYS and k != TARGET_KEY}
     arguments = arguments_of(target)
     accepted, _, takes_any = arguments
     wanted = {k: v for k, v in context.items() if k in accepted or takes_any}
-    check_arguments(target, arguments, kwargs, set(wanted))
+    check_arguments(target, arguments, kwargs, set(wanted), section)
     # Nested `_target_` groups (e.g. a user's sub-network) are built by Hydra, unless the method takes the
     # group itself (a Mapping); the method is called directly, so that run-time objects (statistics,
     # tensors) reach it as they are, not as OmegaConf nodes.
@@ -177,7 +179,7 @@ def build_method(model_cfg: Mapping[str, Any], **context: Any) -> Any:
     except ConfigError:
         raise
     except (TypeError, ValueError) as err:  # a value the constructor rejects (e.g. an even conv kernel)
-        raise ConfigError(f"model ({cfg.get('name', cfg[TARGET_KEY])}): {one_line(err)}") from None
+        raise ConfigError(f"{section} ({cfg.get('name', cfg[TARGET_KEY])}): {one_line(err)}") from None
 
 
 def _takes_mapping(hint: Any) -> bool:

@@ -38,7 +38,9 @@ class Case:
 class Rule:
     """`better`: arm `a` beats arm `b` (by at least `size`, in the metric's units or as a ratio when the
     claim compares logs); `comparable`: `a` and `b` within `tolerance`; `agreement`: each case within
-    `tolerance` of its published value."""
+    `tolerance` of its published value. `b_metric`: arm `b` is scored by this metric of its runs instead
+    of the claim's (a baseline the runs evaluate beside their method on the same items, e.g. the filter
+    search's `baseline_relmse_spp`); `a` and `b` may then be the same runs."""
 
     kind: str
     a: dict[str, str] = field(default_factory=dict)
@@ -46,6 +48,7 @@ class Rule:
     size: float = 0.0
     tolerance: float = 0.0
     published: tuple[Case, ...] = ()
+    b_metric: str | None = None
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ KEYS = {
     "": {"id", "source", "statement", "profiles", "needs", "runs", "metric", "per", "higher", "log", "rule"},
     "source": {"document", "section", "where"},
     "runs": {*RUN_SOURCES, "experiment", "where"},
-    "rule": {"kind", "a", "b", "size", "tolerance", "published"},
+    "rule": {"kind", "a", "b", "b_metric", "size", "tolerance", "published"},
     "published": {"arm", "where", "value"},
 }
 
@@ -143,16 +146,22 @@ def _rule(raw: Any, where: str) -> Rule:
             )
             for i, c in enumerate(cases)
         )
+        if raw.get("b_metric") is not None:
+            raise ConfigError(f"{where}.b_metric: an agreement rule has no arm b; expected no b_metric")
         return Rule(kind, tolerance=float(_get(raw, "tolerance", where, (int, float))), published=published)
     a, b = _strings(raw.get("a"), f"{where}.a"), _strings(raw.get("b"), f"{where}.b")
-    if not a or not b or a == b:
-        raise ConfigError(f"{where}: arms a={a} and b={b}; expected two different, non-empty arms")
+    b_metric = None if raw.get("b_metric") is None else _get(raw, "b_metric", where)
+    if not a or not b or (a == b and b_metric is None):
+        raise ConfigError(
+            f"{where}: arms a={a} and b={b}; expected two different, non-empty arms (or the same one with "
+            "b_metric)"
+        )
     if kind == "comparable":
         tolerance = float(_get(raw, "tolerance", where, (int, float)))
         if tolerance <= 0:
             raise ConfigError(f"{where}.tolerance: {tolerance}; expected > 0")
-        return Rule(kind, a, b, tolerance=tolerance)
-    return Rule(kind, a, b, size=float(raw.get("size") or 0.0))
+        return Rule(kind, a, b, tolerance=tolerance, b_metric=b_metric)
+    return Rule(kind, a, b, size=float(raw.get("size") or 0.0), b_metric=b_metric)
 
 
 def _runs_sources(raw: Any, where: str) -> tuple[tuple[str, str], ...]:

@@ -152,6 +152,13 @@ def arm_values(scores: pd.DataFrame, arm: Mapping[str, str], prefix: str, item: 
     return pd.Series(dtype=float) if part.empty else item_means(part, "value", item)
 
 
+def _scored_by(scores: pd.DataFrame, metric: str) -> pd.DataFrame:
+    """`scores` with `value` from another metric of the same runs or images (`Rule.b_metric`); no rows
+    when they do not have it."""
+    column = f"metrics.{metric}"
+    return scores.assign(value=scores[column]) if column in scores else scores.iloc[0:0]
+
+
 def _label(arm: Mapping[str, str]) -> str:
     """An arm as the ledger names it: a model by its name, any other setting as `last_key=value`."""
     return ", ".join(
@@ -168,8 +175,9 @@ def _verdict(claim: Claim, scores: pd.DataFrame, prefix: str, item: list[str], a
             label = _label({**case.arm, **case.where})
             cases.append((label, values if len(values) else None, case.value))
         return agreement_verdict(cases, rule.tolerance)
-    a, b = (arm_values(scores, arm, prefix, item) for arm in (rule.a, rule.b))
-    names = (_label(rule.a), _label(rule.b))
+    b_scores = scores if rule.b_metric is None else _scored_by(scores, rule.b_metric)
+    a, b = arm_values(scores, rule.a, prefix, item), arm_values(b_scores, rule.b, prefix, item)
+    names = (_label(rule.a), _label(rule.b) + (f" ({rule.b_metric})" if rule.b_metric else ""))
     if a.empty or b.empty:
         missing = names[0] if a.empty else names[1]
         return Verdict(NOT_RUN, f"no {claim.metric} scores for arm {missing}")

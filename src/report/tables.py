@@ -48,6 +48,10 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     # the share of held-out frames whose output is undefined (a searched GP expression's NaN/Inf weights
     # or zero weight sum there, src/models/filters/gp_filter.py): the other columns average the rest
     "Undefined": ("eval_undefined", False, "{:.3g}"),
+    # the constant-sigma cross-bilateral filter the filter search scores beside its expression on the
+    # same held-out images (task.eval.baseline, conf/task/filter_search.yaml)
+    "baseline relMSE / noisy": ("eval_baseline_relmse_ratio", False, "{:.4g}"),
+    "baseline PSNR": ("eval_baseline_psnr", True, "{:.2f}"),
     # task=filter_search: fitness = mean relMSE(filtered) / relMSE(noisy) on the search images (Davletaliyev
     # 2016, Eq. 3.5), logged per generation (MLflow keeps the last): the last generation's best, and the
     # minimum over all generations (its Sec. 4.2 measure; with a hall of fame, the default, the expression

@@ -136,6 +136,9 @@ class Eval(Schema):
     crop_zoom: PositiveInt
     checkpoint: str
     out_dir: str
+    # a filter's model config scored beside the run's method (conf/task/filter_search.yaml); built, and
+    # its keys checked, by the evaluation
+    baseline: dict[str, Any] | None = None
 
 
 class DenoiseTaskSchema(Schema):

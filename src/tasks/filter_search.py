@@ -310,17 +310,23 @@ class FilterSearchTask(DenoiseTask):
         summaries, table = [], []
         for rank, row in enumerate(rows):
             island_cfg = _with_expression(cfg, row["model"])
-            if rank > 0:  # numbers only: no images, no run metrics
+            if rank > 0:  # numbers only: no images, no run metrics, the baseline scored once
                 out_dir = f"{cfg.task.eval.out_dir}/island{row['island']}"
-                OmegaConf.update(
-                    island_cfg, "task.eval", {"out_dir": out_dir, "save_exr": False, "strips": False}
-                )
+                numbers_only = {"out_dir": out_dir, "save_exr": False, "strips": False, "baseline": None}
+                OmegaConf.update(island_cfg, "task.eval", numbers_only, merge=True)
             summaries.append(super().evaluate(island_cfg, tracker if rank == 0 else Tracker(None)))
             mean = summaries[-1]["mean"]
             table.append(
                 {"island": row["island"], "fitness": row["fitness"]}
                 | {k: mean[k] for k in ISLAND_COLUMNS}
                 | {"expression": row["model"]["expression"]}
+            )
+        baseline = summaries[0]["mean"]
+        if cfg.task.eval.get("baseline") is not None:  # its row: the same held-out images
+            table.append(
+                {"island": "baseline", "fitness": None}
+                | {k: baseline.get(f"baseline_{k}") for k in ISLAND_COLUMNS}
+                | {"expression": cfg.task.eval.baseline.name}
             )
         out = Path(cfg.task.eval.out_dir) / ISLANDS_FILE
         atomic_write_text(out, pd.DataFrame(table).to_csv(index=False))

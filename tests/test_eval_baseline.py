@@ -1,0 +1,81 @@
+"""`task.eval.baseline`: a filter scored beside the run's method on the same frames (the filter search's
+constant-sigma cross-bilateral filter, conf/task/filter_search.yaml), in per_image.csv as `baseline_<metric>`
+and in MLflow as `eval_baseline_<metric>`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from src.errors import ConfigError
+from src.metrics.image import psnr, relmse_spp, tonemap
+from src.models.filters.cross_bilateral import CrossBilateralFilter
+from tests.conftest import one_line_error
+from tests.test_flicker_metrics import _evaluate, _sequences
+
+# Wide range sigmas: near a box filter of radius 2, which changes the synthetic frames (the defaults leave
+# their noise as it is).
+SIGMAS = {
+    "sigma_spatial": 2.0,
+    "sigma_color": 50.0,
+    "sigma_normal": 50.0,
+    "sigma_albedo": 50.0,
+    "sigma_depth": 50.0,
+}
+BASELINE = (
+    "+task.eval.baseline={name: cross_bilateral, "
+    "_target_: src.models.filters.cross_bilateral.CrossBilateralFilter, radius: 2, "
+    + ", ".join(f"{k}: {v}" for k, v in SIGMAS.items())
+    + "}"
+)
+
+
+def _filtered(vol_data, row) -> np.ndarray:
+    """The baseline's frames of a row's test item, filtered here from the prepared item's tensors."""
+    from src.train.trainer import data_kind
+    from tests.conftest import smoke_config
+
+    cfg = smoke_config(vol_data, vol_data / "_cfg", ["dataset=volumetric", "model=cross_bilateral"])
+    kind = data_kind(cfg)
+    model = CrossBilateralFilter(radius=2, **SIGMAS)
+    items = kind.held_out(cfg, kind.features(cfg), model)
+    item = next(items[i] for i in range(len(items)) if items[i]["spp"] == row.spp)
+    batch = {k: v for k, v in item.items() if isinstance(v, torch.Tensor)}
+    frames = [
+        model({k: v[f : f + 1] for k, v in batch.items()})["color"] for f in range(batch["color"].shape[0])
+    ]
+    return torch.cat(frames).permute(0, 2, 3, 1).numpy()
+
+
+def test_the_baseline_is_scored_on_the_same_frames_as_the_method(vol_data, tmp_path, monkeypatch):
+    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False, overrides=[BASELINE])
+    for row in rows.itertuples():
+        denoised, noisy, reference, _ = _sequences(row)
+        baseline = _filtered(vol_data, row)
+        ldr = lambda x: tonemap(x, "reinhard_gamma", 2.2)  # noqa: E731
+        expected_psnr = np.mean([psnr(ldr(baseline[f]), ldr(reference[f])) for f in range(4)])
+        expected_relmse = np.mean([relmse_spp(baseline[f], reference[f], row.spp, 0.01) for f in range(4)])
+        assert row.baseline_psnr == pytest.approx(expected_psnr, rel=1e-4)
+        assert row.baseline_relmse_spp == pytest.approx(expected_relmse, rel=1e-4)
+        noisy_relmse = np.mean([relmse_spp(noisy[f], reference[f], row.spp, 0.01) for f in range(4)])
+        assert row.baseline_relmse_ratio == pytest.approx(expected_relmse / noisy_relmse, rel=0.05)
+        assert abs(row.baseline_psnr - row.psnr) > 0.5  # the stub's output and the filter's differ
+        assert abs(row.baseline_psnr - row.noisy_psnr) > 0.5  # and the filter changes its input
+    assert "baseline_noisy_relmse_spp" not in rows  # the noisy input is scored once
+    assert logged["eval_baseline_psnr"] == pytest.approx(rows["baseline_psnr"].mean(), rel=1e-12)
+    spp = int(rows.spp.iloc[0])
+    assert logged[f"eval_baseline_relmse_spp_spp{spp}"] == pytest.approx(rows.baseline_relmse_spp.iloc[0])
+
+
+def test_without_a_baseline_there_are_no_baseline_columns(vol_data, tmp_path, monkeypatch):
+    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False)
+    assert not [c for c in rows if c.startswith("baseline_")]
+    assert not [k for k in logged if "baseline" in k]
+
+
+def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch):
+    learned = "+task.eval.baseline={name: identity, _target_: torch.nn.Identity}"  # no `learned = False`
+    with pytest.raises(ConfigError) as excinfo:
+        _evaluate(vol_data, tmp_path, monkeypatch, second=False, overrides=[learned])
+    one_line_error(excinfo, "task.eval.baseline", "learned")
