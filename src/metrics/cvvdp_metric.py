@@ -24,10 +24,10 @@ frames_per_second=...)`, nothing reimplemented. What this module decides, and wh
 * Frame rate (`metrics.cvvdp.fps`, default 30): our sequences have no physical frame time (the
   volumetric animations move per frame), and 30 fps is what the Noisebase benchmark gives its sequences
   (`noisebase/loaders/torch/test_sample_v1.py` writes `'fps': 30`) and scores FovVideoVDP at
-  (`src.metrics.noisebase_protocol.FPS`). The rate sets the temporal filters: the same frames at 60 fps
-  flicker at a higher, less visible frequency and score higher.
+  (`src.metrics.noisebase_protocol.FPS`). The rate sets the metric's temporal filters, so the same frames
+  at another rate score differently.
 * Device: the run's (CPU without a GPU); on the CPU the number is deterministic (same frames, same JOD).
-  The package pads the first 250 ms of the sequence by replicating its first frame (its default).
+  The temporal filters span 250 ms; before the first frame the package repeats it (its default padding).
 
 A frame that is not finite (an undefined output) has no JOD: the caller scores such an item NaN and does
 not call this (the metric clamps display values, so NaN would otherwise pass as a number).
