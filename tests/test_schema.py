@@ -111,7 +111,7 @@ BOUNDED: dict[Bound, str] = {
         dataset.NoisebaseDataset.rendering_width
     """,
     POSITIVE: """
-        run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps
+        run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps run.Cvvdp.fps
         run.Metrics.smape_eps denoise.Repair.firefly_clamp denoise.Preprocess.eps_albedo
         denoise.Preprocess.importance_window denoise.Preprocess.whiten_eps denoise.Train.lr
         nerf.Train.lr_init nerf.Train.grad_max_norm filter_search.SeedSigmas.spatial

@@ -23,6 +23,13 @@ its PNGs, the first `metrics.noisebase.warmup` frames skipped, then `nb_psnr`, `
 `noisebase/` (its numbers beside the versions of the packages that computed them, as Noisebase's own
 per-sequence metric files) and the versions as MLflow tags `nrbench.noisebase.<package>`.
 
+With `metrics.cvvdp.enabled=true` every sequence also gets its ColorVideoVDP JOD (Mantiuk et al. 2024;
+`src.metrics.cvvdp_metric`: the tone-mapped frames on the SDR display `metrics.cvvdp.display` at
+`metrics.cvvdp.fps`): `cvvdp` (denoised) and `noisy_cvvdp` in the item's row, NaN for an item with an
+undefined output frame, the `cvvdp` package's version in metrics.json (`cvvdp`) and as the MLflow tag
+`nrbench.cvvdp.version`. A video metric: a still-image dataset with it enabled is refused at job start
+(`src.schema.run.validate_run`).
+
 Writes `metrics.json` (means overall and per spp), `per_image.csv`, `provenance.json` (resolved config,
 git commit, data fingerprint), denoised EXRs, tone-mapped PNGs and comparison strips (a sequence's middle
 frame) under `task.eval.out_dir`.
@@ -45,7 +52,7 @@ from src.eval.loop import Evaluation
 from src.io.atomic import atomic_write_json
 from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
-from src.metrics import noisebase_protocol
+from src.metrics import cvvdp_metric, noisebase_protocol
 from src.metrics.image import image_metrics, relmse_spp, tonemap
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
@@ -59,7 +66,7 @@ NAN = float("nan")
 
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
 #: (flicker) and `tpsnr` only where there are sequences, `flicker_unbiased` only where they have a second
-#: reference.
+#: reference, `cvvdp` only for sequences with `metrics.cvvdp.enabled`.
 SCORES = (
     "psnr",
     "ssim",
@@ -74,6 +81,7 @@ SCORES = (
     "temporal",
     "tpsnr",
     "flicker_unbiased",
+    "cvvdp",
     "undefined",
     *(f"nb_{name}" for name in noisebase_protocol.METRICS),
 )
@@ -140,6 +148,8 @@ class DenoiseEvaluation(Evaluation):
                 f"metrics.protocol=noisebase: scores sequences; dataset={cfg.dataset.name} holds still "
                 "images (use a sequence dataset: volumetric, noisebase)"
             )
+        cvvdp = cfg.metrics.get("cvvdp")
+        self.cvvdp = cvvdp if cvvdp is not None and cvvdp.enabled and self.kind.temporal else None
         self.baseline = self._baseline(cfg)
 
     def _baseline(self, cfg: DictConfig) -> Denoiser | None:
@@ -221,6 +231,9 @@ class DenoiseEvaluation(Evaluation):
                 else dict.fromkeys(noisy_scores, NAN)
             )
             flicker |= {f"noisy_{k}": v for k, v in noisy_scores.items()}
+            if self.cvvdp is not None:
+                flicker["cvvdp"] = self.cvvdp_jod(denoised, reference) if all(defined) else NAN
+                flicker["noisy_cvvdp"] = self.cvvdp_jod(noisy, reference)
         if self.protocol == "noisebase":
             nb_undefined = dict.fromkeys((f"nb_{k}" for k in noisebase_protocol.METRICS), NAN)
             flicker |= self.noisebase_scores(item, denoised, reference) if all(defined) else nb_undefined
@@ -242,6 +255,13 @@ class DenoiseEvaluation(Evaluation):
             scores["flicker_unbiased"] = flicker_unbiased(frames, reference, reference2, m.tonemap, m.gamma)
         return scores
 
+    def cvvdp_jod(self, frames: np.ndarray, reference: np.ndarray) -> float:
+        """ColorVideoVDP of one sequence of `frames` against the reference (module docstring)."""
+        m = self.cfg.metrics
+        return cvvdp_metric.cvvdp_jod(
+            frames, reference, str(m.cvvdp.display), float(m.cvvdp.fps), m.tonemap, m.gamma, self.device
+        )
+
     def noisebase_scores(
         self, item: dict[str, Any], denoised: np.ndarray, reference: np.ndarray
     ) -> dict[str, float]:
@@ -262,11 +282,14 @@ class DenoiseEvaluation(Evaluation):
         return {f"nb_{k}": scores[k] for k in noisebase_protocol.METRICS if scores[k] is not None}
 
     def header(self) -> dict[str, Any]:
-        """metrics.json names the baseline, and the Noisebase protocol's settings and package versions,
-        when they ran."""
+        """metrics.json names the baseline, the Noisebase protocol's settings and package versions, and
+        ColorVideoVDP's display, frame rate and package version, when they ran."""
         header = super().header()
         if self.baseline is not None:
             header["baseline"] = self.cfg.task.eval.baseline.get("name")
+        if self.cvvdp is not None:
+            cvvdp = {"display": str(self.cvvdp.display), "fps": float(self.cvvdp.fps)}
+            header["cvvdp"] = cvvdp | {"version": cvvdp_metric.version()}
         if self.protocol != "noisebase":
             return header
         options = self.cfg.metrics.noisebase
@@ -278,11 +301,12 @@ class DenoiseEvaluation(Evaluation):
         return {**header, "noisebase_protocol": protocol}
 
     def logged_tags(self) -> dict[str, str]:
-        """The package versions behind the `eval_nb_*` metrics, as MLflow tags."""
+        """The package versions behind the `eval_nb_*` and `eval_cvvdp` metrics, as MLflow tags."""
+        tags = {} if self.cvvdp is None else {"nrbench.cvvdp.version": cvvdp_metric.version()}
         if self.protocol != "noisebase":
-            return {}
+            return tags
         versions = noisebase_protocol.versions()
-        tags = {f"nrbench.noisebase.{name}": version for name, version in versions.items()}
+        tags |= {f"nrbench.noisebase.{name}": version for name, version in versions.items()}
         return tags | {"nrbench.noisebase.fvvdp": str(bool(self.cfg.metrics.noisebase.fvvdp)).lower()}
 
     def save_outputs(self, item: dict[str, Any], images: dict[str, np.ndarray]) -> None:

@@ -3,15 +3,19 @@ src/metrics/noisebase_protocol.py) in the layout of the Noisebase benchmark's re
 "Neural Partitioning Pyramids for Denoising Monte Carlo Renderings", SIGGRAPH; its `nb_result_table`):
 one row per compared method and sample count, columns PSNR, SSIM, MS-SSIM, FVVDP (FovVideoVDP, JOD),
 FLIP and tPSNR, each the mean over the held-out sequences of the per-sequence numbers (as their table
-averages its per-sequence metric files), then mean ± std over seeds.
+averages its per-sequence metric files), then mean ± std over seeds; and CVVDP where the runs logged it.
 
 Published numbers sit in their own block, source `published`, never mixed with the measured rows (source
 `measured`) and never marked best: the paper's NPPD at 4 spp on test8 (29.35 dB PSNR, 0.883 SSIM, 7.66
 FovVideoVDP). The `noisebase` 1.1.1 package ships no results table, so these three numbers, quoted in
 nrbench's issue 35 from the paper, are the only published ones here; the other cells of that row are "-".
 
-ColorVideoVDP (`cvvdp`, Mantiuk et al. 2024) would be the optional colour video metric of this table; it
-is not installed in nrbench's environment, so the table has no such column (docs/noisebase.md, "Scoring").
+CVVDP, ColorVideoVDP (Mantiuk et al. 2024; JOD, higher is better), is the table's optional colour video
+column: only where a measured run logged `eval_cvvdp` (`metrics.cvvdp.enabled=true`), the `cvvdp`
+package's version, the display and the frame rate in a note. It is not one of the protocol's numbers:
+Noisebase scores no ColorVideoVDP, so it is nrbench's (src/metrics/cvvdp_metric.py: `metrics.tonemap`
+frames, every frame), not computed on the protocol's 8-bit ACES frames after the warm-up, and no
+published number sits beside it (docs/noisebase.md, "Scoring").
 """
 
 from __future__ import annotations
@@ -50,13 +54,17 @@ NOISEBASE_METRICS: dict[str, MetricSpec] = {
     "FVVDP": ("eval_nb_fvvdp", True, "{:.2f}"),
     "FLIP": ("eval_nb_flip", False, "{:.4f}"),
     "tPSNR": ("eval_nb_tpsnr", True, "{:.2f}"),
+    "CVVDP": ("eval_cvvdp", True, "{:.2f}"),  # optional (OPTIONAL): not a protocol number (module docstring)
 }
+#: Columns shown only where a measured run logged them; they do not make a run a protocol run.
+OPTIONAL = ("CVVDP",)
 #: The published rows: (method, spp, {label: value}), Balint et al. 2023, test8.
 PUBLISHED_ROWS: list[tuple[str, int, dict[str, float]]] = [
     ("NPPD (Balint et al. 2023, test8)", 4, {"PSNR": 29.35, "SSIM": 0.883, "FVVDP": 7.66}),
 ]
 FVVDP_TAG = "tags.nrbench.noisebase.fvvdp"
 VERSION_TAGS = ("noisebase", "pytorch-msssim", "pyfvvdp", "torch", "numpy")
+CVVDP_VERSION_TAG = "tags.nrbench.cvvdp.version"
 
 
 def _spps(runs: pd.DataFrame) -> list[int]:
@@ -80,32 +88,38 @@ def noisebase_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd
         specs = {
             label: (f"{key}_spp{spp}", higher, fmt) for label, (key, higher, fmt) in NOISEBASE_METRICS.items()
         }
-        logged = (
-            runs[[c for c in (f"metrics.{k}" for k, _, _ in specs.values()) if c in runs]].notna().any(axis=1)
-        )
+        protocol = [f"metrics.{k}" for label, (k, _, _) in specs.items() if label not in OPTIONAL]
+        logged = runs[[c for c in protocol if c in runs]].notna().any(axis=1)
         frame = _aggregate(runs[logged], axes, specs).reset_index()  # columns: the labels, `<label> std`
         frame.insert(0, SOURCE, MEASURED)
         frame["spp"] = spp
         parts.append(frame)
     measured = pd.concat(parts, ignore_index=True)
+    shown = [label for label in NOISEBASE_METRICS if label not in OPTIONAL or label in measured]
     published = []
     for method, spp, values in PUBLISHED_ROWS:
         row: dict[str, Any] = {SOURCE: PUBLISHED, **dict.fromkeys(labels, ""), "spp": spp, RUNS_COLUMN: 0}
         row[labels[0]] = method
-        row |= {label: values.get(label, float("nan")) for label in NOISEBASE_METRICS}
+        row |= {label: values.get(label, float("nan")) for label in shown}
         published.append(row)
     out = pd.concat([measured, pd.DataFrame(published)], ignore_index=True)
-    columns = [c for label in NOISEBASE_METRICS for c in (label, f"{label} std") if c in out] + [RUNS_COLUMN]
+    columns = [c for label in shown for c in (label, f"{label} std") if c in out] + [RUNS_COLUMN]
     out = out.set_index([SOURCE, *labels, "spp"])[columns]
     out.attrs = {
-        "metrics": dict(NOISEBASE_METRICS),
-        "notes": _notes(runs),
+        "metrics": {label: NOISEBASE_METRICS[label] for label in shown},
+        "notes": _notes(runs, "CVVDP" in shown),
         "measured": len(measured),
     }
     return out
 
 
-def _notes(runs: pd.DataFrame) -> list[str]:
+def _values(runs: pd.DataFrame, column: str) -> str:
+    """The distinct values the runs logged in `column`, joined with ' / ' ('?' when none did)."""
+    found = sorted({str(v) for v in runs[column].dropna()}) if column in runs else []
+    return " / ".join(found) or "?"
+
+
+def _notes(runs: pd.DataFrame, cvvdp: bool) -> list[str]:
     notes = []
     versions = []
     for name in VERSION_TAGS:
@@ -125,7 +139,17 @@ def _notes(runs: pd.DataFrame) -> list[str]:
         "published: Balint et al. 2023 (NPPD, test8, 4 spp), as printed in the paper, not measured here; "
         "the noisebase package ships no results table, so cells it does not give are '-'"
     )
-    notes.append("ColorVideoVDP (cvvdp): not in nrbench's environment, so not computed and no column")
+    if cvvdp:
+        display = _values(runs, "params.metrics.cvvdp.display")
+        fps, version = _values(runs, "params.metrics.cvvdp.fps"), _values(runs, CVVDP_VERSION_TAG)
+        notes.append(
+            f"CVVDP: ColorVideoVDP (Mantiuk et al. 2024, JOD, 10 = indistinguishable), cvvdp {version}, "
+            f"display {display}, {fps} fps, on the metrics.tonemap frames, every frame: nrbench's, not a "
+            "Noisebase protocol number (no 8-bit ACES, no warm-up, nothing published); '-' where a run had "
+            "metrics.cvvdp.enabled=false"
+        )
+    else:
+        notes.append("ColorVideoVDP (cvvdp): off in the runs (metrics.cvvdp.enabled=false): no column")
     return notes
 
 

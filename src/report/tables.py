@@ -45,6 +45,10 @@ COMPARISON_METRICS: dict[str, MetricSpec] = {
     # RMS flicker against the noise-free truth from two independent references (no floor; negative: within
     # the estimate's noise of the truth); only runs on data with a second reference log it, else "-"
     "Flicker vs truth": ("eval_flicker_unbiased", False, "{:.4g}"),
+    # ColorVideoVDP (Mantiuk et al. 2024) of each sequence, JOD (10: indistinguishable from the reference),
+    # tone-mapped frames on an SDR display model (src/metrics/cvvdp_metric.py); only runs with
+    # metrics.cvvdp.enabled=true log it, else "-"
+    "CVVDP": ("eval_cvvdp", True, "{:.2f}"),
     # the share of held-out frames whose output is undefined (a searched GP expression's NaN/Inf weights
     # or zero weight sum there, src/models/filters/gp_filter.py): the other columns average the rest
     "Undefined": ("eval_undefined", False, "{:.3g}"),

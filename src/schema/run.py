@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
-from pydantic import Field
+from pydantic import AfterValidator, Field
 
 from src.errors import ConfigError, NrbenchError, one_line
 from src.schema.checks import check
-from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema
+from src.schema.types import NonNegativeInt, Open, PositiveFloat, PositiveInt, Schema, passes
 
 
 class Ssim(Schema):
@@ -39,6 +39,22 @@ class NoisebaseProtocol(Schema):
     fvvdp: bool = True
 
 
+def _cvvdp_display(name: str) -> str:
+    """One of the `cvvdp` package's SDR display models (the names come from the installed package)."""
+    from src.metrics.cvvdp_metric import check_display  # lazy: reads the package's data files
+
+    return passes(check_display, name)
+
+
+class Cvvdp(Schema):
+    """`metrics.cvvdp`: ColorVideoVDP (Mantiuk et al. 2024) of every sequence, tone-mapped, on an SDR
+    display model at `fps` frames per second (src/metrics/cvvdp_metric.py); off by default (slow on a CPU)."""
+
+    enabled: bool = False
+    display: Annotated[str, AfterValidator(_cvvdp_display)] = "standard_fhd"
+    fps: PositiveFloat = 30.0
+
+
 class Metrics(Schema):
     tonemap: Literal["clip_gamma", "reinhard_gamma", "clip"]
     gamma: PositiveFloat
@@ -50,6 +66,7 @@ class Metrics(Schema):
     flip: Flip
     protocol: Literal["noisebase"] | None = None
     noisebase: NoisebaseProtocol = NoisebaseProtocol()
+    cvvdp: Cvvdp = Cvvdp()
 
 
 class Tracking(Schema):
@@ -179,7 +196,7 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
     task = task_of(cfg)
     kind = task.kind(cfg)  # first: data of another task's family would fail to resolve less clearly
     values = resolved(cfg)
-    check(RunSchema, values)
+    run = check(RunSchema, values)
     if values["task"]["name"] not in values["profile_tasks"]:
         raise ConfigError(
             f"profile={values['profile_name']}: has sizes for task {values['profile_tasks']}, "
@@ -188,5 +205,11 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
     check(task.schema, values["task"], "task")
     if kind is not None and kind.schema is not None:
         check(kind.schema, values["dataset"], "dataset")
+    if run.metrics.cvvdp.enabled and kind is not None and not getattr(kind, "temporal", False):
+        raise ConfigError(
+            f"metrics.cvvdp.enabled=true: ColorVideoVDP is a video metric and scores sequences only; "
+            f"dataset={values['dataset'].get('name')} holds none (use a sequence dataset: volumetric, "
+            "noisebase)"
+        )
     build_method(values["model"])
     return values
