@@ -3,6 +3,7 @@ benchmark runs; the method pages; the smoke banner and the best expressions of t
 browser check (scripts/check_site.py) in headless Chromium on a site built from the fixture store of
 tests/test_report.py."""
 
+import html
 import re
 import shutil
 import subprocess
@@ -17,6 +18,7 @@ from mlflow.tracking import MlflowClient
 
 from src.report.build import build_report
 from src.report.ledger_page import COLUMNS
+from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
 from src.report.site import BENCH_EXPERIMENT, SMOKE_NOTE, build_site
 from tests.test_report import GP_EXPERIMENT, _cfg, _log_run, gp_runs, store  # noqa: F401 (fixtures)
 
@@ -42,6 +44,9 @@ def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
         run_id = _log_run(client, vol, runs["tmp"], model, seed, "0.0001", psnr, 0.05, 0.3)
         client.set_tag(run_id, "nrbench.profile", "smoke" if model == "kpcn" else "cpu")
         client.log_batch(run_id, metrics=[Metric("eval_noisy_psnr", 34.08, 0, 0)])
+        # scored with metrics.protocol=noisebase too (at 4 spp): the report's Noisebase table
+        nb_psnr = {"kpcn": 23.25, "dpcn": 21.75}[model]
+        client.log_batch(run_id, metrics=[Metric("eval_nb_psnr_spp4", nb_psnr, 0, 0)])
     bench = client.create_experiment(BENCH_EXPERIMENT, artifact_location=(runs["tmp"] / "mlart-b").as_uri())
     run_id = client.create_run(bench, tags={"nrbench.profile": "cpu", "nrbench.device": "cpu"}).info.run_id
     client.log_batch(
@@ -122,6 +127,13 @@ def test_a_method_page_shows_config_size_speed_bench_and_its_table_rows(site):
     assert SMOKE_NOTE in page  # one of its reports is a smoke run
     dpcn = (site["reports"] / "methods" / "dpcn.html").read_text()
     assert "12.50" not in dpcn and "Benchmark" not in dpcn  # no bench run timed dpcn
+    # the Noisebase protocol's table (a section of the volumetric report): each method its own row, the
+    # published NPPD row on neither page
+    heading = html.escape(NOISEBASE_HEADING)
+    for model, own, other in (("kpcn", "23.25", "21.75"), ("dpcn", "21.75", "23.25")):
+        text = (site["reports"] / "methods" / f"{model}.html").read_text()
+        section = text[text.index(heading) :]
+        assert own in section and other not in section and "NPPD" not in section and "29.35" not in section
 
 
 def test_a_smoke_report_says_so_at_its_top_and_shows_the_noisy_input(site):

@@ -33,6 +33,7 @@ import html
 import json
 import logging
 import re
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -60,6 +61,7 @@ from src.report.figures import (
 )
 from src.report.html import render_html
 from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
+from src.report.noisebase_table import STEM as NOISEBASE_STEM
 from src.report.noisebase_table import noisebase_html, noisebase_table, write_noisebase_table
 from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
 from src.report.tables import (
@@ -168,10 +170,11 @@ def build_report(cfg: Any) -> dict[str, Any]:
     if (usage := feature_usage_table(runs)) is not None:  # no confounding notes: it compares no rows
         tables["feature_usage"] = usage
         files |= _write_tables({"feature_usage": usage}, out_dir, [])
-    sections = {}
+    sections, section_tables = {}, {}
     if (noisebase := noisebase_table(runs, axes)) is not None:  # runs scored with metrics.protocol=noisebase
         files |= write_noisebase_table(noisebase, out_dir, warnings)
         sections[NOISEBASE_HEADING] = noisebase_html(noisebase)
+        section_tables[NOISEBASE_STEM] = NOISEBASE_HEADING
     if (expressions := best_expressions(runs, axes)) is not None:
         files["best_expressions.csv"] = atomic_write_text(
             out_dir / "best_expressions.csv", expressions.to_csv(index=False)
@@ -188,7 +191,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
     grid_heading = grid.heading if grid is not None else GRID_HEADING
     figures = {"Learning curves": curves, SEARCH_HEADING: search, grid_heading: grid and grid.path}
     root = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser()
-    manifest = report_manifest(name, runs, axes, tables, config_value(rc, "experiment"))
+    manifest = report_manifest(name, runs, axes, tables, config_value(rc, "experiment"), section_tables)
     page = _page(name, runs, axes, tables, figures, warnings, sections, manifest)
     files[MANIFEST] = atomic_write_text(out_dir / MANIFEST, json.dumps(manifest, indent=1) + "\n")
     files["index.html"] = atomic_write_text(out_dir / "index.html", page)
@@ -317,10 +320,18 @@ def _mean(runs, column: str) -> float | None:
     return float(values.astype(float).mean()) if len(values) else None
 
 
-def report_manifest(name: str, runs, axes: list[str], tables: dict[str, Any], experiment) -> dict[str, Any]:
+def report_manifest(
+    name: str,
+    runs,
+    axes: list[str],
+    tables: dict[str, Any],
+    experiment,
+    section_tables: Mapping[str, str] | None = None,
+) -> dict[str, Any]:
     """`report.json`: what the site lists about this report (src/report/site.py), from its runs only: the
-    title, experiments, profiles (`nrbench.profile` tags), run count, date, tables (file stem: heading),
-    and per method (`model.name`) its run count, distinct configurations (its `model.*` params) and the
+    title, experiments, profiles (`nrbench.profile` tags), run count, date, tables (file stem: heading;
+    `section_tables` adds those the page shows in a section of their own, e.g. the Noisebase table), and
+    per method (`model.name`) its run count, distinct configurations (its `model.*` params) and the
     means of its `METHOD_METRICS`."""
     experiments = [str(e) for e in ([experiment] if isinstance(experiment, str) else list(experiment or []))]
     profiles = sorted({str(p) for p in runs[PROFILE_TAG].dropna()}) if PROFILE_TAG in runs else []
@@ -341,7 +352,7 @@ def report_manifest(name: str, runs, axes: list[str], tables: dict[str, Any], ex
                 "configs": list(configs.values()),
                 **{m: _mean(part, f"metrics.{m}") for m in METHOD_METRICS},
             }
-    headings = {stem: _heading(stem) for stem in tables}
+    headings = {stem: _heading(stem) for stem in tables} | dict(section_tables or {})
     if BEST_EXPRESSION_TAG in runs:
         headings["best_expressions"] = EXPRESSIONS_HEADING
     return {
