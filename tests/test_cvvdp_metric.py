@@ -6,7 +6,6 @@ entry. Frames are small (non-square, so a swapped height and width changes the n
 from __future__ import annotations
 
 import importlib.metadata
-import json
 
 import numpy as np
 import pandas as pd
@@ -14,12 +13,11 @@ import pytest
 import torch
 
 from src.errors import ConfigError, DataError
-from src.eval.denoise_eval import DenoiseEvaluation
 from src.metrics.cvvdp_metric import JOD_MAX, check_display, cvvdp_jod, display_names, version
 from src.schema.run import validate_run
-from src.tracking.tracker import Tracker
 from tests.conftest import one_line_error, smoke_config
-from tests.test_volume_shards import SPPS, synthetic_frame
+from tests.sequence_eval_stub import stub_frames, stub_sequence_eval
+from tests.test_volume_shards import SPPS
 
 F, H, W = 6, 24, 20
 
@@ -167,58 +165,20 @@ def test_the_cli_exits_2_on_a_wrong_display(tmp_path):
 
 
 # -- the sequence evaluation --------------------------------------------------------------------------------
-_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8])  # the stub denoiser: each reference frame scaled by its own
-
-
-class _Tags(Tracker):
-    def __init__(self):
-        super().__init__()
-        self.tags: dict[str, str] = {}
-
-    def set_tags(self, tags):
-        self.tags |= dict(tags)
-
-
 def _evaluate(vol_data, out, monkeypatch, overrides=(), undefined_spp=None):
-    cfg = smoke_config(
-        vol_data,
-        out,
-        ["dataset=volumetric", "model=cross_bilateral", "metrics.tonemap=reinhard_gamma"]
-        + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"]
-        + list(overrides),
-    )
-
-    def infer(self, item):
-        output = item["item"]["reference"] * _SCALES.view(4, 1, 1, 1)
-        if item["item"]["spp"] == undefined_spp:  # as a GP expression undefined on one frame
-            output[1, :, 2, 3] = float("nan")
-        return output
-
-    monkeypatch.setattr(DenoiseEvaluation, "infer", infer)
-    tracker = _Tags()
-    evaluation = DenoiseEvaluation(cfg, tracker)
-    summary = evaluation.run(desc="stub")
-    header = json.loads((out / "eval" / "metrics.json").read_text())
-    rows = pd.read_csv(out / "eval" / "per_image.csv")
-    return summary, evaluation.logged_metrics(summary), rows, header, tracker
-
-
-def _frames(row):
-    """The raw frames (F, H, W, 3) of a row's test scene: denoised (the stub's), noisy, reference."""
-    reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in range(4)])
-    noisy = np.stack([synthetic_frame(row.scene, f, row.spp)["color"] for f in range(4)])
-    return reference * _SCALES.numpy().reshape(4, 1, 1, 1), noisy, reference
+    """The stubbed evaluation (tests/sequence_eval_stub.py) with the reinhard_gamma tone map."""
+    tonemap = ["metrics.tonemap=reinhard_gamma"]
+    return stub_sequence_eval(vol_data, out, monkeypatch, [*tonemap, *overrides], undefined_spp)
 
 
 def test_the_sequence_evaluation_scores_each_sequence_and_records_the_version(
     vol_data, tmp_path, monkeypatch
 ):
-    summary, logged, rows, header, tracker = _evaluate(
-        vol_data, tmp_path, monkeypatch, ["metrics.cvvdp.enabled=true", "metrics.cvvdp.fps=24"]
-    )
+    run = _evaluate(vol_data, tmp_path, monkeypatch, ["metrics.cvvdp.enabled=true", "metrics.cvvdp.fps=24"])
+    summary, logged, rows, header, tags = run.summary, run.logged, run.rows, run.header, run.tags
     assert len(rows) == 2
     for row in rows.itertuples():
-        denoised, noisy, reference = _frames(row)
+        denoised, noisy, reference, _ = stub_frames(row)
         options = {"display": "standard_fhd", "fps": 24.0, "method": "reinhard_gamma"}
         assert row.cvvdp == pytest.approx(cvvdp_jod(denoised, reference, **options), abs=1e-6)
         assert row.noisy_cvvdp == pytest.approx(cvvdp_jod(noisy, reference, **options), abs=1e-6)
@@ -228,22 +188,22 @@ def test_the_sequence_evaluation_scores_each_sequence_and_records_the_version(
     assert logged["eval_cvvdp"] == pytest.approx(rows["cvvdp"].mean(), abs=1e-6)
     assert summary["mean"]["noisy_cvvdp"] == pytest.approx(rows["noisy_cvvdp"].mean(), abs=1e-6)
     assert header["cvvdp"] == {"display": "standard_fhd", "fps": 24.0, "version": "0.5.7"}
-    assert tracker.tags == {"nrbench.cvvdp.version": "0.5.7"}
+    assert tags == {"nrbench.cvvdp.version": "0.5.7"}
 
 
 def test_disabled_there_is_no_cvvdp_column_tag_or_header(vol_data, tmp_path, monkeypatch):
-    summary, logged, rows, header, tracker = _evaluate(vol_data, tmp_path, monkeypatch)
-    assert not any("cvvdp" in k for k in (*rows.columns, *logged, *summary["mean"], *header, *tracker.tags))
+    run = _evaluate(vol_data, tmp_path, monkeypatch)
+    summary, logged, rows, header, tags = run.summary, run.logged, run.rows, run.header, run.tags
+    assert not any("cvvdp" in k for k in (*rows.columns, *logged, *summary["mean"], *header, *tags))
     assert "tpsnr" in rows  # the other sequence metrics are there
 
 
 def test_an_item_with_an_undefined_frame_has_an_undefined_cvvdp(vol_data, tmp_path, monkeypatch):
-    _, logged, rows, _, _ = _evaluate(
-        vol_data, tmp_path, monkeypatch, ["metrics.cvvdp.enabled=true"], undefined_spp=min(SPPS)
-    )
+    run = _evaluate(vol_data, tmp_path, monkeypatch, ["metrics.cvvdp.enabled=true"], undefined_spp=min(SPPS))
+    logged, rows = run.logged, run.rows
     bad, good = rows[rows.spp == min(SPPS)].iloc[0], rows[rows.spp != min(SPPS)].iloc[0]
     assert np.isnan(bad.cvvdp) and np.isfinite(good.cvvdp)
-    _, noisy, reference = _frames(bad)
+    _, noisy, reference, _ = stub_frames(bad)
     expected = cvvdp_jod(noisy, reference, method="reinhard_gamma")
     assert bad.noisy_cvvdp == pytest.approx(expected, abs=1e-6)  # the input is still scored
     assert logged["eval_cvvdp"] == pytest.approx(good.cvvdp, abs=1e-6)  # the defined item's value

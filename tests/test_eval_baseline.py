@@ -12,7 +12,8 @@ from src.errors import ConfigError
 from src.metrics.image import psnr, relmse_spp, tonemap
 from src.models.filters.cross_bilateral import CrossBilateralFilter
 from tests.conftest import one_line_error
-from tests.test_flicker_metrics import _evaluate, _sequences
+from tests.sequence_eval_stub import stub_frames, stub_sequence_eval
+from tests.test_flicker_metrics import TONEMAP
 
 # Wide range sigmas: near a box filter of radius 2, which changes the synthetic frames (the defaults leave
 # their noise as it is).
@@ -49,9 +50,10 @@ def _filtered(vol_data, row) -> np.ndarray:
 
 
 def test_the_baseline_is_scored_on_the_same_frames_as_the_method(vol_data, tmp_path, monkeypatch):
-    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False, overrides=[BASELINE])
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, [*TONEMAP, BASELINE])
+    logged, rows = run.logged, run.rows
     for row in rows.itertuples():
-        denoised, noisy, reference, _ = _sequences(row)
+        denoised, noisy, reference, _ = stub_frames(row)
         baseline = _filtered(vol_data, row)
         ldr = lambda x: tonemap(x, "reinhard_gamma", 2.2)  # noqa: E731
         expected_psnr = np.mean([psnr(ldr(baseline[f]), ldr(reference[f])) for f in range(4)])
@@ -69,7 +71,8 @@ def test_the_baseline_is_scored_on_the_same_frames_as_the_method(vol_data, tmp_p
 
 
 def test_without_a_baseline_there_are_no_baseline_columns(vol_data, tmp_path, monkeypatch):
-    summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False)
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, TONEMAP)
+    logged, rows = run.logged, run.rows
     assert not [c for c in rows if c.startswith("baseline_")]
     assert not [k for k in logged if "baseline" in k]
 
@@ -77,5 +80,5 @@ def test_without_a_baseline_there_are_no_baseline_columns(vol_data, tmp_path, mo
 def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch):
     learned = "+task.eval.baseline={name: identity, _target_: torch.nn.Identity}"  # no `learned = False`
     with pytest.raises(ConfigError) as excinfo:
-        _evaluate(vol_data, tmp_path, monkeypatch, second=False, overrides=[learned])
+        stub_sequence_eval(vol_data, tmp_path, monkeypatch, [learned])
     one_line_error(excinfo, "task.eval.baseline", "learned")

@@ -6,16 +6,13 @@ evaluation (src/eval/denoise_eval.py), the floored one only where an item has a 
 import math
 
 import numpy as np
-import pandas as pd
 import pytest
-import torch
 
 from src.errors import DataError
-from src.eval.denoise_eval import DenoiseEvaluation, OnDevice
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
-from src.tracking.tracker import Tracker
-from tests.conftest import one_line_error, smoke_config
-from tests.test_volume_shards import SPPS, synthetic_frame
+from tests.conftest import one_line_error
+from tests.sequence_eval_stub import stub_frames, stub_sequence_eval
+from tests.test_volume_shards import SPPS
 
 F, H, W, C = 8, 48, 48, 3
 M = (F - 1) * H * W * C  # frame differences per sequence
@@ -178,48 +175,13 @@ def test_temporal_psnr_rejects_a_warmup_that_leaves_no_pair():
 # -- in the sequence evaluation --
 
 
-#: The stub denoiser's output: each reference frame scaled by its own factor; the second reference: the
-#: reference scaled by other factors per frame (both known, so every metric is computed here by hand).
-_OUT_SCALES, _REF2_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8]), torch.tensor([1.1, 0.9, 1.0, 1.2])
+TONEMAP = ["metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"]
 
 
-def _evaluate(vol_data, tmp_path, monkeypatch, second: bool, undefined_spp: int | None = None, overrides=()):
-    cfg = smoke_config(
-        vol_data,
-        tmp_path,
-        ["dataset=volumetric", "model=cross_bilateral", "metrics.tonemap=reinhard_gamma", "metrics.gamma=2.2"]
-        + ["metrics.lpips.enabled=false", "metrics.flip.enabled=false", "task.eval.save_exr=false"]
-        + list(overrides),
-    )
-
-    def infer(self, item):
-        out = item["item"]["reference"] * _OUT_SCALES.view(4, 1, 1, 1)
-        if item["item"]["spp"] == undefined_spp:  # as a GP expression undefined on one frame
-            out[1, :, 2, 3] = float("nan")
-        return out
-
-    monkeypatch.setattr(DenoiseEvaluation, "infer", infer)
-    if second:
-
-        def items(self):
-            data = self.kind.held_out(self.cfg, self.features, self.model)
-            with_second = [dict(data[i]) for i in range(len(data))]
-            for item in with_second:
-                item["reference2"] = item["reference"] * _REF2_SCALES.view(4, 1, 1, 1)
-            return OnDevice(with_second, self.device)
-
-        monkeypatch.setattr(DenoiseEvaluation, "items", items)
-    evaluation = DenoiseEvaluation(cfg, Tracker())
-    summary = evaluation.run(desc="stub")
-    return summary, evaluation.logged_metrics(summary), pd.read_csv(tmp_path / "eval" / "per_image.csv")
-
-
-def _sequences(row):
-    """The raw frames (F, H, W, 3) of a row's test scene: denoised (stub), noisy, reference, reference2."""
-    reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in range(4)])
-    noisy = np.stack([synthetic_frame(row.scene, f, row.spp)["color"] for f in range(4)])
-    scale = lambda s: s.numpy().reshape(4, 1, 1, 1)  # noqa: E731
-    return reference * scale(_OUT_SCALES), noisy, reference, reference * scale(_REF2_SCALES)
+def _evaluate(vol_data, tmp_path, monkeypatch, second: bool, undefined_spp: int | None = None):
+    """(summary, logged metrics, per_image rows) of the stubbed evaluation (tests/sequence_eval_stub.py)."""
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, TONEMAP, undefined_spp, second_reference=second)
+    return run.summary, run.logged, run.rows
 
 
 def test_sequence_evaluation_reports_temporal_psnr_and_no_floored_flicker_without_a_second_reference(
@@ -228,7 +190,7 @@ def test_sequence_evaluation_reports_temporal_psnr_and_no_floored_flicker_withou
     summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=False)
     assert len(rows) == 2
     for row in rows.itertuples():
-        denoised, noisy, reference, _ = _sequences(row)
+        denoised, noisy, reference, _ = stub_frames(row)
         tm = ("reinhard_gamma", 2.2)
         assert row.tpsnr == pytest.approx(temporal_psnr(denoised, reference, *tm), rel=1e-5)
         assert row.noisy_tpsnr == pytest.approx(temporal_psnr(noisy, reference, *tm), rel=1e-5)
@@ -247,7 +209,7 @@ def test_sequence_evaluation_reports_the_floored_flicker_where_items_have_a_seco
     summary, logged, rows = _evaluate(vol_data, tmp_path, monkeypatch, second=True)
     assert len(rows) == 2
     for row in rows.itertuples():
-        denoised, noisy, reference, reference2 = _sequences(row)
+        denoised, noisy, reference, reference2 = stub_frames(row)
         tm = ("reinhard_gamma", 2.2)
         expected = flicker_unbiased(denoised, reference, reference2, *tm)
         expected_noisy = flicker_unbiased(noisy, reference, reference2, *tm)
@@ -280,7 +242,7 @@ def test_an_item_with_an_undefined_frame_scores_nan_and_is_counted_not_fatal(vol
         assert summary["mean"][key] == pytest.approx(good[key], rel=1e-12), key  # the defined item's value
     for key in ("noisy_psnr", "noisy_relmse_spp", "noisy_temporal", "noisy_flicker_unbiased"):
         assert np.isfinite(bad[key]), key  # the input is still scored
-    _, noisy, reference, _ = _sequences(bad)
+    _, noisy, reference, _ = stub_frames(bad)
     assert bad.noisy_tpsnr == pytest.approx(temporal_psnr(noisy, reference, "reinhard_gamma", 2.2), rel=1e-5)
     assert logged["eval_undefined"] == pytest.approx(0.125)
     assert logged[f"eval_undefined_spp{min(SPPS)}"] == pytest.approx(0.25)

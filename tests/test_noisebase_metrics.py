@@ -25,6 +25,7 @@ from src.report.noisebase_table import best_measured, noisebase_table
 from src.report.tables import to_markdown
 from src.tracking.tracker import Tracker
 from tests.conftest import one_line_error, smoke_config
+from tests.sequence_eval_stub import SCALES, stub_sequence_eval
 from tests.test_volume_shards import SPPS, synthetic_frame
 
 H, W = 168, 176  # MS-SSIM's five scales need >= 161 pixels a side
@@ -218,34 +219,12 @@ def test_versions_recorded_and_pyfvvdp_shim():
 
 
 # -- the sequence evaluation with metrics.protocol=noisebase ------------------------------------------------
-_SCALES = torch.tensor([1.0, 0.6, 1.5, 0.8])  # the stub denoiser: each reference frame scaled by its own
-
-
-class _Tags(Tracker):
-    def __init__(self):
-        super().__init__()
-        self.tags: dict[str, str] = {}
-
-    def set_tags(self, tags):
-        self.tags |= dict(tags)
-
-
 def _protocol_eval(vol_data, tmp_path, monkeypatch, *overrides):
-    cfg = smoke_config(
-        vol_data,
-        tmp_path,
-        ["dataset=volumetric", "model=cross_bilateral", "metrics.lpips.enabled=false"]
-        + ["metrics.flip.enabled=false", "task.eval.save_exr=false", "metrics.protocol=noisebase"]
-        + ["metrics.noisebase.warmup=1", *overrides],
-    )
-    monkeypatch.setattr(
-        DenoiseEvaluation, "infer", lambda self, item: item["item"]["reference"] * _SCALES.view(4, 1, 1, 1)
-    )
-    tracker = _Tags()
-    evaluation = DenoiseEvaluation(cfg, tracker)
-    summary = evaluation.run(desc="stub")
-    rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
-    return summary, evaluation.logged_metrics(summary), rows, tracker.tags
+    """(summary, logged metrics, per_image rows, tags) of the stubbed evaluation (tests/sequence_eval_stub.py)
+    with the Noisebase protocol, 1 warm-up frame."""
+    protocol = ["metrics.protocol=noisebase", "metrics.noisebase.warmup=1"]
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, [*protocol, *overrides])
+    return run.summary, run.logged, run.rows, run.tags
 
 
 def test_the_sequence_evaluation_scores_each_sequence_with_the_protocol(vol_data, tmp_path, monkeypatch):
@@ -253,7 +232,7 @@ def test_the_sequence_evaluation_scores_each_sequence_with_the_protocol(vol_data
     assert len(rows) == 2
     for row in rows.itertuples():
         reference = np.stack([synthetic_frame(row.scene, f, max(SPPS))["color"] for f in range(4)])
-        denoised = reference * _SCALES.numpy().reshape(4, 1, 1, 1)
+        denoised = reference * SCALES.numpy().reshape(4, 1, 1, 1)
         expected = nbp.score_sequence(
             np.stack([nbp.srgb8(f) for f in denoised]), np.stack([nbp.srgb8(f) for f in reference]), warmup=1
         )
