@@ -41,6 +41,7 @@ STUDIES = {
     "unet_vs_kpcn",
     "feature_selection",
     "temporal_loss",
+    "noisebase",
 }
 GROUPS = {"model", "task", "dataset"}
 
@@ -181,6 +182,16 @@ def test_the_gp_rules_sweep_is_the_thesis_rules_against_the_first_ones():
     assert values(params["seed"]) == ["0", "1", "2"] and "Energy" in cfg.report.metrics
     job = compose_sweep("gp_rules", [f"task.search={list(params['task.search'].sweep_string_iterator())[1]}"])
     assert job.task.search.vector_pairs == "mixed" and job.task.search.hall_of_fame == 10
+
+
+def test_the_noisebase_study_runs_every_denoiser_that_reads_noisebase_sets():
+    """Issue 35: the U-Net KPCN, KPCN, DPCN, the residual KPCN, OIDN and the cross-bilateral filter side by
+    side on dataset=noisebase; not the GP expressions, which read a buffer Noisebase lacks (visibility)."""
+    cfg = compose_sweep("noisebase")
+    assert cfg.dataset.name == "noisebase" and cfg.report.axes == ["model.name"]
+    models = values(swept(cfg)["model"])
+    assert sorted(models) == sorted(["unet_kpcn", "kpcn", "dpcn", "resnet", "oidn", "cross_bilateral"])
+    assert not [m for m in models if m.startswith("gp_")]
 
 
 def test_the_gp_population_sweep_scales_with_the_profile():
