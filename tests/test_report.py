@@ -543,3 +543,19 @@ def test_each_data_kind_and_task_reports_under_its_own_name():
     still, volume = (compose_config(o) for o in ([], ["dataset=volumetric"]))
     assert still.tracking.experiment.removeprefix("nrbench-") == still.report.name
     assert volume.tracking.experiment.removeprefix("nrbench-") == volume.report.name
+
+
+def test_the_undefined_column_shows_only_where_an_output_was_undefined():
+    runs = pd.DataFrame(
+        {
+            "params.model.name": ["gp_filter", "gp_filter", "cross_bilateral"],
+            "params.seed": ["0", "1", "0"],
+            "metrics.eval_psnr": [30.0, 31.0, 29.0],
+            "metrics.eval_undefined": [0.0, 0.0, 0.0],
+        }
+    )
+    assert "Undefined" not in comparison_table(runs, noisy=False)  # zeros everywhere: no column
+    runs.loc[1, "metrics.eval_undefined"] = 0.25  # one held-out image of four undefined in seed 1
+    table = comparison_table(runs, noisy=False)
+    assert table.loc["gp_filter", "Undefined"] == pytest.approx(0.125)
+    assert table.loc["cross_bilateral", "Undefined"] == 0.0

@@ -120,6 +120,18 @@ def per_spp_metrics(runs: pd.DataFrame, metrics: Mapping[str, MetricSpec]) -> di
     return out
 
 
+#: Metrics whose column is shown only where some run has a nonzero value: the share of undefined outputs
+#: is 0 for every method but a searched GP expression, and a column of zeros says nothing.
+ONLY_NONZERO = {"eval_undefined"}
+
+
+def _shown(values: pd.Series, key: str) -> bool:
+    """Whether a metric's column is shown: some run logged it (and, for `ONLY_NONZERO`, not as 0)."""
+    if key in ONLY_NONZERO:
+        return bool((pd.to_numeric(values).fillna(0) != 0).any())
+    return bool(values.notna().any())
+
+
 def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, MetricSpec]) -> pd.DataFrame:
     """Mean, std and count per distinct axis value, rows in order of first appearance."""
     columns = [param_column(a) for a in axes]
@@ -131,7 +143,7 @@ def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, Me
         }
     )
     present = {lab: spec for lab, spec in metrics.items() if f"metrics.{spec[0]}" in runs}
-    present = {lab: spec for lab, spec in present.items() if runs[f"metrics.{spec[0]}"].notna().any()}
+    present = {lab: spec for lab, spec in present.items() if _shown(runs[f"metrics.{spec[0]}"], spec[0])}
     values = pd.DataFrame({lab: pd.to_numeric(runs[f"metrics.{spec[0]}"]) for lab, spec in present.items()})
     values = values.reindex(runs.index)
     grouped = values.groupby([keys[lab] for lab in labels], sort=False, dropna=False)
