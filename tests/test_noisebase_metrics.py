@@ -19,11 +19,10 @@ import pytest
 import torch
 
 from src.errors import ConfigError, DataError
-from src.eval.denoise_eval import DenoiseEvaluation
 from src.metrics import noisebase_protocol as nbp
 from src.report.noisebase_table import best_measured, noisebase_table
 from src.report.tables import to_markdown
-from src.tracking.tracker import Tracker
+from src.schema.run import validate_run
 from tests.conftest import one_line_error, smoke_config
 from tests.sequence_eval_stub import SCALES, stub_sequence_eval
 from tests.test_volume_shards import SPPS, synthetic_frame
@@ -268,7 +267,7 @@ def test_fvvdp_can_be_left_out_and_the_warmup_must_leave_two_frames(vol_data, tm
 def test_the_protocol_on_still_images_is_a_one_line_config_error(tmp_path):
     cfg = smoke_config(tmp_path, tmp_path, ["model=cross_bilateral", "metrics.protocol=noisebase"])
     with pytest.raises(ConfigError) as excinfo:
-        DenoiseEvaluation(cfg, Tracker())
+        validate_run(cfg)  # at job start, before any training
     one_line_error(excinfo, "metrics.protocol=noisebase", "dataset=procedural", "still images")
 
 

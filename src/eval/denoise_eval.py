@@ -142,12 +142,8 @@ class DenoiseEvaluation(Evaluation):
         if self.checkpoint is not None:
             self.kind.check_trained_features(self.checkpoint, self.features, str(cfg.task.eval.checkpoint))
         self.space = self.kind.color_space(cfg)
+        # A dataset of still images with a video metric is refused at job start (src.schema.run).
         self.protocol = cfg.metrics.get("protocol")
-        if self.protocol == "noisebase" and not self.kind.temporal:
-            raise ConfigError(
-                f"metrics.protocol=noisebase: scores sequences; dataset={cfg.dataset.name} holds still "
-                "images (use a sequence dataset: volumetric, noisebase)"
-            )
         cvvdp = cfg.metrics.get("cvvdp")
         self.cvvdp = cvvdp if cvvdp is not None and cvvdp.enabled and self.kind.temporal else None
         self.baseline = self._baseline(cfg)
@@ -231,9 +227,6 @@ class DenoiseEvaluation(Evaluation):
                 else dict.fromkeys(noisy_scores, NAN)
             )
             flicker |= {f"noisy_{k}": v for k, v in noisy_scores.items()}
-            if self.cvvdp is not None:
-                flicker["cvvdp"] = self.cvvdp_jod(denoised, reference) if all(defined) else NAN
-                flicker["noisy_cvvdp"] = self.cvvdp_jod(noisy, reference)
         if self.protocol == "noisebase":
             nb_undefined = dict.fromkeys((f"nb_{k}" for k in noisebase_protocol.METRICS), NAN)
             flicker |= self.noisebase_scores(item, denoised, reference) if all(defined) else nb_undefined
@@ -244,7 +237,8 @@ class DenoiseEvaluation(Evaluation):
     def temporal_scores(
         self, item: dict[str, Any], frames: np.ndarray, reference: np.ndarray
     ) -> dict[str, float]:
-        """The temporal metrics of one sequence of `frames` against the reference (module docstring)."""
+        """The sequence metrics of one sequence of `frames` against the reference (module docstring):
+        the temporal ones, and ColorVideoVDP when enabled."""
         m = self.cfg.metrics
         scores = {
             "temporal": temporal_error(frames, reference, m.tonemap, m.gamma),
@@ -253,14 +247,12 @@ class DenoiseEvaluation(Evaluation):
         if "reference2" in item["item"]:  # a second, independent render of the reference
             reference2 = _frames_hwc(item["item"]["reference2"])
             scores["flicker_unbiased"] = flicker_unbiased(frames, reference, reference2, m.tonemap, m.gamma)
+        if self.cvvdp is not None:
+            display, fps = str(self.cvvdp.display), float(self.cvvdp.fps)
+            scores["cvvdp"] = cvvdp_metric.cvvdp_jod(
+                frames, reference, display, fps, m.tonemap, m.gamma, self.device
+            )
         return scores
-
-    def cvvdp_jod(self, frames: np.ndarray, reference: np.ndarray) -> float:
-        """ColorVideoVDP of one sequence of `frames` against the reference (module docstring)."""
-        m = self.cfg.metrics
-        return cvvdp_metric.cvvdp_jod(
-            frames, reference, str(m.cvvdp.display), float(m.cvvdp.fps), m.tonemap, m.gamma, self.device
-        )
 
     def noisebase_scores(
         self, item: dict[str, Any], denoised: np.ndarray, reference: np.ndarray

@@ -205,11 +205,22 @@ def validate_run(cfg: DictConfig) -> dict[str, Any]:
     check(task.schema, values["task"], "task")
     if kind is not None and kind.schema is not None:
         check(kind.schema, values["dataset"], "dataset")
-    if run.metrics.cvvdp.enabled and kind is not None and not getattr(kind, "temporal", False):
-        raise ConfigError(
-            f"metrics.cvvdp.enabled=true: ColorVideoVDP is a video metric and scores sequences only; "
-            f"dataset={values['dataset'].get('name')} holds none (use a sequence dataset: volumetric, "
-            "noisebase)"
-        )
+    if kind is not None and not getattr(kind, "temporal", False):
+        _no_video_metrics(run.metrics, str(values["dataset"].get("name")))
     build_method(values["model"])
     return values
+
+
+def _no_video_metrics(metrics: Metrics, dataset: str) -> None:
+    """A one-line ConfigError at job start (before any training) when a video metric (the Noisebase
+    protocol, ColorVideoVDP) is asked of a dataset of still images: they score whole sequences."""
+    asked = {
+        "metrics.protocol=noisebase": metrics.protocol == "noisebase",
+        "metrics.cvvdp.enabled=true": metrics.cvvdp.enabled,
+    }
+    settings = [setting for setting, on in asked.items() if on]
+    if settings:
+        raise ConfigError(
+            f"{settings[0]}: scores sequences only; dataset={dataset} holds still images (use a sequence "
+            "dataset: volumetric, noisebase)"
+        )
