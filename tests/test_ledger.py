@@ -18,16 +18,17 @@ from omegaconf import OmegaConf
 from src.errors import ConfigError
 from src.report.claims import load_claims
 from src.report.ledger import arm_values, build_ledger, matching
+from src.report.signed_rank import min_items
 from src.report.verdicts import (
     DIRECTION_ONLY,
     NOT_DISTINGUISHABLE,
     NOT_REPRODUCED,
     NOT_RUN,
     REPRODUCED,
+    UNDERPOWERED,
     agreement_verdict,
     better_verdict,
     comparable_verdict,
-    min_items,
 )
 from tests.conftest import ROOT, one_line_cli_error, one_line_error
 
@@ -41,81 +42,118 @@ def _items(values):
 # --- the status rules ----------------------------------------------------------------------------------
 
 
-def test_min_items_is_the_first_count_whose_smallest_signed_rank_p_is_below_alpha():
+def test_min_items_is_the_first_count_whose_smallest_signed_rank_p_reaches_alpha():
     for alpha in (0.05, 0.01, 0.0625, 0.2):
         n = min_items(alpha)
-        assert 2 / 2**n < alpha <= 2 / 2 ** (n - 1), alpha
+        assert 2 / 2**n <= alpha < 2 / 2 ** (n - 1), alpha
     assert min_items(0.05) == 6
 
 
+def _better(advantage, size=0.0, log=False, alpha=0.05, p_adjusted=None):
+    return better_verdict(_items(advantage), NAMES, log, size, alpha, "seeds", p_adjusted)
+
+
 def test_better_separates_reproduced_direction_only_reversed_and_inside_the_spread():
-    b = _items([20.0, 21.0, 22.0, 23.0, 24.0, 25.0, 26.0, 27.0])
-    a = b + _items([1.0, 1.2, 0.8, 1.1, 0.9, 1.0, 1.3, 0.7])  # +1 dB on every item
-    assert better_verdict(a, b, NAMES, True, False, 0.0, 0.05).status == REPRODUCED
-    assert better_verdict(a, b, NAMES, True, False, 0.5, 0.05).status == REPRODUCED
-    short = better_verdict(a, b, NAMES, True, False, 2.0, 0.05)  # the source claims 2 dB
-    assert short.status == DIRECTION_ONLY and "published size 2" in short.numbers
-    assert better_verdict(b, a, NAMES, True, False, 0.0, 0.05).status == NOT_REPRODUCED
-    # Lower is better (an error): a's higher values are worse.
-    assert better_verdict(a, b, NAMES, False, False, 0.0, 0.05).status == NOT_REPRODUCED
-    noise = b + _items([0.5, -0.4, 0.3, -0.6, 0.2, -0.1, 0.4, -0.3])
-    assert better_verdict(noise, b, NAMES, True, False, 0.0, 0.05).status == NOT_DISTINGUISHABLE
-    verdict = better_verdict(a, b, NAMES, True, False, 0.0, 0.05)
-    assert "+1 over 8 paired items (8 favour a, 0 b" in verdict.numbers and verdict.items == 8
+    gain = [1.0, 1.2, 0.8, 1.1, 0.9, 1.0, 1.3, 0.7]  # a ahead by about 1 on every replicate
+    assert _better(gain).status == REPRODUCED
+    assert _better(gain, size=0.5).status == REPRODUCED
+    # A published size inside the interval is consistent with the data: still reproduced.
+    assert _better(gain, size=1.1).status == REPRODUCED
+    short = _better(gain, size=2.0)  # the source claims 2: the interval [0.8, 1.2] lies below it
+    assert short.status == DIRECTION_ONLY and "published size +2" in short.numbers
+    assert _better([-g for g in gain]).status == NOT_REPRODUCED
+    assert _better([0.5, -0.4, 0.3, -0.6, 0.2, -0.1, 0.4, -0.3]).status == NOT_DISTINGUISHABLE
+    verdict = _better(gain)
+    assert verdict.items == 8 and "by +1 (Hodges-Lehmann)" in verdict.numbers
+    assert "over 8 seeds (8 favour a, 0 b)" in verdict.numbers
+    # n = 8: P(T+ <= 3) = 5/256 <= 0.025 < P(T+ <= 4), so the ends are the 4th smallest and largest of the
+    # Walsh averages: 0.7, 0.75, 0.8, 0.8 ... and 1.3, 1.25, 1.2, 1.2.
+    assert verdict.low == pytest.approx(0.8) and verdict.high == pytest.approx(1.2)
 
 
-def test_better_pairs_items_by_name_not_by_position():
-    b = _items([10.0, 20.0, 30.0, 40.0, 50.0, 60.0])
-    a = (b + 1.0).iloc[::-1]  # the same items, listed in the other order
-    verdict = better_verdict(a, b, NAMES, True, False, 0.0, 0.05)
-    assert verdict.status == REPRODUCED and "+1 over 6" in verdict.numbers
+def test_the_direction_comes_from_the_ranks_not_from_the_mean():
+    # 15 replicates favour b by 1, one favours a by 1000: the mean says a, every rank but one says b.
+    verdict = _better([-1.0] * 15 + [1000.0])
+    assert verdict.status == NOT_REPRODUCED and verdict.estimate == -1.0
 
 
-def test_five_items_can_never_show_a_difference_and_the_verdict_says_so():
-    b = _items([1.0, 2.0, 3.0, 4.0, 5.0])
-    verdict = better_verdict(b + 5, b, NAMES, True, False, 0.0, 0.05)
-    assert verdict.status == NOT_DISTINGUISHABLE and "needs 6 or more" in verdict.numbers
+def test_fewer_replicates_than_the_test_needs_are_underpowered_with_what_it_would_need():
+    for n in (1, 3, 5):
+        verdict = _better([5.0 + 0.1 * i for i in range(n)])
+        assert verdict.status == UNDERPOWERED, n
+        assert "needs 6 or more seeds" in verdict.numbers
+    three = _better([1.0, 1.5, 0.5])
+    assert "smallest two-sided p with 3 is 0.25" in three.numbers and "about" in three.numbers
+    assert _better([1.0, 1.5, 0.5, 1.2, 0.8, 1.1]).status == REPRODUCED  # six: decidable
+
+
+def test_an_adjusted_p_decides_significance_and_both_are_printed():
+    gain = [1.0, 1.2, 0.8, 1.1, 0.9, 1.0]
+    assert _better(gain).status == REPRODUCED
+    adjusted = _better(gain, p_adjusted=0.09)
+    assert adjusted.status == NOT_DISTINGUISHABLE and "adjusted p = 0.09" in adjusted.numbers
+    assert "signed-rank p = 0.031" in adjusted.numbers
 
 
 def test_better_on_a_log_scale_compares_factors_with_the_published_size():
-    kpcn = _items([1.0, 1.2, 0.9, 1.1, 1.05, 0.95, 1.0])  # seconds per round
-    unet = kpcn / 12.0
-    fast = better_verdict(unet, kpcn, ("unet", "kpcn"), False, True, 10.0, 0.05)
-    assert fast.status == REPRODUCED and "factor 12" in fast.numbers
-    slower = better_verdict(kpcn / 5.0, kpcn, ("unet", "kpcn"), False, True, 10.0, 0.05)
-    assert slower.status == DIRECTION_ONLY and "factor 5" in slower.numbers
+    import numpy as np
+
+    kpcn = np.array([1.0, 1.2, 0.9, 1.1, 1.05, 0.95, 1.0])  # seconds per round
+    fast = _better(np.log(kpcn / (kpcn / 12.0)), size=10.0, log=True)
+    assert fast.status == REPRODUCED and "by 12x" in fast.numbers
+    slower = _better(np.log(kpcn / (kpcn / 5.0)), size=10.0, log=True)
+    assert slower.status == DIRECTION_ONLY and "by 5x" in slower.numbers
+    assert _better(np.log([5.0, 6.0, 4.0, 5.5, 4.5, 5.0]), size=0.5, log=True).status == REPRODUCED
 
 
-def test_one_common_item_is_not_run_rather_than_a_test():
-    verdict = better_verdict(_items([1.0]), _items([0.0, 2.0]), NAMES, True, False, 0.0, 0.05)
-    assert verdict.status == NOT_RUN
+def test_no_replicate_is_not_run_rather_than_a_test():
+    assert _better([]).status == NOT_RUN
 
 
-def test_comparable_uses_the_t_interval_of_the_paired_mean():
-    b = _items([20.0, 21.0, 22.0, 23.0])
-    a = b + _items([0.1, -0.1, 0.1, -0.1])  # mean 0, sd 0.11547: the 95 % half-width is 3.1824 * 0.057735
-    half = 3.182446 * 0.1154701 / 2
-    assert comparable_verdict(a, b, NAMES, False, half + 0.01).status == REPRODUCED
-    assert comparable_verdict(a, b, NAMES, False, half - 0.01).status == NOT_DISTINGUISHABLE
-    far = comparable_verdict(b + 1.0 + (a - b), b, NAMES, False, 0.5)
-    assert far.status == NOT_REPRODUCED and f"[{1 - half:+.4g}, {1 + half:+.4g}]" in far.numbers
+def _comparable(difference, tolerance, alpha=0.05):
+    return comparable_verdict(_items(difference), NAMES, False, tolerance, alpha, "seeds")
 
 
-def test_agreement_needs_every_case_that_ran_within_the_tolerance():
+def test_comparable_uses_the_signed_rank_interval_of_the_shift():
+    d = [0.1, -0.1, 0.05, -0.05, 0.02, -0.02, 0.08, -0.08]
+    verdict = _comparable(d, 0.2)
+    assert verdict.status == REPRODUCED
+    lo, hi = verdict.low, verdict.high
+    assert _comparable(d, max(-lo, hi) - 1e-6).status == NOT_DISTINGUISHABLE
+    assert _comparable(d, max(-lo, hi)).status == REPRODUCED  # the boundary is inside
+    far = _comparable([1.0 + x for x in d], 0.5)
+    assert far.status == NOT_REPRODUCED
+    assert _comparable([-1.0 - x for x in d], 0.5).status == NOT_REPRODUCED  # the other tail
+
+
+def test_comparable_from_two_replicates_is_underpowered_not_a_zero_width_interval():
+    verdict = _comparable([0.1, 0.1], 0.5)
+    assert verdict.status == UNDERPOWERED and "needs 6 or more" in verdict.numbers
+
+
+def test_agreement_needs_every_published_case():
     cases = [("nerf, lego", _items([31.5, 31.7]), 31.6), ("mipnerf, lego", _items([33.0, 33.2]), 33.0)]
     assert agreement_verdict(cases, 0.2).status == REPRODUCED
     off = agreement_verdict([*cases, ("refnerf, lego", _items([30.0]), 33.0)], 0.2)
     assert off.status == NOT_REPRODUCED and off.numbers.startswith("2 of 3 case(s) within")
     partly = agreement_verdict([*cases, ("refnerf, lego", None, 33.0)], 0.2)
-    assert partly.status == REPRODUCED and "1 of 3 not run" in partly.numbers
+    assert partly.status == UNDERPOWERED and "1 of 3 not run: refnerf, lego" in partly.numbers
+    one_of_three = agreement_verdict([cases[0], ("b", None, 1.0), ("c", None, 2.0)], 0.2)
+    assert one_of_three.status == UNDERPOWERED
+    # A case outside decides even when another did not run.
+    assert agreement_verdict([("x", _items([5.0]), 1.0), ("y", None, 1.0)], 0.2).status == NOT_REPRODUCED
     assert agreement_verdict([("x", None, 1.0)], 0.2).status == NOT_RUN
+    # The tolerance is inclusive: 0.5 away with a tolerance of 0.5 is within (values exact in binary).
+    assert agreement_verdict([("x", _items([1.25, 1.75]), 1.0)], 0.5).status == REPRODUCED
+    assert agreement_verdict([("x", _items([1.25, 1.875]), 1.0)], 0.5).status == NOT_REPRODUCED
 
 
 # --- the claims file -----------------------------------------------------------------------------------
 
 CLAIM = """
   - id: {id}
-    source: {{document: Bunjevac 2019, section: "6.2", where: Table 6.3}}
+    category: finding
+    source: {{document: Bunjevac 2019, section: "6.2", where: Table 6.3, quote: q, translation: t}}
     statement: KPCN beats DPCN.
     profiles: [paper, cpu]
     runs: {{study: denoisers, experiment: nrbench-denoise}}
@@ -137,8 +175,21 @@ def _claims_file(tmp_path, text):
     return path
 
 
+def test_a_target_or_an_english_quote_needs_no_translation_and_a_target_is_not_tallied(tmp_path):
+    target = CLAIM.format(id="t").replace("category: finding", "category: target")
+    target = target.replace(", quote: q, translation: t", "")
+    english = (
+        CLAIM.format(id="e").replace("Bunjevac 2019", "Davletaliyev 2016").replace(", translation: t", "")
+    )
+    ratio = CLAIM.format(id="r").replace("dpcn}}", "dpcn}, ratio: {task.train.epochs: 2}}")
+    t, e, r = load_claims(_claims_file(tmp_path, "claims:" + target + english + ratio))
+    assert (t.category, t.tallied, e.tallied, e.translation) == ("target", False, True, "")
+    assert r.rule.ratio == {"task.train.epochs": 2.0}
+
+
 def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
     (claim,) = load_claims(_claims_file(tmp_path, "claims:" + CLAIM.format(id="kpcn_dpcn")))
+    assert (claim.category, claim.quote, claim.translation, claim.tallied) == ("finding", "q", "t", True)
     assert claim.citation == "Bunjevac 2019, Sec. 6.2, Table 6.3"
     assert (claim.sources, claim.profiles) == ((("study", "denoisers"),), ("paper", "cpu"))
     assert claim.rule.a == {"model.name": "kpcn"} and claim.rule.size == 0.0
@@ -169,6 +220,19 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
             ["rule", "'sise'"],
         ),
         (lambda t: t.replace("higher: true", "higher: true\n    metirc: psnr"), ["kpcn_dpcn", "'metirc'"]),
+        (lambda t: t.replace("category: finding", "category: result"), ["kpcn_dpcn.category", "result"]),
+        (lambda t: t.replace("quote: q, translation: t", "translation: t"), ["kpcn_dpcn.source.quote"]),
+        (lambda t: t.replace(", translation: t", ""), ["kpcn_dpcn.source.translation"]),
+        (
+            lambda t: t.replace(
+                "b: {model.name: dpcn}}", "b: {model.name: dpcn}, ratio: {task.train.epochs: 0}}"
+            ),
+            ["rule.ratio", "positive"],
+        ),
+        (
+            lambda t: t.replace("kind: better", "kind: comparable, tolerance: 0.5"),
+            ["rule.tolerance_source"],
+        ),
     ],
 )
 def test_a_malformed_claim_is_one_line_naming_its_key(tmp_path, edit, needles):
@@ -202,7 +266,7 @@ def test_an_arm_scored_twice_on_one_item_counts_its_mean_once():
 STUDY = "toy_study"
 
 
-def _log(client, experiment_id, tmp, params, tags, metrics=None, artifact=None):
+def log_run(client, experiment_id, tmp, params, tags, metrics=None, artifact=None):
     run_id = client.create_run(experiment_id, tags=tags).info.run_id
     client.log_batch(
         run_id,
@@ -225,7 +289,7 @@ def _images(psnr):
 
 @pytest.fixture(scope="module")
 def ledger_store(tmp_path_factory):
-    """A study (`kpcn` 1 dB above `dpcn` on 2 images x 4 seeds, an older kpcn rerun 10 dB below that the
+    """A study (`kpcn` 1 dB above `dpcn` on 2 images x 6 seeds, an older kpcn rerun 10 dB below that the
     ledger must not count), a study run at smoke only, and benchmarks with 7 rounds: at paper size in fp32
     an older run (U-Net 5x faster than KPCN) and the newest (12x faster, 1.5x slower than OIDN), then a
     bf16 one (3x), and a newer one at cpu size (only 2x faster)."""
@@ -239,9 +303,9 @@ def ledger_store(tmp_path_factory):
     cpu = {"nrbench.profile": "cpu", "nrbench.git_commit": "abc1234def", "nrbench.data_fingerprint": "f00d"}
     study = {"report.name": f"sweeps/{STUDY}"}
     rng = np.random.default_rng(0)
-    for seed in range(4):
+    for seed in range(6):
         base = 25 + rng.normal(0, 1, 2)
-        _log(
+        log_run(
             client,
             denoise,
             tmp,
@@ -249,7 +313,7 @@ def ledger_store(tmp_path_factory):
             cpu,
             artifact=("eval/per_image.csv", _images(base - 9)),
         )  # the older run: replaced by the next
-        _log(
+        log_run(
             client,
             denoise,
             tmp,
@@ -259,7 +323,7 @@ def ledger_store(tmp_path_factory):
             # with a baseline scored beside it on the same images, 0.4 dB below it
             ("eval/per_image.csv", _images(base + 1).assign(baseline_psnr=base + 0.6)),
         )
-        _log(
+        log_run(
             client,
             denoise,
             tmp,
@@ -273,7 +337,7 @@ def ledger_store(tmp_path_factory):
     six = pd.DataFrame({"scene": [f"p{i}" for i in range(6)], "spp": 4, "relmse_ratio": 0.5})
     for model, offset in (("kpcn", 0.5), ("dpcn", 0.0)):
         scores = six.assign(psnr=[24.0 + i + offset for i in range(6)])
-        _log(
+        log_run(
             client,
             denoise,
             tmp,
@@ -288,9 +352,9 @@ def ledger_store(tmp_path_factory):
     for model, offset in (("refnerf", 0.3), ("mipnerf", 0.0)):
         scores = views.assign(psnr=[23.0 + 0.2 * i + offset for i in range(6)])
         params = {"report.name": "nerf", "model.name": model, "seed": 0, "task.scene": "tabletop"}
-        _log(client, nerf, tmp, params, pipeline, artifact=("eval/per_image.csv", scores))
+        log_run(client, nerf, tmp, params, pipeline, artifact=("eval/per_image.csv", scores))
     # A third model of the study, which no claim compares: its run is not one of a claim's runs.
-    _log(
+    log_run(
         client,
         denoise,
         tmp,
@@ -301,7 +365,7 @@ def ledger_store(tmp_path_factory):
     )
     smoke = {**cpu, "nrbench.profile": "smoke"}
     for model in ("kpcn", "dpcn"):
-        _log(
+        log_run(
             client,
             denoise,
             tmp,
@@ -316,15 +380,15 @@ def ledger_store(tmp_path_factory):
     paper = {**cpu, "nrbench.profile": "paper"}
     older = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.5, rounds["seconds"]))  # 5x
     fp32 = {"bench": "denoise", "autocast": "none"}
-    _log(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", older))
-    _log(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", rounds))
+    log_run(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", older))
+    log_run(client, bench, tmp, fp32, paper, artifact=("bench/rounds.csv", rounds))
     # The newest paper run is in bf16, which the claim's `where` leaves out: the fp32 run before it counts.
     bf16 = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.3, rounds["seconds"]))
-    _log(client, bench, tmp, {**fp32, "autocast": "bf16"}, paper, artifact=("bench/rounds.csv", bf16))
+    log_run(client, bench, tmp, {**fp32, "autocast": "bf16"}, paper, artifact=("bench/rounds.csv", bf16))
     # A newer bench run at the cpu profile, where the U-Net is only 2x faster: the claims that list paper
     # first must still read the paper run.
     cpu_rounds = rounds.assign(seconds=np.where(rounds["model"] == "kpcn", 0.2, rounds["seconds"]))
-    _log(client, bench, tmp, {"bench": "denoise"}, cpu, artifact=("bench/rounds.csv", cpu_rounds))
+    log_run(client, bench, tmp, {"bench": "denoise"}, cpu, artifact=("bench/rounds.csv", cpu_rounds))
     yield {"tmp": tmp, "uri": uri}
     mlflow.set_tracking_uri(previous)
 
@@ -333,7 +397,8 @@ LEDGER_CLAIMS = textwrap.dedent(
     f"""
     claims:
       - id: kpcn_beats_dpcn
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats DPCN.
         profiles: [paper, cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
@@ -342,7 +407,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, size: 0.5}}
       - id: kpcn_beats_dpcn_by_3db
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats DPCN by 3 dB.
         profiles: [cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
@@ -351,7 +417,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, size: 3}}
       - id: pipeline_fallback
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats DPCN; its study never ran, the pipeline did.
         profiles: [cpu]
         runs: {{study: never_run, pipeline: denoise, experiment: nrbench-denoise}}
@@ -360,7 +427,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
       - id: study_first
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats DPCN; both the study and the pipeline ran.
         profiles: [cpu]
         runs: {{study: {STUDY}, pipeline: denoise, experiment: nrbench-denoise}}
@@ -369,7 +437,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, size: 0.8}}
       - id: per_seed
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats DPCN, per run.
         profiles: [cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
@@ -378,7 +447,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
       - id: beats_its_baseline
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: KPCN beats the baseline its runs score beside it.
         profiles: [cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
@@ -387,7 +457,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: kpcn}}, b_metric: baseline_psnr}}
       - id: no_baseline_scored
-        source: {{document: Doc A, section: "1"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
         statement: DPCN's runs score no baseline.
         profiles: [cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
@@ -396,7 +467,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: dpcn}}, b: {{model.name: dpcn}}, b_metric: baseline_psnr}}
       - id: smoke_only
-        source: {{document: Doc A, section: "2"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc A, section: "2"}}
         statement: Only ever run at smoke.
         profiles: [cpu]
         runs: {{study: smoke_only, experiment: nrbench-denoise}}
@@ -405,7 +477,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
       - id: unet_10x
-        source: {{document: Doc B, section: "4"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc B, section: "4"}}
         statement: The U-Net is at least 10x faster than KPCN.
         profiles: [paper, cpu]
         needs: gpu
@@ -416,7 +489,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         log: true
         rule: {{kind: better, a: {{model: unet_kpcn}}, b: {{model: kpcn}}, size: 10}}
       - id: unet_vs_oidn
-        source: {{document: Doc B, section: "4"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc B, section: "4"}}
         statement: The U-Net is within 2x of OIDN.
         profiles: [paper]
         runs: {{bench: denoise, experiment: nrbench-bench}}
@@ -424,18 +498,24 @@ LEDGER_CLAIMS = textwrap.dedent(
         per: round
         higher: false
         log: true
-        rule: {{kind: comparable, a: {{model: unet_kpcn}}, b: {{model: oidn}}, tolerance: {math.log(2)}}}
+        rule:
+          {{kind: comparable, a: {{model: unet_kpcn}}, b: {{model: oidn}}, tolerance: {math.log(2)},
+           tolerance_source: ours}}
       - id: published
-        source: {{document: Doc C, section: "6", where: Table 6.1}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc C, section: "6", where: Table 6.1}}
         statement: DPCN reaches the published PSNR.
         profiles: [cpu]
         runs: {{study: {STUDY}, experiment: nrbench-denoise}}
         metric: eval_psnr
         per: run
         higher: true
-        rule: {{kind: agreement, tolerance: 5, published: [{{arm: {{model.name: dpcn}}, value: 25.0}}]}}
+        rule:
+          {{kind: agreement, tolerance: 5, tolerance_source: ours,
+           published: [{{arm: {{model.name: dpcn}}, value: 25.0}}]}}
       - id: nerf_views
-        source: {{document: Doc C, section: "6"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc C, section: "6"}}
         statement: Ref-NeRF beats mip-NeRF, per test view.
         profiles: [cpu]
         runs: {{pipeline: nerf, experiment: nrbench-nerf, where: {{task.scene: tabletop}}}}
@@ -444,7 +524,8 @@ LEDGER_CLAIMS = textwrap.dedent(
         higher: true
         rule: {{kind: better, a: {{model.name: refnerf}}, b: {{model.name: mipnerf}}}}
       - id: needs_scenes
-        source: {{document: Doc C, section: "6"}}
+        category: finding
+        source: {{quote: q, translation: t, document: Doc C, section: "6"}}
         statement: Needs the user's scenes.
         profiles: [thesis]
         needs: user_data
@@ -452,7 +533,9 @@ LEDGER_CLAIMS = textwrap.dedent(
         metric: psnr
         per: image
         higher: true
-        rule: {{kind: agreement, tolerance: 0.2, published: [{{arm: {{model.name: nerf}}, value: 31.0}}]}}
+        rule:
+          {{kind: agreement, tolerance: 0.2, tolerance_source: ours,
+           published: [{{arm: {{model.name: nerf}}, value: 31.0}}]}}
     """
 )
 
@@ -478,47 +561,53 @@ def _ledger_cfg(store, tmp_path, claims_text=LEDGER_CLAIMS):
 def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     summary = build_ledger(_ledger_cfg(ledger_store, tmp_path))
     assert summary["statuses"] == {
-        "kpcn_beats_dpcn": REPRODUCED,  # +1 dB on all 8 (seed, image) items, older reruns left out
+        "kpcn_beats_dpcn": REPRODUCED,  # +1 dB on each of 6 seeds, older reruns left out
         "kpcn_beats_dpcn_by_3db": DIRECTION_ONLY,
-        "pipeline_fallback": REPRODUCED,  # +0.5 dB on the pipeline's 6 images
-        "study_first": REPRODUCED,  # the study's +1 dB: the pipeline's 0.5 would be direction only
-        "per_seed": NOT_DISTINGUISHABLE,  # 4 seeds: a signed-rank test cannot show it
-        "beats_its_baseline": REPRODUCED,  # +0.4 dB over its own runs' baseline on all 8 items
+        "pipeline_fallback": UNDERPOWERED,  # one training per arm: 6 images are not 6 replicates
+        "study_first": REPRODUCED,  # the study's 6 seeds: the pipeline's one would be underpowered
+        "per_seed": REPRODUCED,  # 6 seeds, each +1: the smallest p, 2/2^6, is below 0.05
+        "beats_its_baseline": REPRODUCED,  # +0.4 dB over its own runs' baseline on each seed
         "no_baseline_scored": NOT_RUN,
         "smoke_only": NOT_RUN,
         "unet_10x": REPRODUCED,
         "unet_vs_oidn": REPRODUCED,
         "published": REPRODUCED,
-        "nerf_views": REPRODUCED,  # +0.3 dB on each of 6 views: 6 items, not 1
+        "nerf_views": UNDERPOWERED,  # 6 views of one training per model
         "needs_scenes": NOT_RUN,
     }
     ledger = pd.read_csv(summary["paths"]["csv"]).set_index("claim")
     kpcn = ledger.loc["kpcn_beats_dpcn"]
-    assert kpcn["profile"] == "cpu" and kpcn["runs"] == 8  # the newest run per model and seed
-    assert "kpcn - dpcn = +1 over 8 paired items (8 favour kpcn, 0 dpcn" in kpcn["numbers"]
-    assert kpcn["commits"] == "abc1234def" and kpcn["data"] == "f00d" and kpcn["source"] == "Doc A, Sec. 1"
+    assert kpcn["profile"] == "cpu" and kpcn["runs"] == 12  # the newest run per model and seed
     assert (
-        ledger.loc["pipeline_fallback", "from"] == "pipeline" and ledger.loc["pipeline_fallback", "runs"] == 2
+        "kpcn better than dpcn by +1 (Hodges-Lehmann), 95% interval [+1, +1] over 6 seeds" in kpcn["numbers"]
     )
-    assert "+0.5 over 6 paired items" in ledger.loc["pipeline_fallback", "numbers"]
+    assert [str(kpcn[c]) for c in ("unit", "seeds", "images", "replicates")] == ["seeds", "6", "2", "6"]
+    assert kpcn["undefined"] == "0 / 0" and kpcn["p"] == "0.031" and kpcn["category"] == "finding"
+    assert kpcn["family"] == f"study {STUDY} at cpu (5 tests)"  # the tallied better-claims of the study
+    assert kpcn["commits"] == "abc1234def" and kpcn["data"] == "f00d" and kpcn["source"] == "Doc A, Sec. 1"
+    assert kpcn["items_csv"] == "items/kpcn_beats_dpcn.csv" and len(kpcn["run_ids"].split()) == 12
+    items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
+    assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)
+    fallback = ledger.loc["pipeline_fallback"]
+    assert fallback["from"] == "pipeline" and fallback["runs"] == 2
+    assert "over 1 seeds (6 item(s) nested in each)" in fallback["numbers"]
     assert ledger.loc["study_first", "from"] == f"study {STUDY}" and kpcn["from"] == f"study {STUDY}"
-    assert "factor 12" in ledger.loc["unet_10x", "numbers"] and ledger.loc["unet_10x", "profile"] == "paper"
-    assert "needs 6 or more" in ledger.loc["per_seed", "numbers"]
+    assert "by 12x" in ledger.loc["unet_10x", "numbers"] and ledger.loc["unet_10x", "profile"] == "paper"
+    assert ledger.loc["unet_10x", "unit"] == "rounds"
     smoke = ledger.loc["smoke_only", "numbers"]
     assert "runs at smoke only" in smoke and "python -m src.run -m +sweep=smoke_only profile=cpu" in smoke
-    assert "+0.3 over 6 paired items" in ledger.loc["nerf_views", "numbers"]
+    assert "over 1 seeds (6 item(s) nested in each)" in ledger.loc["nerf_views", "numbers"]
     assert (
-        "kpcn - kpcn (baseline_psnr) = +0.4 over 8 paired items"
+        "kpcn better than kpcn (baseline_psnr) by +0.4 (Hodges-Lehmann)"
         in ledger.loc["beats_its_baseline", "numbers"]
     )
     assert "no psnr scores for arm dpcn (baseline_psnr)" in ledger.loc["no_baseline_scored", "numbers"]
     scenes = ledger.loc["needs_scenes", "numbers"]
     assert scenes.startswith("needs the user's data") and "+sweep=nerf_thesis profile=thesis" in scenes
     md = (tmp_path / "reports" / "ledger.md").read_text()
-    assert "**8 reproduced, 1 direction only, 1 not distinguishable, 3 not run**" in md
-    assert md.count("\n| ") == 1 + 13  # the header and one row per claim
+    assert "**7 reproduced, 1 direction only, 2 underpowered, 3 not run** (findings and readings)" in md
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    assert html.count("<tr>") == 1 + 13 and "#d4edda" in html
+    assert html.count("<tr>") == 1 + 13 and "#d4edda" in html and "#e7f1ff" in html
 
 
 def test_a_slower_unet_is_not_reproduced(ledger_store, tmp_path):

@@ -69,14 +69,22 @@ def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
     build_report(_cfg(runs, reports, name="volumetric", experiment=VOLUMETRIC))
     axes = ["task.search.replication", "task.search.crossover", "task.search.mutation"]
     build_report(_cfg(runs, reports, name="sweeps/gp_rules", experiment=GP_EXPERIMENT, axes=axes))
-    ledger = pd.DataFrame(
-        [
-            ["c1", "thesis", "KPCN beats the input", "cpu", "study gp_rules", "reproduced", "x", 3, "-", "-"],
-            ["gpu_claim", "paper", "U-Net is 10x faster", "-", "-", "not run", "needs a GPU", 0, "-", "-"],
-        ],
-        columns=list(COLUMNS),
-    )
+    claims = [
+        dict(claim="c1", category="finding", profile="cpu", status="reproduced", unit="seeds", seeds="6"),
+        dict(claim="c2", category="target", profile="cpu", status="reproduced", unit="rounds", seeds="0"),
+        dict(claim="gpu_claim", category="finding", profile="-", status="not run", numbers="needs a GPU"),
+    ]
+    claims[0]["from"] = claims[1]["from"] = "study gp_rules"
+    ledger = pd.DataFrame([{c: row.get(c, "-") for c in COLUMNS} for row in claims], columns=list(COLUMNS))
     ledger.to_csv(reports / "ledger.csv", index=False)
+    history = pd.DataFrame(
+        {
+            "written": ["w1", "w1", "w2", "w2"],
+            "claim": ["c1", "gpu_claim", "c1", "gpu_claim"],
+            "status": ["not distinguishable", "not run", "reproduced", "not run"],
+        }
+    )
+    history.to_csv(reports / "ledger_history.csv", index=False)
     (reports / "ledger.html").write_text("<!DOCTYPE html><title>ledger</title><p>ledger</p>")
     summary = build_site(reports)
     return {"reports": reports, "summary": summary, **runs}
@@ -110,7 +118,10 @@ def test_the_index_links_every_report_study_ledger_bench_and_method(site):
     assert "<td>cpu</td>" in row and "<td>4</td>" in row and "smoke" not in row
     assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC", row)
     # the ledger's findings, its study linked
-    assert "1 reproduced, 1 not run" in index
+    assert "1 reproduced, 1 not run" in index  # the target c2 is not counted as a seed's finding
+    assert "Changed in the ledger of w2" in index
+    assert "<tr><td>c1</td><td>not distinguishable</td><td>reproduced</td></tr>" in index
+    assert "gpu_claim</td><td>not run" not in index  # unchanged claims are not listed
     assert '<a href="sweeps/gp_rules/index.html">study gp_rules</a>' in index
     assert "gpu_claim" not in index and "1 claims not run" in index  # counted; the ledger says why
     assert "1 runs" in index  # the benchmark entry

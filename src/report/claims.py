@@ -19,6 +19,15 @@ from omegaconf import OmegaConf
 from src.errors import ConfigError
 
 RULE_KINDS = ("better", "comparable", "agreement")
+#: What kind of statement a claim is (docs/ledger.md): `finding` (the seed states it: quoted), `reading`
+#: (the harness's interpretation of a quoted sentence), `target` (the project's own goal, e.g. a speed
+#: ratio: shown apart, never counted as the seed's), `setup` (a parameter count or the like: checked by the
+#: tests, out of the tally).
+CATEGORIES = ("finding", "reading", "target", "setup")
+#: The categories the ledger's headline counts.
+TALLIED = ("finding", "reading")
+#: Documents written in English: their quotes need no translation.
+ENGLISH_DOCUMENTS = ("Davletaliyev 2016",)
 RUN_SOURCES = ("study", "pipeline", "bench")
 PER_CHOICES = ("image", "run", "round")
 NEEDS_CHOICES = (None, "gpu", "user_data")
@@ -40,7 +49,11 @@ class Rule:
     claim compares logs); `comparable`: `a` and `b` within `tolerance`; `agreement`: each case within
     `tolerance` of its published value. `b_metric`: arm `b` is scored by this metric of its runs instead
     of the claim's (a baseline the runs evaluate beside their method on the same items, e.g. the filter
-    search's `baseline_relmse_spp`); `a` and `b` may then be the same runs."""
+    search's `baseline_relmse_spp`); `a` and `b` may then be the same runs. `tolerance_source`: where a
+    comparable or agreement tolerance comes from (a citation, or "project's own"). `ratio`: budget keys
+    on which the arms differ by design, as b's value over a's (`{task.train.epochs: 2}`: DPCN trained
+    twice as long as KPCN, as the thesis did); any other difference between the arms' runs is a
+    confound."""
 
     kind: str
     a: dict[str, str] = field(default_factory=dict)
@@ -49,6 +62,8 @@ class Rule:
     tolerance: float = 0.0
     published: tuple[Case, ...] = ()
     b_metric: str | None = None
+    tolerance_source: str = ""
+    ratio: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -68,12 +83,21 @@ class Claim:
     higher: bool
     log: bool
     rule: Rule
+    category: str = "finding"
+    quote: str = ""
+    translation: str = ""
+    caveat: str = ""
 
     @property
     def citation(self) -> str:
         """ "Bunjevac 2019, Sec. 6.2, Table 6.3"."""
         parts = [self.document, f"Sec. {self.section}" if self.section else "", self.where_stated]
         return ", ".join(p for p in parts if p)
+
+    @property
+    def tallied(self) -> bool:
+        """Whether the headline counts this claim: a finding or reading of a seed, not a target or setup."""
+        return self.category in TALLIED
 
     @property
     def is_bench(self) -> bool:
@@ -99,10 +123,13 @@ def _strings(mapping: Any, key: str) -> dict[str, str]:
 
 #: The keys each part of a claim may have: a misspelt one (`tolerence`) is an error, not ignored.
 KEYS = {
-    "": {"id", "source", "statement", "profiles", "needs", "runs", "metric", "per", "higher", "log", "rule"},
-    "source": {"document", "section", "where"},
+    "": {
+        *("id", "category", "source", "statement", "caveat", "profiles", "needs", "runs"),
+        *("metric", "per", "higher", "log", "rule"),
+    },
+    "source": {"document", "section", "where", "quote", "translation"},
     "runs": {*RUN_SOURCES, "experiment", "where"},
-    "rule": {"kind", "a", "b", "b_metric", "size", "tolerance", "published"},
+    "rule": {"kind", "a", "b", "b_metric", "size", "tolerance", "tolerance_source", "published", "ratio"},
     "published": {"arm", "where", "value"},
 }
 
@@ -148,7 +175,12 @@ def _rule(raw: Any, where: str) -> Rule:
         )
         if raw.get("b_metric") is not None:
             raise ConfigError(f"{where}.b_metric: an agreement rule has no arm b; expected no b_metric")
-        return Rule(kind, tolerance=float(_get(raw, "tolerance", where, (int, float))), published=published)
+        return Rule(
+            kind,
+            tolerance=float(_get(raw, "tolerance", where, (int, float))),
+            published=published,
+            tolerance_source=_get(raw, "tolerance_source", where),
+        )
     a, b = _strings(raw.get("a"), f"{where}.a"), _strings(raw.get("b"), f"{where}.b")
     b_metric = None if raw.get("b_metric") is None else _get(raw, "b_metric", where)
     if not a or not b or (a == b and b_metric is None):
@@ -156,12 +188,25 @@ def _rule(raw: Any, where: str) -> Rule:
             f"{where}: arms a={a} and b={b}; expected two different, non-empty arms (or the same one with "
             "b_metric)"
         )
+    ratio = _ratios(raw.get("ratio"), f"{where}.ratio")
     if kind == "comparable":
         tolerance = float(_get(raw, "tolerance", where, (int, float)))
         if tolerance <= 0:
             raise ConfigError(f"{where}.tolerance: {tolerance}; expected > 0")
-        return Rule(kind, a, b, tolerance=tolerance, b_metric=b_metric)
-    return Rule(kind, a, b, size=float(raw.get("size") or 0.0), b_metric=b_metric)
+        source = _get(raw, "tolerance_source", where)
+        return Rule(kind, a, b, tolerance=tolerance, b_metric=b_metric, tolerance_source=source, ratio=ratio)
+    return Rule(kind, a, b, size=float(raw.get("size") or 0.0), b_metric=b_metric, ratio=ratio)
+
+
+def _ratios(raw: Any, where: str) -> dict[str, float]:
+    """`rule.ratio`: {budget key: b's value / a's value}, each a positive number."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, Mapping) or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) and v > 0 for v in raw.values()
+    ):
+        raise ConfigError(f"{where}: {raw!r}; expected a mapping of budget keys to positive ratios (b / a)")
+    return {str(k): float(v) for k, v in raw.items()}
 
 
 def _runs_sources(raw: Any, where: str) -> tuple[tuple[str, str], ...]:
@@ -198,9 +243,21 @@ def parse_claim(raw: Any, index: int) -> Claim:
         raise ConfigError(
             f"{name}.per: {per!r} with runs.{sources[0][0]}; expected per: round for a bench, only then"
         )
+    category = _choice(raw.get("category"), CATEGORIES, f"{name}.category")
+    document = _get(source, "document", f"{name}.source")
+    quote = " ".join(str(source.get("quote") or "").split())
+    translation = " ".join(str(source.get("translation") or "").split())
+    if category in TALLIED and not quote:
+        raise ConfigError(f"{name}.source.quote: missing; a {category} quotes the seed sentence it rests on")
+    if quote and not translation and document not in ENGLISH_DOCUMENTS:
+        raise ConfigError(f"{name}.source.translation: missing; expected an English translation of the quote")
     return Claim(
         id=claim_id,
-        document=_get(source, "document", f"{name}.source"),
+        category=category,
+        quote=quote,
+        translation=translation,
+        caveat=" ".join(str(raw.get("caveat") or "").split()),
+        document=document,
         section=str(source.get("section") or ""),
         where_stated=str(source.get("where") or ""),
         statement=" ".join(_get(raw, "statement", name).split()),

@@ -1,20 +1,25 @@
 """The reproduction ledger: every claim of `conf/claims.yaml` with the status its logged runs give it.
 
 For each claim (`src.report.claims`): the FINISHED MLflow runs of its study, pipeline or benchmark at the
-first of its profiles that has any (the newest run per compared setting and seed, as the reports keep
-them); each arm's scores per item (held-out image, seed or benchmark round); the status from
-`src.report.verdicts`. A claim without runs is **not run**, with the reason (it needs a GPU or the
-user's data, or its study has not run at a profile where it means something) and the command that
-produces them. Every status carries the profile, the git commits and the data fingerprints of the runs
-behind it. `write_ledger` writes `ledger.{md,html,csv}` (`src.report.ledger_page`).
+first of its profiles that has any made at that profile's budget (the newest run per compared setting and
+seed, as the reports keep them; runs whose overrides move a budget key are listed as not counted); a
+check that the arms are matched (`src.report.matched_arms`: else **confounded**, naming the key); each
+arm's scores per item, reduced to one difference per replicate (`src.report.replication`: training seeds
+for learned arms, images for deterministic ones; a failed output is its arm's worst outcome); and the
+status from `src.report.verdicts`, with the p-values of a study's tests adjusted together
+(Benjamini-Hochberg, family = the claims read from one source at one profile). A claim without runs is
+**not run**, with the reason and the command that produces them. `write_ledger` writes
+`ledger.{md,html,csv}` and one CSV of replicate differences per claim (`src.report.ledger_page`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import tempfile
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import mlflow
@@ -24,9 +29,20 @@ from omegaconf import OmegaConf
 from src.errors import DataError
 from src.report.claims import Claim
 from src.report.collect import artifact_csv, find_runs, keep_latest, per_image_rows
+from src.report.matched_arms import (
+    HYDRA_JOB_TAG,
+    first_confound,
+    model_keys,
+    off_profile_key,
+    profile_keys,
+)
+from src.report.replication import Replicates, replicate_differences
+from src.report.signed_rank import benjamini_hochberg
 from src.report.tables import item_means
 from src.report.verdicts import (
+    CONFOUNDED,
     NOT_RUN,
+    UNDERPOWERED,
     Verdict,
     agreement_verdict,
     better_verdict,
@@ -37,11 +53,12 @@ log = logging.getLogger("nrbench.ledger")
 
 #: The MLflow artifact of `python -m src.bench denoise --log`: one row per model and round.
 BENCH_ROUNDS_ARTIFACT = "bench/rounds.csv"
-#: What identifies one item of a per-image score: the seed and the held-out image (a denoising image is
-#: a scene at a sample count, a NeRF one a view).
-IMAGE_ITEM = ("params.seed", "scene", "spp", "view")
-#: One item of a per-run score: the seed (and the scene, for studies that sweep scenes).
-RUN_ITEM = ("params.seed", "params.task.scene")
+#: Tasks whose output is found anew for every seed (the GP filter search): replicated by their seeds.
+SEARCH_TASKS = ("filter_search",)
+#: The LPIPS variant of a run's scores (src/eval/loop.py): "vgg16-random(seed=0)+lin-uniform" without weights.
+LPIPS_VARIANT_TAG = "tags.nrbench.lpips_variant"
+#: The evaluation's share of an item's frames whose output was undefined (per image), and its run metric.
+UNDEFINED_COLUMN = {"image": "metrics.undefined", "run": "metrics.eval_undefined"}
 NEEDS_REASONS = {
     "gpu": "needs a GPU (paper-scale runs)",
     "user_data": "needs the user's data (the scenes are not rendered here)",
@@ -49,8 +66,21 @@ NEEDS_REASONS = {
 
 
 @dataclass(frozen=True)
+class LedgerSettings:
+    """What the ledger needs besides the claims: the test level, every profile's name, the keys a profile
+    file sets (`matched_arms.profile_keys`), groups of commits declared to be the same code, and each
+    model's own recipe keys (`matched_arms.model_keys`)."""
+
+    alpha: float = 0.05
+    all_profiles: tuple[str, ...] = ()
+    budget_keys: frozenset[str] = frozenset()
+    equivalent_commits: tuple[tuple[str, ...], ...] = ()
+    model_keys: Mapping[str, frozenset[str]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class LedgerRow:
-    """One claim's line in the ledger."""
+    """One claim's line in the ledger: its status and numbers, and what they rest on."""
 
     claim: Claim
     profile: str
@@ -59,6 +89,21 @@ class LedgerRow:
     runs: int
     commits: tuple[str, ...]
     fingerprints: tuple[str, ...]
+    replicates: Replicates | None = None
+    not_counted: str = ""  # runs at the profile left out, with the key that moved them off its budget
+    run_ids: tuple[str, ...] = ()
+    p_adjusted: float = math.nan
+    family: str = ""
+    arm_budget: str = ""  # the declared budget keys (`rule.ratio`) as each arm ran them
+    names: tuple[str, str] = ("a", "b")  # the arms as the numbers name them
+    scores: pd.DataFrame = field(default_factory=pd.DataFrame, compare=False, repr=False)
+
+    @property
+    def advantage(self) -> pd.Series | None:
+        """Arm a's advantage per replicate (a - b, sign turned where lower is better); None without."""
+        if self.replicates is None:
+            return None
+        return self.replicates.difference if self.claim.higher else -self.replicates.difference
 
 
 def _canonical(value: Any) -> str:
@@ -128,35 +173,49 @@ def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame() if rounds is None else rounds
 
 
-def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str, list[str]]:
-    """(scores, the arm-key prefix, the item columns): one row per scored item of every run, with its
-    value in column `value` and what selects an arm (`params.*`, or a bench table's own columns)."""
+def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str]:
+    """(scores, the arm-key prefix): one row per scored item of every run, with its value in column
+    `value`, `failed` where the evaluation counted the item's output undefined, and what selects an arm
+    (`params.*`, or a bench table's own columns)."""
     if claim.per == "round":
         rounds = _bench_rounds(runs)
         if rounds.empty or claim.metric not in rounds:
-            return pd.DataFrame(), "", []
-        return rounds.assign(value=rounds[claim.metric]), "", ["round"]
+            return pd.DataFrame(), ""
+        return rounds.assign(value=rounds[claim.metric]), ""
     if claim.per == "image":
-        images = per_image_rows(runs, required=claim.metric)
-        if images.empty:
-            return images, "params.", []
-        return images.assign(value=images[f"metrics.{claim.metric}"]), "params.", list(IMAGE_ITEM)
-    column = f"metrics.{claim.metric}"
-    scored = runs[runs[column].notna()] if column in runs else runs.iloc[0:0]
-    return scored.assign(value=scored.get(column)), "params.", list(RUN_ITEM)
+        scored = per_image_rows(runs, required=claim.metric)
+    else:
+        column = f"metrics.{claim.metric}"
+        scored = runs[runs[column].notna() | _failed(runs, "run")] if column in runs else runs.iloc[0:0]
+    if scored.empty:
+        return scored, "params."
+    return scored.assign(
+        value=scored[f"metrics.{claim.metric}"], failed=_failed(scored, claim.per)
+    ), "params."
 
 
-def arm_values(scores: pd.DataFrame, arm: Mapping[str, str], prefix: str, item: list[str]) -> pd.Series:
-    """An arm's scores, one per item (the mean where it has one item twice), non-finite ones dropped."""
+def _failed(scores: pd.DataFrame, per: str) -> pd.Series:
+    """Items whose output was undefined (a share of frames > 0): their arm's worst outcome."""
+    column = UNDEFINED_COLUMN[per]
+    if column not in scores:
+        return pd.Series(False, index=scores.index)
+    return pd.to_numeric(scores[column], errors="coerce").fillna(0.0) > 0
+
+
+def arm_values(scores: pd.DataFrame, arm: Mapping[str, str], prefix: str, item: Sequence[str]) -> pd.Series:
+    """An arm's scores, one per item (the mean where it has one item twice), non-finite ones dropped: an
+    agreement case's values."""
     part = scores[matching(scores, arm, prefix)] if not scores.empty else scores
     return pd.Series(dtype=float) if part.empty else item_means(part, "value", item)
 
 
 def _scored_by(scores: pd.DataFrame, metric: str) -> pd.DataFrame:
     """`scores` with `value` from another metric of the same runs or images (`Rule.b_metric`); no rows
-    when they do not have it."""
+    when they do not have it. A baseline scored beside the method does not share the method's failures."""
     column = f"metrics.{metric}"
-    return scores.assign(value=scores[column]) if column in scores else scores.iloc[0:0]
+    if column not in scores:
+        return scores.iloc[0:0]
+    return scores.assign(value=scores[column], failed=False)
 
 
 def _label(arm: Mapping[str, str]) -> str:
@@ -166,31 +225,68 @@ def _label(arm: Mapping[str, str]) -> str:
     )
 
 
-def _verdict(claim: Claim, scores: pd.DataFrame, prefix: str, item: list[str], alpha: float) -> Verdict:
+def _learned(part: pd.DataFrame) -> bool | None:
+    """Whether an arm's output depends on its training seed: its `model.learned`, or a search task's run
+    (the filter search's `gp_filter` is not trained, but the expression it finds is the seed's). None
+    when the runs do not say, or disagree: the scores then decide (`replication.is_deterministic`)."""
+    tasks = {str(v) for v in part.get("params.task.name", pd.Series(dtype=str)).dropna()}
+    if tasks and tasks <= set(SEARCH_TASKS):
+        return True
+    column = "params.model.learned"
+    if column not in part or part.empty:
+        return None
+    values = {str(v).strip().lower() for v in part[column].dropna()}
+    return {"true": True, "false": False}.get(values.pop()) if len(values) == 1 else None
+
+
+def _agreement(claim: Claim, scores: pd.DataFrame, prefix: str) -> Verdict:
+    """Each published case's values: one per replicate (the mean over its items)."""
+    cases = []
+    for case in claim.rule.published:
+        values = arm_values(scores, {**case.arm, **case.where}, prefix, ["params.data_seed", "params.seed"])
+        cases.append((_label({**case.arm, **case.where}), values if len(values) else None, case.value))
+    return agreement_verdict(cases, claim.rule.tolerance)
+
+
+def _replicates(claim: Claim, scores: pd.DataFrame, prefix: str) -> tuple[Replicates, tuple[str, str]] | str:
+    """The claim's per-replicate differences and the arms' names, or why there are none."""
     rule = claim.rule
-    if rule.kind == "agreement":
-        cases = []
-        for case in rule.published:
-            values = arm_values(scores, {**case.arm, **case.where}, prefix, item)
-            label = _label({**case.arm, **case.where})
-            cases.append((label, values if len(values) else None, case.value))
-        return agreement_verdict(cases, rule.tolerance)
     b_scores = scores if rule.b_metric is None else _scored_by(scores, rule.b_metric)
-    a, b = arm_values(scores, rule.a, prefix, item), arm_values(b_scores, rule.b, prefix, item)
+    a = scores[matching(scores, rule.a, prefix)] if not scores.empty else scores
+    b = b_scores[matching(b_scores, rule.b, prefix)] if not b_scores.empty else b_scores
     names = (_label(rule.a), _label(rule.b) + (f" ({rule.b_metric})" if rule.b_metric else ""))
     if a.empty or b.empty:
-        missing = names[0] if a.empty else names[1]
-        return Verdict(NOT_RUN, f"no {claim.metric} scores for arm {missing}")
-    if rule.kind == "comparable":
-        return comparable_verdict(a, b, names, claim.log, rule.tolerance)
-    return better_verdict(a, b, names, claim.higher, claim.log, rule.size, alpha)
+        return f"no {claim.metric} scores for arm {names[0] if a.empty else names[1]}"
+    # A baseline scored beside the method (b_metric) is not the run's model: whether it is deterministic
+    # shows in its scores.
+    learned = (_learned(a), _learned(b)) if rule.b_metric is None else (_learned(a), None)
+    return replicate_differences(a, b, claim.per, claim.higher, claim.log, learned), names
 
 
-def _not_run(claim: Claim, other_profiles: list[str]) -> Verdict:
+def _judge(claim: Claim, replicates: Replicates, names: tuple[str, str], alpha: float, p_adjusted=None):
+    """The status of a better or comparable claim from its replicates (`src.report.verdicts`)."""
+    unit, nesting = replicates.unit, _nesting(replicates)
+    if claim.rule.kind == "comparable":
+        tolerance = claim.rule.tolerance
+        return comparable_verdict(replicates.difference, names, claim.log, tolerance, alpha, unit, nesting)
+    advantage = replicates.difference if claim.higher else -replicates.difference
+    return better_verdict(advantage, names, claim.log, claim.rule.size, alpha, unit, p_adjusted, nesting)
+
+
+def _nesting(replicates: Replicates) -> str:
+    if replicates.unit == "seeds":
+        return f" ({replicates.images} item(s) nested in each)"
+    if replicates.unit == "images":
+        return f" (deterministic arms: each image once, though scored under {replicates.seeds} seed(s))"
+    return ""
+
+
+def _not_run(claim: Claim, other_profiles: list[str], not_counted: list[str]) -> Verdict:
     reasons = [NEEDS_REASONS[claim.needs]] if claim.needs else []
     reasons.append(f"no runs at {' or '.join(claim.profiles)}")
     if other_profiles:
         reasons.append(f"runs at {', '.join(other_profiles)} only, where it is not meaningful")
+    reasons += not_counted
     return Verdict(NOT_RUN, f"{'; '.join(reasons)}; to run: {claim.command(claim.profiles[0])}")
 
 
@@ -200,82 +296,262 @@ def _provenance(runs: pd.DataFrame, column: str) -> tuple[str, ...]:
     return tuple(sorted({str(v)[:12] for v in runs[column].dropna()}))
 
 
+def _arms(claim: Claim) -> list[dict[str, str]]:
+    rule = claim.rule
+    return [rule.a, rule.b] if rule.kind != "agreement" else [{**c.arm, **c.where} for c in rule.published]
+
+
 def _compared_runs(claim: Claim, runs: pd.DataFrame) -> pd.DataFrame:
     """The runs of the arms the claim compares (the others of its study say nothing about it); a bench's
     arms are rows of its rounds table, so its run is kept whole."""
-    if claim.is_bench:
+    if claim.is_bench or runs.empty:
         return runs
-    rule = claim.rule
-    arms = [rule.a, rule.b] if rule.kind != "agreement" else [{**c.arm, **c.where} for c in rule.published]
     mask = pd.Series(False, index=runs.index)
-    for arm in arms:
+    for arm in _arms(claim):
         mask |= matching(runs, arm)
     return runs[mask]
+
+
+def _at_budget(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> tuple[pd.DataFrame, str]:
+    """The runs made at their profile's budget (and, for an LPIPS claim, with trained LPIPS weights), and a
+    note on the others: the key that moved each off the budget, or the LPIPS variant."""
+    notes, keep = [], pd.Series(True, index=runs.index)
+    if claim.metric.endswith("lpips") and LPIPS_VARIANT_TAG in runs:
+        # A random VGG trunk (or uniform linear weights) scores on another scale than published LPIPS.
+        untrained = runs[LPIPS_VARIANT_TAG].astype(str).str.contains("random|uniform", regex=True)
+        if untrained.any():
+            notes.append(f"{int(untrained.sum())} run(s) not counted: LPIPS without the trained weights")
+        keep &= ~untrained
+    if not claim.is_bench and HYDRA_JOB_TAG in runs and settings.budget_keys:
+        allowed = [*_arm_keys(claim), *claim.rule.ratio]
+        keys = runs[HYDRA_JOB_TAG].map(lambda job: off_profile_key(job, settings.budget_keys, allowed))
+        off = keys[(keys != "") & keep]
+        if not off.empty:
+            moved = ", ".join(sorted(set(off)))
+            notes.append(f"{len(off)} run(s) not counted, off the profile's budget ({moved} overridden)")
+        keep &= keys == ""
+    return runs[keep], "; ".join(notes)
+
+
+def _confound(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> str | None:
+    """The first key on which the compared arms' runs differ besides the arms (None when matched). A model
+    an arm picks brings its own recipe keys (its model_profile and model_task_profile files). An agreement
+    compares each case with its published value, so each case's runs must match among themselves."""
+    rule = claim.rule
+    keys = _arm_keys(claim)
+    for arm in _arms(claim):
+        keys += sorted(settings.model_keys.get(arm.get("model.name", ""), ()))
+    if rule.kind == "agreement" and not claim.is_bench:
+        for arm in _arms(claim):
+            found = first_confound(
+                runs[matching(runs, arm)], runs.iloc[0:0], keys, {}, settings.equivalent_commits
+            )
+            if found:
+                return f"{_label(arm)}: {found}"
+        return None
+    if claim.is_bench or rule.b_metric is not None:
+        return first_confound(runs, runs.iloc[0:0], keys, {}, settings.equivalent_commits)
+    a, b = runs[matching(runs, rule.a)], runs[matching(runs, rule.b)]
+    return first_confound(a, b, keys, rule.ratio, settings.equivalent_commits)
 
 
 def _runs_from(source: tuple[str, str]) -> str:
     return "pipeline" if source[0] == "pipeline" else " ".join(source)
 
 
-def evaluate_claim(claim: Claim, alpha: float, all_profiles: tuple[str, ...] = ()) -> LedgerRow:
-    """The claim's ledger row: its status at the first of its profiles with runs, from the first of its
-    sources with runs there (a study's seeds before the pipeline's one run per model; module docstring)."""
+def _arm_budget(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> str:
+    """The budget keys that differ between the arms as each ran them: those the claim declares
+    (`rule.ratio`) and the budget keys of a model's own recipe ("task.train.epochs: kpcn 8; dpcn 16")."""
+    if claim.rule.kind == "agreement":
+        return ""
+    owned = {
+        key
+        for arm in (claim.rule.a, claim.rule.b)
+        for key in settings.model_keys.get(arm.get("model.name", ""), ())
+        if key in settings.budget_keys
+    }
+    parts = []
+    for key in sorted({*claim.rule.ratio, *owned}):
+        column = f"params.{key}"
+        if column not in runs:
+            continue
+        values = [
+            sorted(set(runs.loc[matching(runs, arm), column].astype(str)))
+            for arm in (claim.rule.a, claim.rule.b)
+        ]
+        if key in claim.rule.ratio or values[0] != values[1]:
+            shown = [
+                f"{_label(arm)} {', '.join(v)}"
+                for arm, v in zip((claim.rule.a, claim.rule.b), values, strict=True)
+            ]
+            parts.append(f"{key}: {'; '.join(shown)}")
+    return " | ".join(parts)
+
+
+def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: LedgerSettings, note: str):
+    """The ledger row of the claim's counted runs at `profile` from `source`."""
+    common = dict(
+        claim=claim,
+        profile=profile,
+        runs_from=_runs_from(source),
+        runs=len(runs),
+        commits=_provenance(runs, "tags.nrbench.git_commit"),
+        fingerprints=_provenance(runs, "tags.nrbench.data_fingerprint"),
+        not_counted=note,
+        run_ids=tuple(str(r) for r in runs.get("run_id", [])),
+        arm_budget=_arm_budget(claim, runs, settings) if not claim.is_bench else "",
+    )
+    confound = _confound(claim, runs, settings)
+    if confound:
+        return LedgerRow(
+            verdict=Verdict(CONFOUNDED, f"the compared runs are not matched: {confound}"), **common
+        )
+    scores, prefix = item_scores(claim, runs)
+    if claim.rule.kind == "agreement":
+        return LedgerRow(verdict=_agreement(claim, scores, prefix), scores=scores, **common)
+    prepared = _replicates(claim, scores, prefix)
+    if isinstance(prepared, str):
+        return LedgerRow(verdict=Verdict(NOT_RUN, prepared), **common)
+    replicates, names = prepared
+    verdict = _judge(claim, replicates, names, settings.alpha)
+    return LedgerRow(verdict=verdict, replicates=replicates, scores=scores, names=names, **common)
+
+
+def evaluate_claim(claim: Claim, settings: LedgerSettings | float = LedgerSettings()) -> LedgerRow:
+    """The claim's ledger row: its status at the first of its profiles with runs at that profile's
+    budget, from the first of its sources with such runs there (module docstring). A bare number is
+    taken as the test level."""
+    if not isinstance(settings, LedgerSettings):
+        settings = LedgerSettings(alpha=float(settings))
+    notes: list[str] = []
     for profile in claim.profiles:
         for source in claim.sources:
             runs = _compared_runs(claim, claim_runs(claim, source, profile))
             if runs.empty:
                 continue
-            scores, prefix, item = item_scores(claim, runs)
-            return LedgerRow(
-                claim,
-                profile,
-                _runs_from(source),
-                _verdict(claim, scores, prefix, item, alpha),
-                len(runs),
-                _provenance(runs, "tags.nrbench.git_commit"),
-                _provenance(runs, "tags.nrbench.data_fingerprint"),
-            )
+            counted, note = _at_budget(claim, runs, settings)
+            if counted.empty:
+                notes.append(f"at {profile}: {note}")
+                continue
+            return _row(claim, profile, source, counted, settings, note)
     others = [
         p
-        for p in all_profiles
+        for p in settings.all_profiles
         if p not in claim.profiles
         and any(not _compared_runs(claim, claim_runs(claim, s, p)).empty for s in claim.sources)
     ]
-    return LedgerRow(claim, "-", "-", _not_run(claim, others), 0, (), ())
+    return LedgerRow(claim, "-", "-", _not_run(claim, others, notes), 0, (), ())
+
+
+def adjust_families(rows: Sequence[LedgerRow], alpha: float) -> list[LedgerRow]:
+    """The rows with each `better` claim's p adjusted within its family (the claims read from one source
+    at one profile) by Benjamini-Hochberg, and its status judged on the adjusted p. Rows without a test
+    (underpowered, confounded, not run, comparable, agreement) are left as they are."""
+    tested = [
+        i
+        for i, r in enumerate(rows)
+        if r.replicates is not None
+        and r.claim.rule.kind == "better"
+        and math.isfinite(r.verdict.p_value)
+        and r.claim.tallied
+        and r.verdict.status != UNDERPOWERED
+    ]
+    out = list(rows)
+    families: dict[str, list[int]] = {}
+    for i in tested:
+        families.setdefault(f"{rows[i].runs_from} at {rows[i].profile}", []).append(i)
+    for family, members in families.items():
+        adjusted = benjamini_hochberg([rows[i].verdict.p_value for i in members])
+        for i, p in zip(members, adjusted, strict=True):
+            row = rows[i]
+            verdict = _judge(row.claim, row.replicates, row.names, alpha, p_adjusted=float(p))
+            out[i] = replace(
+                row, verdict=verdict, p_adjusted=float(p), family=f"{family} ({len(members)} tests)"
+            )
+    return out
+
+
+def settings_from(cfg: Any, claims_path: Path) -> LedgerSettings:
+    """The ledger's settings from the run config (`ledger.*`) and the conf folder beside the claims."""
+    conf_dir = claims_path.parent
+    groups = OmegaConf.select(cfg, "ledger.equivalent_commits", default=None) or []
+    return LedgerSettings(
+        alpha=float(cfg.ledger.alpha),  # in (0, 1): the run schema (src/schema/run.py) checked it
+        all_profiles=tuple(sorted(p.stem for p in (conf_dir / "profile").glob("*.yaml"))),
+        budget_keys=profile_keys(conf_dir),
+        equivalent_commits=tuple(tuple(str(c) for c in group) for group in groups),
+        model_keys=model_keys(conf_dir),
+    )
 
 
 def build_ledger(cfg: Any) -> dict[str, Any]:
     """Evaluate every claim of `ledger.claims` against the runs of `tracking.uri` and write the ledger
     under `ledger.out_dir`; returns the paths written and the status of each claim."""
-    from pathlib import Path
-
     from src.provenance import git_commit
     from src.report.claims import load_claims
     from src.report.ledger_page import ledger_frame, status_counts, write_ledger
 
-    alpha = float(cfg.ledger.alpha)  # in (0, 1): the run schema (src/schema/run.py) checked it
     claims_path = Path(str(cfg.ledger.claims))
     claims = load_claims(claims_path)
+    settings = settings_from(cfg, claims_path)
     mlflow.set_tracking_uri(str(cfg.tracking.uri))
-    all_profiles = tuple(sorted(p.stem for p in (claims_path.parent / "profile").glob("*.yaml")))
-    rows = [evaluate_claim(claim, alpha, all_profiles) for claim in claims]
+    rows = adjust_families([evaluate_claim(claim, settings) for claim in claims], settings.alpha)
     frame = ledger_frame(rows)
     subtitle = (
-        f"Each status is computed from the FINISHED runs in {mlflow.get_tracking_uri()} by nrbench at "
-        f"commit {git_commit() or 'unknown'} (claims: {claims_path.name}; paired tests at alpha {alpha:g}). "
-        "Statuses: reproduced, direction only (the sign holds, the size does not), not reproduced, "
-        "not distinguishable (inside the spread of seeds and items), not run (with the reason)."
+        f"Each status is computed from the FINISHED runs in the tracking store by nrbench at commit "
+        f"{git_commit() or 'unknown'} (claims: {claims_path.name}; Hodges-Lehmann shifts with signed-rank "
+        f"tests and {1 - settings.alpha:.0%} intervals over replicates, Benjamini-Hochberg within each "
+        "source at a profile). Statuses: reproduced, direction only (the sign holds, the interval excludes "
+        "the published size), not reproduced, not distinguishable (the interval contains 0), underpowered "
+        "(too few replicates to decide), confounded (the arms' runs differ in more than the arm), not run "
+        "(with the reason). The headline counts the seeds' findings and readings."
     )
-    paths = write_ledger(frame, Path(str(cfg.ledger.out_dir)), subtitle)
+    out_dir = Path(str(cfg.ledger.out_dir))
+    paths = write_ledger(frame, out_dir, subtitle, rows)
+    paths.update(_record(cfg, frame, rows, paths))
     if OmegaConf.select(cfg, "report.site", default=True):
         from src.report.site import refresh_site
 
-        refresh_site(Path(str(cfg.ledger.out_dir)))  # the site's index shows the ledger's findings
+        refresh_site(out_dir)  # the site's index shows the ledger's findings and what changed
     return {
         "paths": paths,
         "statuses": dict(zip(frame["claim"], frame["status"], strict=True)),
         "counts": status_counts(frame),
     }
+
+
+def _record(cfg: Any, frame: pd.DataFrame, rows: Sequence[LedgerRow], paths: dict[str, Path]) -> dict:
+    """Append this write to `<out_dir>/ledger_history.csv` and, with `ledger.snapshot`, write the committed
+    snapshot there (`src.report.ledger_history`); returns the paths written."""
+    import shutil
+    from datetime import UTC, datetime
+
+    from src.provenance import git_commit
+    from src.report.ledger_history import append_history, history_lines, store_fingerprint, write_snapshot
+
+    written = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+    commit = git_commit() or "unknown"
+    run_ids = [run_id for row in rows for run_id in row.run_ids]
+    store = store_fingerprint(run_ids)
+    lines = history_lines(frame, written, commit, store)
+    out = {"history": Path(str(cfg.ledger.out_dir)) / "ledger_history.csv"}
+    append_history(out["history"], lines)
+    folder = OmegaConf.select(cfg, "ledger.snapshot", default=None)
+    if folder:
+        folder = Path(str(folder))
+        header = (
+            f"ledger written {written} by nrbench at commit {commit} from a store of {len(set(run_ids))} "
+            f"counted runs (store fingerprint {store})"
+        )
+        csv_text, md_text = paths["csv"].read_text(), paths["md"].read_text()
+        out["snapshot"] = write_snapshot(folder, header, csv_text, md_text, lines)[0]
+        shutil.rmtree(folder / "items", ignore_errors=True)  # the snapshot's items are this write's only
+        for row in rows:
+            if row.replicates is not None:
+                source = paths["csv"].parent / "items" / f"{row.claim.id}.csv"
+                (folder / "items").mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(source, folder / "items" / source.name)
+    return out
 
 
 def ledger_line(summary: dict[str, Any]) -> str:

@@ -392,8 +392,12 @@ def method_page(model: str, records: list[tuple[Entry, dict[str, Any]]], out_dir
 
 
 def _ledger_section(out_dir: Path) -> list[str]:
-    """The ledger's findings: its status counts and one row per claim that ran (linking the study that ran
-    it); the claims not run are counted (the ledger gives their reasons)."""
+    """The ledger's findings: its headline count (findings and readings), one row per claim that ran
+    (linking the study that ran it), the statuses that changed since the previous ledger
+    (`ledger_history.csv`); the claims not run are counted (the ledger gives their reasons)."""
+    from src.report.ledger_history import changes
+    from src.report.ledger_page import status_counts
+
     path = out_dir / "ledger.csv"
     if not path.is_file():
         return [
@@ -401,9 +405,9 @@ def _ledger_section(out_dir: Path) -> list[str]:
             "<p>No ledger yet (<code>python -m src.run stage=ledger</code>).</p>",
         ]
     frame = pd.read_csv(path, dtype=str).fillna("-")
-    counts = frame["status"].value_counts()
-    summary = ", ".join(f"{n} {s}" for s, n in counts.items())
+    summary = status_counts(frame)
     not_run = frame[frame["status"] == NOT_RUN]
+    columns = ("claim", "category", "status", "measured", "unit", "seeds", "images", "profile")
     rows = []
     for _, row in frame[frame["status"] != NOT_RUN].iterrows():
         source = str(row.get("from", "-"))
@@ -412,14 +416,26 @@ def _ledger_section(out_dir: Path) -> list[str]:
         source_html = (
             _link(target, source) if target and (out_dir / target).is_file() else html.escape(source)
         )
-        rows.append([html.escape(str(row[c])) for c in ("claim", "status", "profile")] + [source_html])
-        rows[-1].append(html.escape(str(row.get("numbers", "-"))))
-    return [
+        rows.append([html.escape(str(row.get(c, "-"))) for c in columns] + [source_html])
+    section = [
         '<h2><a href="ledger.html">Reproduction ledger</a></h2>',
-        f"<p><b>{html.escape(summary)}</b> (from <code>ledger.csv</code>).</p>",
-        html_table(["claim", "status", "profile", "from", "numbers"], rows),
+        f"<p><b>{html.escape(summary)}</b> (findings and readings, from <code>ledger.csv</code>).</p>",
+        html_table([*columns, "from"], rows),
         f"<p>{len(not_run)} claims not run: the ledger says why and which command runs them.</p>",
     ]
+    history = out_dir / "ledger_history.csv"
+    if history.is_file():
+        changed = changes(pd.read_csv(history, dtype=str))
+        if not changed.empty:
+            cells = [
+                [html.escape(str(r[c])) for c in ("claim", "before", "after")] for _, r in changed.iterrows()
+            ]
+            when = html.escape(str(changed["written"].iloc[0]))
+            section += [
+                f"<h3>Changed in the ledger of {when}</h3>",
+                html_table(["claim", "before", "now"], cells),
+            ]
+    return section
 
 
 def index_page(out_dir: Path, entries: list[Entry], models: Mapping[str, list], bench: pd.DataFrame) -> str:

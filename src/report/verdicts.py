@@ -1,19 +1,22 @@
-"""A claim's status from its numbers: pure functions of the per-item scores of the compared arms, so the
-ledger (`src.report.ledger`) never types a status by hand and every rule is tested on its own.
+"""A claim's status from its numbers: pure functions of the compared arms' per-replicate differences, so
+the ledger (`src.report.ledger`) never types a status by hand and every rule is tested on its own.
 
-- `better_verdict`: arm a beats arm b. Paired over the items both were scored on (the same seed and
-  held-out image, or the same benchmark round), two-sided Wilcoxon signed-rank (`src.report.paired`):
-  **reproduced** when the difference is significant in the claimed direction and at least the published
-  `size`; **direction only** when significant in that direction but smaller; **not reproduced** when
-  significant the other way; **not distinguishable** when p >= alpha (a signed-rank test over n items
-  cannot give p below 2 / 2^n, so fewer than `min_items(alpha)` items can never show a difference: the
-  verdict says so).
-- `comparable_verdict` ("comparable quality"): an equivalence check. **Reproduced** when the 95 %
-  t-interval of the mean paired difference lies inside +-tolerance, **not reproduced** when it lies
-  wholly outside, else **not distinguishable**.
-- `agreement_verdict`: published numbers, as NerfBaselines checks reproductions (PSNR within 0.2 dB,
-  SSIM within 0.05): each case's mean against its published value. **Reproduced** when every case that
-  ran is within the tolerance, **not reproduced** when one is not.
+A replicate is what varies independently (the ledger decides it: a training seed for learned arms, with
+the held-out images nested in it; an image for deterministic arms). Direction, size and test come from
+one estimator, the Hodges-Lehmann shift with the signed-rank test and the interval that inverts it
+(`src.report.signed_rank`), at level 1 - alpha.
+
+- `better_verdict` (arm a beats arm b, optionally by a published `size`): **reproduced** when the interval
+  lies on the claimed side of 0 and does not lie wholly below the published size; **direction only** when
+  it lies on the claimed side but wholly below the size (the data exclude the published effect); **not
+  reproduced** when it lies on the other side; **not distinguishable** when it contains 0.
+- `comparable_verdict` (an equivalence): **reproduced** when the interval lies inside +-tolerance, **not
+  reproduced** when wholly outside, else **not distinguishable**.
+- `agreement_verdict` (published numbers): **reproduced** when every published case ran and each case's
+  mean is within the tolerance of its value, **not reproduced** when one is not.
+- Below a rule's minimum replication the status is **underpowered**, never a verdict: fewer replicates
+  than a two-sided signed-rank test needs to reach p <= alpha at all (6 at 0.05), or, for agreement, a
+  published case without runs. The row says what the design would need.
 """
 
 from __future__ import annotations
@@ -25,100 +28,159 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from src.report.paired import paired_difference
+from src.report.signed_rank import min_items, replicates_for_power, signed_rank, smallest_p
 
 REPRODUCED = "reproduced"
 DIRECTION_ONLY = "direction only"
 NOT_REPRODUCED = "not reproduced"
 NOT_DISTINGUISHABLE = "not distinguishable"
+UNDERPOWERED = "underpowered"
+CONFOUNDED = "confounded"
 NOT_RUN = "not run"
-STATUSES = (REPRODUCED, DIRECTION_ONLY, NOT_REPRODUCED, NOT_DISTINGUISHABLE, NOT_RUN)
+STATUSES = (
+    REPRODUCED,
+    DIRECTION_ONLY,
+    NOT_REPRODUCED,
+    NOT_DISTINGUISHABLE,
+    UNDERPOWERED,
+    CONFOUNDED,
+    NOT_RUN,
+)
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """A claim's status, the one-line account of the numbers behind it, and the items it rests on."""
+    """A claim's status, the one-line account of the numbers behind it, the replicates it rests on, the
+    test's raw p (NaN where the rule has none) and the estimate with its interval (the advantage of arm
+    a: metric units, or a natural-log ratio for `log` claims)."""
 
     status: str
     numbers: str
     items: int = 0
+    p_value: float = math.nan
+    estimate: float = math.nan
+    low: float = math.nan
+    high: float = math.nan
 
 
-def min_items(alpha: float) -> int:
-    """The fewest items with which a two-sided signed-rank test can reach p < alpha: its smallest p over
-    n items is 2 / 2^n (every difference of one sign)."""
-    return math.floor(math.log2(2 / alpha)) + 1
+def _number(value: float, log: bool) -> str:
+    """A difference as printed: a factor for log claims, a signed number otherwise."""
+    if log:
+        return f"{math.exp(value):.4g}x" if math.isfinite(value) else ("inf" if value > 0 else "0x")
+    return f"{value:+.4g}"
 
 
-def _spread(values: pd.Series) -> str:
-    sd = float(values.std(ddof=1)) if len(values) > 1 else 0.0
-    return f"{float(values.mean()):.4g} ± {sd:.2g}"
+def _interval(result, log: bool) -> str:
+    if not math.isfinite(result.low) and not math.isfinite(result.high):
+        return f"no {result.level:.0%} interval with {result.n}"
+    return f"{result.level:.0%} interval [{_number(result.low, log)}, {_number(result.high, log)}]"
+
+
+def _needs(
+    advantage: pd.Series, alpha: float, unit: str, size: float, log: bool
+) -> str:  # what an underpowered design would need
+    n, floor = len(advantage), min_items(alpha)
+    text = (
+        f"{n} {unit}: the smallest two-sided p with {n} is {smallest_p(n):.2g} > alpha {alpha:g}, so no "
+        f"effect of any size can be shown; needs {floor} or more {unit}"
+    )
+    finite = advantage[np.isfinite(advantage)]
+    target = (math.log(size) if log else size) if size and (size > 1 or not log) else None
+    effect = target if target else (float(finite.median()) if len(finite) else math.nan)
+    sd = float(finite.std(ddof=1)) if len(finite) > 1 else math.nan
+    needed = replicates_for_power(sd, effect, alpha)
+    if needed is not None:
+        what = "the published size" if target else "the effect seen"
+        text += f" (about {needed} to detect {what} with 80 % power at the spread seen, sd {sd:.2g})"
+    return text
 
 
 def better_verdict(
-    a: pd.Series, b: pd.Series, names: tuple[str, str], higher: bool, log: bool, size: float, alpha: float
+    advantage: pd.Series,
+    names: tuple[str, str],
+    log: bool,
+    size: float,
+    alpha: float,
+    unit: str = "items",
+    p_adjusted: float | None = None,
+    nesting: str = "",
 ) -> Verdict:
-    """Whether arm a (scores `a`, one per item, indexed by item) beats arm b (module docstring). `size`:
-    the published effect, in the metric's units, or as a factor (>= 1) when `log`; 0: any."""
-    common = a.index.intersection(b.index)
-    if len(common) < 2:
-        return Verdict(NOT_RUN, f"{len(common)} item(s) scored in both arms; a paired test needs 2 or more")
-    result = paired_difference(a[common], b[common], log=log)
-    effect = result.mean_difference if higher else -result.mean_difference
-    wins, losses = (result.a_higher, result.b_higher) if higher else (result.b_higher, result.a_higher)
-    if log:
-        shown_size = f"{names[0]} better by a factor {math.exp(effect):.4g} (geometric mean)"
-        big_enough = math.exp(effect) >= max(size, 1.0)
-    else:
-        shown_size = f"{names[0]} - {names[1]} = {result.mean_difference:+.4g}"
-        big_enough = effect >= size
+    """Whether arm a beats arm b (module docstring). `advantage`: one value per replicate, positive where
+    a is better (a - b when higher is better, b - a when lower; of logs when `log`), -inf where a's
+    output failed and b's did not, +inf the other way. `size`: the published effect in metric units, or
+    a factor (> 1) when `log`; 0: any. `p_adjusted`: the p after the family's correction, which decides
+    significance when given (the interval stays the claim's own). `unit`: what a replicate is (seeds,
+    images, rounds); `nesting`: what each holds, as printed after it."""
+    n = len(advantage)
+    if n < 1:
+        return Verdict(NOT_RUN, "no replicate scored in both arms")
+    result = signed_rank(advantage.to_numpy(float), alpha)
+    p = result.p_value if p_adjusted is None else p_adjusted
+    threshold = (math.log(size) if log else size) if size and (size > 1 or not log) else None
     numbers = (
-        f"{shown_size} over {result.n} paired items ({wins} favour {names[0]}, {losses} {names[1]}; "
-        f"Wilcoxon p = {result.p_value:.2g}); "
-        f"{names[0]} {_spread(a[common])}, {names[1]} {_spread(b[common])}"
+        f"{names[0]} better than {names[1]} by {_number(result.estimate, log)} (Hodges-Lehmann), "
+        f"{_interval(result, log)} over {n} {unit}{nesting} ({result.positive} favour {names[0]}, "
+        f"{result.negative} {names[1]}); signed-rank "
+        f"p = {result.p_value:.2g}"
     )
-    if size:
-        numbers += f"; published size {size:g}" + ("x" if log else "")
-    if not result.shown(alpha):
-        floor = min_items(alpha)
-        if result.n < floor:
-            numbers += f"; {result.n} items cannot reach p < {alpha:g} (needs {floor} or more)"
-        return Verdict(NOT_DISTINGUISHABLE, numbers, result.n)
-    if effect < 0:
-        return Verdict(NOT_REPRODUCED, numbers, result.n)
-    return Verdict(REPRODUCED if big_enough else DIRECTION_ONLY, numbers, result.n)
+    if p_adjusted is not None:
+        numbers += f", adjusted p = {p_adjusted:.2g}"
+    if threshold is not None:
+        numbers += f"; published size {_number(threshold, log)}"
+    verdict = dict(
+        items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
+    )
+    if n < min_items(alpha):
+        return Verdict(UNDERPOWERED, numbers + "; " + _needs(advantage, alpha, unit, size, log), **verdict)
+    if p > alpha:
+        return Verdict(NOT_DISTINGUISHABLE, numbers, **verdict)
+    if result.high < 0:
+        return Verdict(NOT_REPRODUCED, numbers, **verdict)
+    if threshold is not None and result.high < threshold:
+        return Verdict(DIRECTION_ONLY, numbers + " (the interval lies below it)", **verdict)
+    return Verdict(REPRODUCED, numbers, **verdict)
 
 
 def comparable_verdict(
-    a: pd.Series, b: pd.Series, names: tuple[str, str], log: bool, tolerance: float, level: float = 0.95
+    difference: pd.Series,
+    names: tuple[str, str],
+    log: bool,
+    tolerance: float,
+    alpha: float,
+    unit: str = "items",
+    nesting: str = "",
 ) -> Verdict:
-    """Whether arms a and b are equivalent within `tolerance` (metric units; a log ratio when `log`): the
-    `level` t-interval of the mean paired difference against +-tolerance (module docstring)."""
-    from scipy import stats  # lazy: only the ledger needs it
-
-    common = a.index.intersection(b.index)
-    if len(common) < 2:
-        return Verdict(NOT_RUN, f"{len(common)} item(s) scored in both arms; an interval needs 2 or more")
-    x, y = a[common].to_numpy(float), b[common].to_numpy(float)
-    d = np.log(x) - np.log(y) if log else x - y
-    mean, sem = float(d.mean()), float(d.std(ddof=1) / math.sqrt(len(d)))
-    half = float(stats.t.ppf(0.5 + level / 2, len(d) - 1)) * sem
-    lo, hi = mean - half, mean + half
+    """Whether arms a and b are equivalent within `tolerance` (metric units; a natural-log ratio when
+    `log`): the (1 - alpha) signed-rank interval of the shift a - b against +-tolerance. `difference`:
+    a - b per replicate (+-inf where one arm failed)."""
+    n = len(difference)
+    if n < 1:
+        return Verdict(NOT_RUN, "no replicate scored in both arms")
+    result = signed_rank(difference.to_numpy(float), alpha)
     what = f"log({names[0]} / {names[1]})" if log else f"{names[0]} - {names[1]}"
     numbers = (
-        f"{what} = {mean:+.4g}, {level:.0%} interval [{lo:+.4g}, {hi:+.4g}] over {len(d)} paired items, "
-        f"tolerance ±{tolerance:g}; {names[0]} {_spread(a[common])}, {names[1]} {_spread(b[common])}"
+        f"{what} = {result.estimate:+.4g} (Hodges-Lehmann), {_interval(result, False)} over {n} "
+        f"{unit}{nesting}, tolerance ±{tolerance:g}"
     )
-    if -tolerance <= lo and hi <= tolerance:
-        return Verdict(REPRODUCED, numbers, len(d))
-    if lo > tolerance or hi < -tolerance:
-        return Verdict(NOT_REPRODUCED, numbers, len(d))
-    return Verdict(NOT_DISTINGUISHABLE, numbers, len(d))
+    verdict = dict(items=n, estimate=result.estimate, low=result.low, high=result.high)
+    if n < min_items(alpha):
+        return Verdict(
+            UNDERPOWERED,
+            f"{numbers}; {n} {unit} cannot bound the shift at {result.level:.0%}: "
+            f"needs {min_items(alpha)} or more",
+            **verdict,
+        )
+    if -tolerance <= result.low and result.high <= tolerance:
+        return Verdict(REPRODUCED, numbers, **verdict)
+    if result.low > tolerance or result.high < -tolerance:
+        return Verdict(NOT_REPRODUCED, numbers, **verdict)
+    return Verdict(NOT_DISTINGUISHABLE, numbers, **verdict)
 
 
 def agreement_verdict(cases: Sequence[tuple[str, pd.Series | None, float]], tolerance: float) -> Verdict:
-    """Whether each case's measured mean is within `tolerance` of its published value. `cases`: (label,
-    the case's values over seeds/items or None when it did not run, published value)."""
+    """Whether each published case's measured mean is within `tolerance` of its value. `cases`: (label,
+    the case's values over seeds or None when it did not run, published value). Every case must run: a
+    published table is reproduced as a whole, never from the cases that happened to run."""
     ran = [(label, values, value) for label, values, value in cases if values is not None and len(values)]
     if not ran:
         return Verdict(NOT_RUN, f"none of the {len(cases)} published case(s) has runs")
@@ -127,9 +189,13 @@ def agreement_verdict(cases: Sequence[tuple[str, pd.Series | None, float]], tole
         mean = float(values.mean())
         ok = abs(mean - published) <= tolerance
         within += ok
-        parts.append(f"{label} {mean:.4g} vs {published:g}" + ("" if ok else " (outside)"))
-    numbers = f"{within} of {len(ran)} case(s) within ±{tolerance:g}"
+        parts.append(f"{label} {mean:.4g} vs {published:g} over {len(values)}" + ("" if ok else " (outside)"))
+    numbers = f"{within} of {len(ran)} case(s) within ±{tolerance:g}: " + "; ".join(parts)
+    if within < len(ran):
+        return Verdict(NOT_REPRODUCED, numbers, len(ran))
     if len(ran) < len(cases):
-        numbers += f" ({len(cases) - len(ran)} of {len(cases)} not run)"
-    numbers += ": " + "; ".join(parts)
-    return Verdict(REPRODUCED if within == len(ran) else NOT_REPRODUCED, numbers, len(ran))
+        missing = [label for label, values, _ in cases if values is None or not len(values)]
+        return Verdict(
+            UNDERPOWERED, f"{numbers}; {len(missing)} of {len(cases)} not run: {', '.join(missing)}", len(ran)
+        )
+    return Verdict(REPRODUCED, numbers, len(ran))

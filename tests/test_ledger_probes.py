@@ -1,0 +1,392 @@
+"""The reviewer's probes of the ledger (issue 43), each a hand-made MLflow store on which the pooled-items
+ledger gave a status the evidence does not support: deterministic arms scored under three seeds counted
+three times, failed outputs dropped, arms trained at different budgets or commits compared without a
+word, a run whose budget was overridden counted at its profile. Each test also checks the other side of
+its rule (the matched, declared or deterministic case that must still be decided)."""
+
+import textwrap
+
+import mlflow
+import numpy as np
+import pandas as pd
+import pytest
+from mlflow.tracking import MlflowClient
+
+from src.report.claims import parse_claim
+from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim
+from src.report.matched_arms import off_profile_key, profile_keys
+from src.report.replication import replicate_differences
+from src.report.signed_rank import signed_rank
+from src.report.verdicts import (
+    CONFOUNDED,
+    NOT_DISTINGUISHABLE,
+    NOT_REPRODUCED,
+    NOT_RUN,
+    REPRODUCED,
+)
+from tests.test_ledger import log_run
+
+#: Ten held-out images on which filter a beats filter b in 7 and loses in 3: signed-rank p = 0.19 over
+#: the 10 images; counted three times (one per seed) the same numbers give p = 0.017.
+TEN = np.array([0.5, 0.8, 1.1, 1.3, 0.4, 0.9, -1.2, -0.3, -0.6, 0.7])
+CPU = {"nrbench.profile": "cpu", "nrbench.git_commit": "c0ffee1234", "nrbench.data_fingerprint": "f00d"}
+BUDGET = "# @package task\ntrain:\n  epochs: 40\n  max_steps: 10\n"
+
+
+def _images(values, undefined=None):
+    frame = pd.DataFrame({"scene": [f"s{i}" for i in range(len(values))], "spp": 4, "psnr": values})
+    return frame.assign(relmse_ratio=0.5, undefined=undefined if undefined is not None else 0.0)
+
+
+@pytest.fixture(scope="module")
+def probe_store(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("probe_store")
+    previous = mlflow.get_tracking_uri()
+    uri = f"sqlite:///{tmp}/mlflow.db"
+    mlflow.set_tracking_uri(uri)
+    client = MlflowClient()
+    exp = client.create_experiment("nrbench-denoise", artifact_location=(tmp / "art").as_uri())
+
+    def study(name, model, seed, images, tags=CPU, **params):
+        job = params.pop("hydra_job", f"model={model} seed={seed} +sweep={name} profile=cpu")
+        params = {"report.name": f"sweeps/{name}", "model.name": model, "seed": seed, **params}
+        log_run(
+            client, exp, tmp, params, {**tags, "nrbench.hydra_job": job}, None, ("eval/per_image.csv", images)
+        )
+
+    base = 30.0 + np.arange(10.0)
+    for seed in range(3):  # two deterministic filters: the same scores under every seed
+        study("filters", "filter_a", seed, _images(base + TEN), **{"model.learned": "False"})
+        study("filters", "filter_b", seed, _images(base), **{"model.learned": "False"})
+        # the same numbers without the config saying so: seen from the identical scores
+        study("unmarked", "filter_a", seed, _images(base + TEN))
+        study("unmarked", "filter_b", seed, _images(base))
+    # An expression better by 1 dB where defined, undefined on 4 of 10 images (NaN scores).
+    failing = np.where(np.arange(10) < 6, base + 1.0, np.nan)
+    undefined = np.where(np.arange(10) < 6, 0.0, 1.0)
+    for seed in range(3):
+        study("failures", "gp_expr", seed, _images(failing, undefined), **{"model.learned": "False"})
+        study("failures", "cross_bilateral", seed, _images(base), **{"model.learned": "False"})
+    # Six seeds of kpcn 1 dB above dpcn, at different epochs; the same at another commit and data.
+    for seed in range(6):
+        shift = 0.1 * seed
+        study("budgets", "kpcn", seed, _images(base + 1 + shift), **{"task.train.epochs": 2})
+        study("budgets", "dpcn", seed, _images(base + shift), **{"task.train.epochs": 1})
+        study("commits", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": "aaaa111"})
+        study("commits", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.git_commit": "bbbb222"})
+        study("data", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.data_fingerprint": "d1"})
+        study("data", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.data_fingerprint": "d2"})
+        # A cpu-tagged study whose budget was overridden on the command line, and one that swept an arm key.
+        overridden = f"model=kpcn seed={seed} +sweep=shrunk profile=cpu task.train.epochs=1"
+        study("shrunk", "kpcn", seed, _images(base + 1 + shift), hydra_job=overridden)
+        study("shrunk", "dpcn", seed, _images(base + shift), hydra_job=overridden.replace("kpcn", "dpcn"))
+        for whiten in ("true", "false"):
+            job = f"model.whiten={whiten} seed={seed} +sweep=whitening profile=cpu"
+            scores = _images(base + shift + (1.0 if whiten == "true" else 0.0))
+            study("whitening", "kpcn", seed, scores, hydra_job=job, **{"model.whiten": whiten})
+        # LPIPS scored with the trained weights (x, y) and with the random trunk (p, q).
+        for model, variant, offset in (
+            ("x", "vgg16(w.pth)+lin(l.pth)", 0.0),
+            ("y", "vgg16(w.pth)+lin(l.pth)", 0.1),
+        ):
+            scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
+            study("lpips", model, seed, scores, {**CPU, "nrbench.lpips_variant": variant})
+        for model, offset in (("p", 0.0), ("q", 0.1)):
+            scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
+            study(
+                "lpips",
+                model,
+                seed,
+                scores,
+                {**CPU, "nrbench.lpips_variant": "vgg16-random(seed=0)+lin-uniform"},
+            )
+        # A filter search (gp_filter is "not learned", but the expression found is the seed's) with its
+        # constant-sigma baseline scored beside it on the same images.
+        found = _images(base + 0.5 + 0.2 * seed).assign(baseline_psnr=base)
+        search = {"task.name": "filter_search", "model.learned": "False"}
+        study("search", "gp_filter", seed, found, **search)
+        # Two NeRF-like models whose own recipes differ (precrop warm-up, and steps: a budget key).
+        for model, precrop, steps in (("nerf", 100, 12), ("mipnerf", 0, 10)):
+            recipe = {"task.train.precrop_iters": precrop, "task.train.max_steps": steps}
+            study(
+                "recipes", model, seed, _images(base + (0.3 if model == "mipnerf" else 0.0) + shift), **recipe
+            )
+    yield {"tmp": tmp, "uri": uri}
+    mlflow.set_tracking_uri(previous)
+
+
+def _claim(study, a, b, metric="psnr", kind="better", extra=""):
+    text = textwrap.dedent(
+        f"""
+        id: probe_{study}
+        category: finding
+        source: {{document: Davletaliyev 2016, section: "4", quote: q}}
+        statement: a beats b.
+        profiles: [cpu]
+        runs: {{study: {study}, experiment: nrbench-denoise}}
+        metric: {metric}
+        per: image
+        higher: true
+        rule: {{kind: {kind}, a: {a}, b: {b}{extra}}}
+        """
+    )
+    import yaml
+
+    return parse_claim(yaml.safe_load(text), 0)
+
+
+def _settings(tmp_path, **kw):
+    conf = tmp_path / "conf"
+    (conf / "task_profile").mkdir(parents=True, exist_ok=True)
+    (conf / "task_profile" / "denoise_cpu.yaml").write_text(BUDGET)
+    return LedgerSettings(alpha=0.05, all_profiles=("cpu",), budget_keys=profile_keys(conf), **kw)
+
+
+def test_deterministic_arms_count_each_image_once(probe_store, tmp_path):
+    for study in ("filters", "unmarked"):  # said by the config, or seen in the scores
+        row = evaluate_claim(
+            _claim(study, "{model.name: filter_a}", "{model.name: filter_b}"), _settings(tmp_path)
+        )
+        assert row.replicates.unit == "images" and row.verdict.items == 10, study
+        assert row.replicates.deterministic == (True, True)
+        assert (
+            row.verdict.p_value == pytest.approx(signed_rank(TEN).p_value) == pytest.approx(0.193, abs=1e-3)
+        )
+        assert row.verdict.status == NOT_DISTINGUISHABLE  # pooled over 3 x 10 it read "reproduced"
+        assert "deterministic arms: each image once, though scored under 3 seed(s)" in row.verdict.numbers
+
+
+def test_a_learned_arm_is_replicated_by_its_seeds_and_three_are_underpowered(probe_store, tmp_path):
+    # The same data with filter_a's scores jittered per seed: a learned arm, three replicates.
+    rng = np.random.default_rng(1)
+    a = pd.concat(
+        [
+            _images(30 + np.arange(10.0) + TEN + rng.normal(0, 0.01, 10)).assign(**{"params.seed": s})
+            for s in range(3)
+        ]
+    )
+    b = pd.concat([_images(30 + np.arange(10.0)).assign(**{"params.seed": s}) for s in range(3)])
+    reps = replicate_differences(a.assign(value=a["psnr"]), b.assign(value=b["psnr"]), "image", True, False)
+    assert (reps.unit, reps.seeds, reps.images, len(reps.difference)) == ("seeds", 3, 10, 3)
+    assert reps.deterministic == (False, True)
+    assert np.allclose(reps.difference, TEN.mean(), atol=0.01)  # each seed: the mean over its 10 images
+
+
+def test_a_failed_output_is_its_arms_worst_outcome_not_a_dropped_item(probe_store, tmp_path):
+    claim = _claim("failures", "{model.name: gp_expr}", "{model.name: cross_bilateral}")
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.replicates.undefined == (12, 0)  # 4 images x 3 seeds counted; 4 images once in the test
+    assert (
+        row.verdict.items == 10 and row.verdict.status == NOT_DISTINGUISHABLE
+    )  # dropped: 6 of 6 for gp_expr
+    assert "6 favour gp_expr, 4 cross_bilateral" in row.verdict.numbers
+
+
+def test_arms_trained_at_different_budgets_are_confounded_unless_the_claim_declares_it(probe_store, tmp_path):
+    a, b = "{model.name: kpcn}", "{model.name: dpcn}"
+    row = evaluate_claim(_claim("budgets", a, b), _settings(tmp_path))
+    assert row.verdict.status == CONFOUNDED and "task.train.epochs differs (1.0, 2.0)" in row.verdict.numbers
+    declared = evaluate_claim(
+        _claim("budgets", a, b, extra=", ratio: {task.train.epochs: 0.5}"), _settings(tmp_path)
+    )
+    assert (
+        declared.verdict.status == REPRODUCED and declared.arm_budget == "task.train.epochs: kpcn 2; dpcn 1"
+    )
+    wrong = evaluate_claim(
+        _claim("budgets", a, b, extra=", ratio: {task.train.epochs: 2}"), _settings(tmp_path)
+    )
+    assert wrong.verdict.status == CONFOUNDED and "the claim declares 2" in wrong.verdict.numbers
+
+
+def test_runs_at_another_commit_or_on_other_data_are_confounded(probe_store, tmp_path):
+    a, b = "{model.name: kpcn}", "{model.name: dpcn}"
+    commits = evaluate_claim(_claim("commits", a, b), _settings(tmp_path))
+    assert (
+        commits.verdict.status == CONFOUNDED
+        and "code commit differs (aaaa111, bbbb222)" in commits.verdict.numbers
+    )
+    same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
+    assert evaluate_claim(_claim("commits", a, b), same_code).verdict.status == REPRODUCED
+    data = evaluate_claim(_claim("data", a, b), _settings(tmp_path))
+    assert data.verdict.status == CONFOUNDED and "data fingerprint differs (d1, d2)" in data.verdict.numbers
+
+
+def test_a_run_whose_budget_was_overridden_does_not_count_at_its_profile(probe_store, tmp_path):
+    row = evaluate_claim(_claim("shrunk", "{model.name: kpcn}", "{model.name: dpcn}"), _settings(tmp_path))
+    assert row.verdict.status == NOT_RUN
+    assert (
+        "12 run(s) not counted, off the profile's budget (task.train.epochs overridden)"
+        in row.verdict.numbers
+    )
+    # A study that sweeps a key as its arm is at the profile's budget.
+    whiten = evaluate_claim(
+        _claim("whitening", "{model.whiten: 'true'}", "{model.whiten: 'false'}"), _settings(tmp_path)
+    )
+    assert whiten.verdict.status == REPRODUCED and whiten.not_counted == ""
+
+
+def test_an_lpips_claim_reads_only_runs_with_the_trained_weights(probe_store, tmp_path):
+    trained = evaluate_claim(
+        _claim("lpips", "{model.name: x}", "{model.name: y}", metric="lpips"), _settings(tmp_path)
+    )
+    assert trained.verdict.status == NOT_REPRODUCED and trained.not_counted == ""  # higher: true, x is lower
+    random = evaluate_claim(
+        _claim("lpips", "{model.name: p}", "{model.name: q}", metric="lpips"), _settings(tmp_path)
+    )
+    assert random.verdict.status == NOT_RUN
+    assert "12 run(s) not counted: LPIPS without the trained weights" in random.verdict.numbers
+    # Another metric of the same runs does not care about the LPIPS weights.
+    psnr = evaluate_claim(_claim("lpips", "{model.name: p}", "{model.name: q}"), _settings(tmp_path))
+    assert psnr.verdict.status == NOT_DISTINGUISHABLE and psnr.replicates.unit == "images"
+
+
+def test_a_search_is_replicated_by_its_seeds_though_its_model_is_not_trained(probe_store, tmp_path):
+    claim = _claim(
+        "search", "{model.name: gp_filter}", "{model.name: gp_filter}", extra=", b_metric: baseline_psnr"
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.replicates.unit == "seeds" and row.replicates.deterministic == (False, True)
+    assert row.verdict.items == 6 and row.verdict.status == REPRODUCED
+
+
+def test_a_models_own_recipe_belongs_to_its_arm_and_its_budget_keys_are_shown(probe_store, tmp_path):
+    claim = _claim("recipes", "{model.name: mipnerf}", "{model.name: nerf}")
+    bare = evaluate_claim(claim, _settings(tmp_path))
+    assert bare.verdict.status == CONFOUNDED and "task.train.max_steps differs" in bare.verdict.numbers
+    owned = {"nerf": frozenset({"task.train.precrop_iters", "task.train.max_steps"}), "mipnerf": frozenset()}
+    row = evaluate_claim(claim, _settings(tmp_path, model_keys=owned))
+    assert row.verdict.status == REPRODUCED
+    assert row.arm_budget == "task.train.max_steps: mipnerf 10; nerf 12"  # a budget key: shown
+    assert "precrop" not in row.arm_budget  # a recipe key outside the budget: the arm's own
+
+
+def test_off_profile_keys_read_the_overrides():
+    budget = frozenset({"task.train.epochs", "dataset.noisy_spp"})
+    assert off_profile_key("model=kpcn seed=1 profile=cpu", budget, []) == ""
+    assert off_profile_key("model=kpcn task.train.epochs=3", budget, []) == "task.train.epochs"
+    assert off_profile_key("++dataset.noisy_spp=2", budget, []) == "dataset.noisy_spp"
+    assert off_profile_key("task.train={epochs:3}", budget, []) == "task.train"  # a whole subtree
+    assert off_profile_key("task_profile=denoise_smoke", budget, []) == "task_profile"
+    assert off_profile_key("task.train.epochs=3", budget, ["task.train.epochs"]) == ""  # the claim's arm
+    assert off_profile_key(float("nan"), budget, []) == ""  # a run that logged no overrides
+
+
+def test_profile_keys_are_every_leaf_a_profile_file_sets(tmp_path):
+    (tmp_path / "task_profile").mkdir()
+    (tmp_path / "task_profile" / "denoise_cpu.yaml").write_text(
+        "# @package task\ntrain:\n  epochs: 4\n  lr: 1\n"
+    )
+    (tmp_path / "dataset_profile").mkdir()
+    (tmp_path / "dataset_profile" / "procedural_cpu.yaml").write_text(
+        "# @package dataset\nnoisy_spp: [1, 2]\n"
+    )
+    (tmp_path / "profile").mkdir()
+    (tmp_path / "profile" / "cpu.yaml").write_text("# @package _global_\nprofile_name: cpu\n")
+    assert profile_keys(tmp_path) == {
+        "task.train.epochs",
+        "task.train.lr",
+        "dataset.noisy_spp",
+        "profile_name",
+    }
+
+
+def test_the_real_profiles_set_the_training_budget():
+    from tests.conftest import ROOT
+
+    keys = profile_keys(ROOT / "conf")
+    assert {"task.train.epochs", "dataset.noisy_spp"} <= keys
+
+
+def test_a_study_family_is_adjusted_together(probe_store, tmp_path):
+    conf = tmp_path / "conf"
+    (conf / "profile").mkdir(parents=True)
+    (conf / "profile" / "cpu.yaml").write_text("{}\n")
+    claims = [
+        ("budgets_ok", "budgets", "ratio: {task.train.epochs: 0.5}"),
+        ("budgets_again", "budgets", "ratio: {task.train.epochs: 0.5}, size: 0.5"),
+        ("budgets_target", "budgets", "ratio: {task.train.epochs: 0.5}"),  # a target: not in the family
+    ]
+    text = "claims:\n" + "".join(
+        textwrap.indent(
+            textwrap.dedent(
+                f"""
+                - id: {cid}
+                  category: {"target" if cid.endswith("target") else "finding"}
+                  source: {{document: Davletaliyev 2016, quote: q}}
+                  statement: s.
+                  profiles: [cpu]
+                  runs: {{study: {study}, experiment: nrbench-denoise}}
+                  metric: psnr
+                  per: image
+                  higher: true
+                  rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}, {extra}}}
+                """
+            ),
+            "  ",
+        )
+        for cid, study, extra in claims
+    )
+    (conf / "claims.yaml").write_text(text)
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create(
+        {
+            "ledger": {"claims": str(conf / "claims.yaml"), "out_dir": str(tmp_path / "out"), "alpha": 0.05},
+            "tracking": {"uri": probe_store["uri"]},
+            "report": {"site": False},
+        }
+    )
+    summary = build_ledger(cfg)
+    frame = pd.read_csv(summary["paths"]["csv"]).set_index("claim")
+    statuses = {"budgets_ok": REPRODUCED, "budgets_again": REPRODUCED, "budgets_target": REPRODUCED}
+    assert summary["statuses"] == statuses, frame["numbers"].tolist()
+    frame = pd.read_csv(summary["paths"]["csv"]).set_index("claim")
+    assert frame.loc["budgets_ok", "family"] == "study budgets at cpu (2 tests)"
+    assert float(frame.loc["budgets_ok", "p_adjusted"]) == pytest.approx(0.031, abs=1e-3)
+    assert frame.loc["budgets_target", "family"] == "-" and frame.loc["budgets_target", "p_adjusted"] == "-"
+    assert summary["counts"] == "2 reproduced"  # the headline counts findings and readings only
+
+
+def _arm(values_by_seed, undefined_by_seed=None):
+    """Scores as the ledger passes them: one row per (seed, image), `value` and `failed`."""
+    parts = []
+    for seed, values in values_by_seed.items():
+        frame = _images(np.asarray(values, float)).assign(**{"params.seed": seed})
+        failed = (undefined_by_seed or {}).get(seed, np.zeros(len(values)))
+        parts.append(frame.assign(value=frame["psnr"], failed=np.asarray(failed) > 0))
+    return pd.concat(parts, ignore_index=True)
+
+
+def test_one_seed_of_deterministic_arms_still_counts_its_images_and_of_learned_arms_does_not():
+    a, b = _arm({0: 30 + TEN}), _arm({0: np.full(10, 30.0)})
+    said = replicate_differences(a, b, "image", True, False, learned=(False, False))
+    assert (said.unit, len(said.difference)) == ("images", 10)  # the pipeline's one run of two filters
+    unknown = replicate_differences(a, b, "image", True, False)  # one seed: the scores cannot tell
+    assert (unknown.unit, len(unknown.difference)) == ("seeds", 1)
+
+
+def test_scores_that_never_share_an_image_across_seeds_do_not_make_an_arm_deterministic():
+    a = _arm({0: [1.0, 2.0], 1: [3.0, 4.0]}).assign(scene=["s0", "s1", "s2", "s3"])
+    b = _arm({0: [0.0, 0.0], 1: [0.0, 0.0]}).assign(scene=["s0", "s1", "s2", "s3"])
+    assert replicate_differences(a, b, "image", True, False).deterministic == (False, False)
+
+
+def test_a_deterministic_arm_scored_once_pairs_with_every_seed_of_the_learned_arm():
+    a = _arm({s: 31 + 0.1 * s + np.arange(10.0) for s in range(6)})
+    b = _arm({0: 30 + np.arange(10.0)})
+    reps = replicate_differences(a, b, "image", True, False, learned=(True, False))
+    assert (reps.unit, len(reps.difference)) == ("seeds", 6)
+    assert np.allclose(sorted(reps.difference), [1.0 + 0.1 * s for s in range(6)])
+
+
+def test_both_arms_failing_on_an_item_is_a_tie():
+    fail = {0: [0, 0, 1]}
+    a, b = _arm({0: [2.0, 2.0, np.nan]}, fail), _arm({0: [1.0, 1.0, np.nan]}, fail)
+    reps = replicate_differences(a, b, "image", True, False, learned=(False, False))
+    assert list(reps.difference) == [1.0, 1.0, 0.0] and reps.undefined == (1, 1)
+    one = replicate_differences(a, _arm({0: [1.0, 1.0, 1.0]}), "image", True, False, learned=(False, False))
+    assert list(one.difference) == [1.0, 1.0, -np.inf]
+    lower = replicate_differences(
+        a, _arm({0: [1.0, 1.0, 1.0]}), "image", False, False, learned=(False, False)
+    )
+    assert list(lower.difference)[-1] == np.inf  # lower is better: a failure is +inf in a - b

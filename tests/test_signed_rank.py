@@ -1,0 +1,126 @@
+"""The ledger's one estimator (src/report/signed_rank.py) against brute force: the exact signed-rank law by
+enumerating every sign pattern, the Hodges-Lehmann estimate by its definition, the interval by inverting
+the brute-force test, and scipy's own Wilcoxon p where the two must agree."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from src.report.signed_rank import (
+    EXACT_MAX,
+    benjamini_hochberg,
+    min_items,
+    replicates_for_power,
+    signed_rank,
+    signed_rank_cdf,
+    smallest_p,
+)
+
+
+def _brute_law(n: int) -> np.ndarray:
+    """P(T+ = t): every subset of the ranks 1..n equally likely."""
+    total = n * (n + 1) // 2
+    counts = np.zeros(total + 1)
+    for signs in itertools.product((0, 1), repeat=n):
+        counts[sum(r for r, s in zip(range(1, n + 1), signs, strict=True) if s)] += 1
+    return counts / 2**n
+
+
+def _brute_p(d: np.ndarray) -> float:
+    """The two-sided exact signed-rank p of differences without ties or zeros."""
+    ranks = stats.rankdata(np.abs(d))
+    t = ranks[d > 0].sum()
+    sums = np.array([ranks[np.array(s, bool)].sum() for s in itertools.product((0, 1), repeat=len(d))])
+    return min(1.0, 2 * min((sums <= t).mean(), (sums >= t).mean()))
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 9])
+def test_the_null_law_is_the_enumerated_one(n):
+    np.testing.assert_allclose(signed_rank_cdf(n), np.cumsum(_brute_law(n)), atol=1e-15)
+
+
+def test_the_normal_approximation_takes_over_past_the_exact_range_and_stays_close():
+    exact, approx = signed_rank_cdf(EXACT_MAX), signed_rank_cdf(EXACT_MAX + 1)
+    assert len(approx) == (EXACT_MAX + 1) * (EXACT_MAX + 2) // 2 + 1
+    assert abs(approx[len(approx) // 3] - exact[len(exact) // 3]) < 0.02
+    assert np.all(np.diff(approx) >= 0) and approx[-1] > 0.999
+
+
+@pytest.mark.parametrize("seed, n", [(0, 6), (1, 8), (2, 10), (3, 7)])
+def test_p_estimate_and_interval_match_brute_force_and_scipy(seed, n):
+    d = np.random.default_rng(seed).normal(0.6, 1.0, n)
+    result = signed_rank(d, alpha=0.05)
+    assert result.p_value == pytest.approx(_brute_p(d), abs=1e-12)
+    assert result.p_value == pytest.approx(stats.wilcoxon(d, method="exact").pvalue, abs=1e-12)
+    walsh = [(x + y) / 2 for x, y in itertools.combinations_with_replacement(d, 2)]
+    assert result.estimate == pytest.approx(float(np.median(walsh)))
+    # The interval is the set of shifts the test does not reject: just outside each end it rejects.
+    for end, outward in ((result.low, -1), (result.high, 1)):
+        assert _brute_p(d - (end + outward * 1e-7)) <= 0.05
+        assert _brute_p(d - (end - outward * 1e-7)) > 0.05
+    assert result.significant(0.05) == (result.low > 0 or result.high < 0)
+
+
+def test_the_test_and_the_interval_agree_with_ties_and_zeros():
+    for d in (
+        [0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 2.0],
+        [1.0] * 6,
+        [0.0] * 6,
+        [1.0, 1.0, -1.0, 2.0, 2.0, 2.0, 3.0],
+    ):
+        result = signed_rank(d, alpha=0.05)
+        assert result.significant(0.05) == (result.low > 0 or result.high < 0), d
+    constant = signed_rank([1.0] * 6)
+    assert (constant.low, constant.high, constant.estimate) == (1.0, 1.0, 1.0)
+    assert constant.p_value == pytest.approx(2 / 2**6)
+
+
+def test_too_few_items_give_no_interval_and_their_smallest_p():
+    result = signed_rank([3.0, 4.0, 5.0])
+    assert (result.low, result.high) == (-math.inf, math.inf)
+    assert result.p_value == smallest_p(3) == 0.25
+    assert min_items(0.05) == 6 and min_items(0.0625) == 5 and min_items(0.01) == 8
+    for alpha in (0.05, 0.01, 0.2):
+        n = min_items(alpha)
+        assert smallest_p(n) <= alpha < smallest_p(n - 1)
+
+
+def test_a_failure_is_the_worst_rank_not_a_dropped_item():
+    # Arm a is better by 1 on five items and failed on the sixth: with the failure as -inf the test
+    # cannot be significant for a; dropped, the five would be "all favour a".
+    result = signed_rank([1.0, 1.1, 0.9, 1.2, 0.8, -math.inf])
+    assert result.negative == 1 and result.low == -math.inf and not result.significant(0.05)
+    both = signed_rank([math.inf, -math.inf, 1.0, 1.0, 1.0, 1.0, 1.0])  # one failure each way: a tie
+    assert math.isfinite(both.estimate)
+    # Walsh averages -inf, (inf - inf) / 2 = a tie (0), inf: the median is the tie.
+    assert signed_rank([math.inf, -math.inf]).estimate == 0.0
+
+
+def test_one_outlier_does_not_turn_the_direction():
+    # 15 items favour b by 1, one favours a by 1000: the mean says a, the ranks say b.
+    d = np.array([-1.0] * 15 + [1000.0])
+    assert d.mean() > 0
+    result = signed_rank(d)
+    assert result.estimate < 0 and result.high < 0 and result.significant(0.05)
+
+
+def test_benjamini_hochberg_by_its_definition():
+    p = np.array([0.01, 0.04, 0.03, 0.2, np.nan])
+    finite = p[:4]
+    order = np.argsort(finite)
+    m = len(finite)
+    raw = finite[order] * m / np.arange(1, m + 1)
+    expected = np.minimum.accumulate(raw[::-1])[::-1]
+    adjusted = benjamini_hochberg(p)
+    np.testing.assert_allclose(adjusted[:4][order], np.minimum(expected, 1.0))
+    assert np.isnan(adjusted[4])
+
+
+def test_replicates_for_power_is_the_normal_count_over_the_efficiency():
+    z = stats.norm.ppf(0.975) + stats.norm.ppf(0.8)
+    assert replicates_for_power(1.0, 0.5, 0.05) == math.ceil((z * 2) ** 2 / (3 / math.pi))
+    assert replicates_for_power(0.01, 10.0, 0.05) == 6  # never below the test's floor
+    assert replicates_for_power(0.0, 1.0, 0.05) is None and replicates_for_power(1.0, 0.0, 0.05) is None
