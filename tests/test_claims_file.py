@@ -3,6 +3,11 @@ and names runs, arms, metrics and experiments the harness really produces, so th
 study or model, a boolean written `true` where MLflow logs `True`, a metric the runs never log) fails here
 rather than leaving a claim silently "not run" in the ledger.
 
+Every claim also says what kind of statement it is (`category`: finding, reading, target, setup), quotes
+the seed sentence a finding or reading rests on (with an English translation unless the seed is in
+English), and names where each comparable or agreement tolerance comes from (`rule.tolerance_source`). The
+quotes are checked for presence here, not against the seed texts, which CI does not have.
+
 The arms are checked against the study's jobs: each study is composed as `python -m src.run -m
 +sweep=<study> profile=<p>` would compose it (tests/test_sweeps.py's helpers), each combination of its
 swept values (seeds aside) becomes a job config, and every arm must equal, as MLflow logs it
@@ -23,6 +28,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.bench.denoise import AUTOCAST_DTYPES
 from src.eval.denoise_eval import SCORES
+from src.report.claims import CATEGORIES, ENGLISH_DOCUMENTS, TALLIED
+from src.report.claims import load_claims as parse_claims_file
 from src.tracking.run_config import flatten_config
 from tests.conftest import ROOT
 from tests.test_sweeps import compose_sweep, swept
@@ -31,6 +38,7 @@ CONF_DIR = ROOT / "conf"
 CLAIMS_FILE = CONF_DIR / "claims.yaml"
 TOP_KEYS = {
     "id",
+    "category",
     "source",
     "statement",
     "profiles",
@@ -42,23 +50,34 @@ TOP_KEYS = {
     "log",
     "rule",
 }
+#: Keys a claim may leave out: `caveat` (what its meaning needs of the seed's hardware or data).
+OPTIONAL_TOP_KEYS = {"caveat"}
 SOURCE_KEYS = {"document", "section", "where"}
+#: `quote` is required for findings and readings, `translation` for a quote not in English.
+OPTIONAL_SOURCE_KEYS = {"quote", "translation"}
 DOCUMENTS = {"Bunjevac 2019", "Davletaliyev 2016", "Grujčić 2023", "Zhu et al. 2023"}
 RUN_SOURCES = ("study", "pipeline", "bench")
 RUN_KEYS = {*RUN_SOURCES, "experiment", "where"}
 PER = {"image", "run", "round"}
 NEEDS = {None, "gpu", "user_data"}
 RULE_KEYS = {
-    "better": {"kind", "a", "b", "b_metric", "size"},
-    "comparable": {"kind", "a", "b", "b_metric", "tolerance"},
-    "agreement": {"kind", "tolerance", "published"},
+    "better": {"kind", "a", "b", "b_metric", "size", "ratio"},
+    "comparable": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio"},
+    "agreement": {"kind", "tolerance", "tolerance_source", "published"},
 }
+#: Rules whose tolerance must say where it comes from (a citation of the seed, or "project's own: ...").
+TOLERANCE_SOURCE_KINDS = {"comparable", "agreement"}
+OWN_TOLERANCE = "project's own"
+#: Paragraphs of the Zhu et al. 2023 summary (one per line, the title line not counted; conf/claims.yaml's
+#: section header): a `where` citing "paragraph N" must name one of them.
+ZHU_PARAGRAPHS = 7
 PROFILES = {p.stem for p in (CONF_DIR / "profile").glob("*.yaml")}
 #: `python -m src.bench denoise --log`: experiment, and the `model` values of its bench/rounds.csv.
 BENCH = {"denoise": ("nrbench-bench", {"unet_kpcn", "kpcn", "kpcn_frame", "oidn"})}
 #: The bench params a speed claim may select runs by, and their values.
 BENCH_WHERE = {"autocast": set(AUTOCAST_DTYPES)}
-#: NerfBaselines' agreement tolerances, which the issue asks for.
+#: The project's own agreement tolerances for PSNR and SSIM (in the spirit of NerfBaselines' reproduction
+#: checks, which publish no such threshold): changing one is a decision, so it is pinned here.
 AGREEMENT_TOLERANCE = {"psnr": 0.2, "ssim": 0.05}
 
 # --- what the runs log -----------------------------------------------------------------------------------
@@ -87,8 +106,11 @@ RUN_METRICS = {
 }
 #: Scores where higher is better; every other score the claims use is an error, a loss or a time.
 HIGHER_BETTER = {"psnr", "ssim", "tpsnr", "rays_per_s"}
-#: Positive, scale-free scores whose ratios (log: true) mean something: errors, losses, times.
-RATIO_SCORES = re.compile(r"^(relmse.*|mse|smape|ms_per_.*|seconds|.*loss_.*|search_best.*|search_seconds)$")
+#: Positive, scale-free scores whose ratios (log: true) mean something: errors, losses, times (a training's
+#: wall-clock train_time_s among them).
+RATIO_SCORES = re.compile(
+    r"^(relmse.*|mse|smape|ms_per_.*|seconds|.*loss_.*|search_best.*|search_seconds|train_time_s)$"
+)
 
 
 def load_claims(path: Path = CLAIMS_FILE) -> list[dict]:
@@ -193,28 +215,33 @@ def schema_errors(claims: list[dict]) -> list[str]:
     errors, seen = [], set()
     for i, c in enumerate(claims):
         name = c.get("id", f"claims[{i}]")
-        if set(c) != TOP_KEYS:
-            errors.append(f"{name}: keys {sorted(set(c) ^ TOP_KEYS)} missing or unknown")
+        if not TOP_KEYS <= set(c) <= TOP_KEYS | OPTIONAL_TOP_KEYS:
+            wrong = (TOP_KEYS - set(c)) | (set(c) - TOP_KEYS - OPTIONAL_TOP_KEYS)
+            errors.append(f"{name}: keys {sorted(wrong)} missing or unknown")
             continue
         if not re.fullmatch(r"[a-z][a-z0-9_]*", name) or name in seen:
             errors.append(f"{name}: id not snake_case or not unique")
         seen.add(name)
-        if set(c["source"]) != SOURCE_KEYS or c["source"]["document"] not in DOCUMENTS:
-            errors.append(f"{name}: source {c['source']}")
-        if not isinstance(c["source"]["section"], str) or not isinstance(c["source"]["where"], str):
+        source = c["source"]
+        if (
+            not isinstance(source, dict)
+            or not SOURCE_KEYS <= set(source) <= SOURCE_KEYS | OPTIONAL_SOURCE_KEYS
+            or source["document"] not in DOCUMENTS
+        ):
+            errors.append(f"{name}: source {source}")
+            continue
+        if not isinstance(source["section"], str) or not isinstance(source["where"], str):
             errors.append(f"{name}: source.section and source.where must be strings")
+        errors += metadata_errors(name, c)
         statement = c["statement"]
         if not isinstance(statement, str) or not statement.strip().endswith(".") or "/work" in statement:
             errors.append(f"{name}: statement {statement!r}")
         profiles = c["profiles"]
         if not profiles or not set(profiles) <= PROFILES or len(set(profiles)) != len(profiles):
             errors.append(f"{name}: profiles {profiles}; expected some of {sorted(PROFILES)}")
-        expected_needs = (
-            None if {"cpu", "smoke"} & set(profiles) else "user_data" if "thesis" in profiles else "gpu"
-        )
-        if c["needs"] not in NEEDS or c["needs"] != expected_needs:
+        if c["needs"] not in NEEDS or c["needs"] != expected_needs(c):
             errors.append(
-                f"{name}: needs {c['needs']!r}; expected {expected_needs!r} for profiles {profiles}"
+                f"{name}: needs {c['needs']!r}; expected {expected_needs(c)!r} for profiles {profiles}"
             )
         runs = c["runs"]
         sources = [s for s in RUN_SOURCES if s in runs]
@@ -255,6 +282,26 @@ def schema_errors(claims: list[dict]) -> list[str]:
             isinstance(rule.get("tolerance"), int | float) and rule["tolerance"] > 0
         ):
             errors.append(f"{name}: comparable tolerance {rule.get('tolerance')!r}; expected > 0")
+        if kind in TOLERANCE_SOURCE_KINDS:
+            tolerance_source = rule.get("tolerance_source")
+            if not isinstance(tolerance_source, str) or not tolerance_source.strip():
+                errors.append(
+                    f"{name}: rule.tolerance_source missing; a {kind} rule says where its tolerance is from"
+                )
+            elif not (
+                tolerance_source.startswith(OWN_TOLERANCE) or c["source"]["document"] in tolerance_source
+            ):
+                errors.append(
+                    f"{name}: rule.tolerance_source {tolerance_source!r}; expected {OWN_TOLERANCE!r} and a "
+                    f"reason, or a citation of {c['source']['document']}"
+                )
+        ratio = rule.get("ratio")
+        if ratio is not None and not (
+            isinstance(ratio, dict)
+            and ratio
+            and all(isinstance(v, int | float) and not isinstance(v, bool) and v > 0 for v in ratio.values())
+        ):
+            errors.append(f"{name}: rule.ratio {ratio!r}; expected {{budget key: b's value / a's, > 0}}")
         if kind == "agreement":
             if c["log"] or not rule.get("published") or not isinstance(rule.get("tolerance"), int | float):
                 errors.append(f"{name}: agreement needs published cases, a tolerance and log: false")
@@ -271,6 +318,48 @@ def schema_errors(claims: list[dict]) -> list[str]:
             for k, v in {**arm, **where}.items():
                 if not isinstance(v, str):
                     errors.append(f'{name}: {k}: {v!r}; expected the string MLflow logs (e.g. "True")')
+    return errors
+
+
+def expected_needs(c: dict) -> str | None:
+    """What a claim's profiles need: nothing at cpu or smoke, the user's scenes at thesis, else (paper
+    only) a GPU, except for a set-up check (a parameter count), which the tests make on a CPU in seconds."""
+    profiles = set(c["profiles"])
+    if profiles & {"cpu", "smoke"}:
+        return None
+    if "thesis" in profiles:
+        return "user_data"
+    return None if c["category"] == "setup" else "gpu"
+
+
+def metadata_errors(name: str, c: dict) -> list[str]:
+    """The claim's category, quote, translation, `where` and caveat: a finding or reading quotes the seed
+    sentence it rests on (in the seed's language, translated unless the seed is in English)."""
+    errors = []
+    category, source = c["category"], c["source"]
+    if category not in CATEGORIES:
+        errors.append(f"{name}: category {category!r}; expected one of {list(CATEGORIES)}")
+    texts = {k: source.get(k) for k in OPTIONAL_SOURCE_KEYS} | {"caveat": c.get("caveat")}
+    for key, text in texts.items():
+        if text is not None and (not isinstance(text, str) or not text.strip()):
+            errors.append(f"{name}: {key} {text!r}; expected text (or no key)")
+    quote, translation = (source.get(k) or "" for k in ("quote", "translation"))
+    if category in TALLIED and not str(quote).strip():
+        errors.append(f"{name}: a {category} quotes the seed sentence it rests on; source.quote missing")
+    if quote and not translation and source["document"] not in ENGLISH_DOCUMENTS:
+        errors.append(f"{name}: source.translation missing; a quote from {source['document']} needs one")
+    if translation and not quote:
+        errors.append(f"{name}: source.translation without a quote")
+    where = source.get("where")
+    if quote and isinstance(where, str) and not where.strip():
+        errors.append(f"{name}: source.where empty; a quote says where in the seed it is")
+    if source["document"] == "Zhu et al. 2023" and isinstance(where, str):
+        cited = [int(n) for n in re.findall(r"paragraph (\d+)", where)]
+        if (quote and not cited) or not all(1 <= n <= ZHU_PARAGRAPHS for n in cited):
+            errors.append(f"{name}: where {where!r}; expected 'paragraph N', N from 1 to {ZHU_PARAGRAPHS}")
+    for key, text in {**texts, "where": where}.items():
+        if isinstance(text, str) and ("/work" in text or "shared/" in text):
+            errors.append(f"{name}: {key} names a local path")
     return errors
 
 
@@ -375,6 +464,80 @@ def test_every_claim_has_the_schemas_keys_and_allowed_values():
     assert schema_errors(CLAIMS) == []
 
 
+def test_the_ledgers_parser_reads_every_claim_with_its_metadata():
+    """src.report.claims reads the file as the ledger will: every claim, its category and quote."""
+    parsed = {claim.id: claim for claim in parse_claims_file(CLAIMS_FILE)}
+    assert list(parsed) == IDS
+    for raw in CLAIMS:
+        claim = parsed[raw["id"]]
+        assert claim.category == raw["category"]
+        assert bool(claim.quote) == bool(raw["source"].get("quote"))
+        assert claim.tallied == (raw["category"] in TALLIED)
+
+
+def test_set_up_checks_and_targets_are_the_ones_no_seed_finding_states():
+    """Parameter counts and the iteration count are set-up checks; the speed factors, the OIDN bound and the
+    U-Net's quality are the project's targets (the talk states none of them); the GP filters' timings are
+    read on a GPU only, where the thesis timed them."""
+    by_id = dict(zip(IDS, CLAIMS, strict=True))
+    setup = {
+        "dpcn_kpcn_parameter_counts",
+        "residual_kpcn_parameter_count",
+        "nerf_thesis_iterations",
+        "nerf_parameter_count",
+        "mipnerf_parameter_count",
+        "refnerf_parameter_count",
+    }
+    targets = {
+        "unet_kpcn_10x_faster_than_kpcn",
+        "unet_kpcn_10x_faster_than_kpcn_frame",
+        "unet_kpcn_within_2x_of_oidn",
+        "unet_kpcn_quality_comparable_to_kpcn",
+    }
+    assert {i for i, c in by_id.items() if c["category"] == "setup"} == setup
+    assert {i for i, c in by_id.items() if c["category"] == "target"} == targets
+    for n in (1, 2, 3):
+        claim = by_id[f"gp_expr{n}_time_comparable_to_cross_bilateral"]
+        assert (claim["profiles"], claim["needs"]) == (["paper"], "gpu")
+        assert claim.get("caveat")
+
+
+@cache
+def _budget(study_name: str, profile: str, model: str, key: str):
+    """The value of a budget key for one model in a study at a profile, as the job would compose it (the
+    model's own profile files, e.g. conf/model_task_profile/dpcn_paper.yaml, included)."""
+    return OmegaConf.select(compose_sweep(study_name, [f"profile={profile}", f"model={model}"]), key)
+
+
+#: Budget keys whose difference between two model arms is a confound unless the claim declares its ratio.
+BUDGET_KEYS = ("task.train.epochs",)
+
+
+@pytest.mark.parametrize(
+    "claim",
+    [c for c in CLAIMS if c["runs"].get("study") and c["rule"]["kind"] != "agreement"],
+    ids=lambda c: c["id"],
+)
+def test_model_arms_budgets_differ_only_by_the_declared_ratio(claim):
+    """Where the arms are two models, the budget each trains with at every profile the claim lists is
+    the same, or differs by exactly the claim's `rule.ratio` (b / a): DPCN's doubled epochs."""
+    rule = claim["rule"]
+    ratio = rule.get("ratio") or {}
+    if set(rule["a"]) != {"model.name"} or set(rule["b"]) != {"model.name"}:
+        assert not ratio, f"{claim['id']}: a ratio needs two model arms here"
+        return
+    for profile in claim["profiles"]:
+        for key in {*BUDGET_KEYS, *ratio}:
+            a, b = (
+                _budget(claim["runs"]["study"], profile, arm["model.name"], key)
+                for arm in (rule["a"], rule["b"])
+            )
+            if key in ratio:
+                assert a and b and b / a == pytest.approx(ratio[key]), (claim["id"], profile, key, a, b)
+            else:
+                assert a == b, f"{claim['id']} at {profile}: {key} {a} against {b}; declare rule.ratio"
+
+
 @pytest.mark.parametrize("claim", CLAIMS, ids=IDS)
 def test_claim_names_runs_the_harness_produces(claim):
     runs = claim["runs"]
@@ -451,6 +614,35 @@ def _claim(claims: list[dict], claim_id: str) -> dict:
         ("tolerance: 0.2\n", "tolerance: 0.3\n", "tolerance"),
         ('model.shared: "True"', "model.shared: true", "expected the string"),
         ("rule: {kind: better, a: {model.name: kpcn}", "rule: {kind: beter, a: {model.name: kpcn}", "rule"),
+        ("category: reading", "category: readings", "category"),
+        (  # a target without a quote promoted to a finding
+            "- id: unet_kpcn_within_2x_of_oidn\n    category: target",
+            "- id: unet_kpcn_within_2x_of_oidn\n    category: finding",
+            "source.quote missing",
+        ),
+        (
+            "      translation: >-\n"
+            "        The kernel-prediction approach proved better than direct prediction.\n",
+            "",
+            "translation missing",
+        ),
+        (
+            "tolerance_source: \"project's own: the talk gives no number (and no quality",
+            "# tolerance_source: \"project's own: the talk gives no number (and no quality",
+            "tolerance_source missing",
+        ),
+        (
+            "tolerance_source: >-\n        project's own:",
+            "tolerance_source: >-\n        our own:",
+            "tolerance_source",
+        ),
+        ("dpcn}, ratio: {task.train.epochs: 2}}", "dpcn}, ratio: {task.train.epochs: 0}}", "rule.ratio"),
+        ('where: "paragraph 2"', 'where: "paragraph 8"', "paragraph N"),
+        (  # the first nerf_variants claim, a parameter count, marked as needing a GPU again
+            "needs: null\n    runs: {study: nerf_variants",
+            "needs: gpu\n    runs: {study: nerf_variants",
+            "needs",
+        ),
         (
             "runs: {study: denoisers, experiment: nrbench-denoise}",
             "runs: {experiment: nrbench-denoise}",
@@ -467,7 +659,12 @@ def test_schema_checks_catch_a_typo(tmp_path, old, new, needle):
     ("claim_id", "old", "new", "needle"),
     [
         ("kpcn_beats_dpcn", "study: denoisers", "study: denoiser", "no conf/sweep/denoiser.yaml"),
-        ("kpcn_beats_dpcn", "{model.name: dpcn}}", "{model.name: dcpn}}", "no job of denoisers"),
+        (
+            "kpcn_beats_dpcn",
+            "b: {model.name: dpcn}, ratio",
+            "b: {model.name: dcpn}, ratio",
+            "no job of denoisers",
+        ),
         ("whitening_hurts_specular", 'b: {model.whiten: "True"}', 'b: {model.whiten: "true"}', "no job"),
         (
             "unet_kpcn_quality_comparable_to_kpcn",
@@ -513,23 +710,27 @@ def test_pipeline_checks_accept_the_dvc_report_names_only():
     assert any("pipeline" in e for e in pipeline_errors(claim))
 
 
-#: Per-run `better` claims whose study keeps fewer seeds than a paired test over seeds needs, and why.
+#: Claims whose study keeps fewer seeds than the ledger's minimum replication, and why (the ledger reads
+#: them "underpowered" and says what they would need).
 SEED_LIMITED = {
-    # The denoisers study is sized for its per-image claims (seed x held-out image items); six seeds of its
-    # three trainings would double the study's hours at the cpu profile for one curve-reading claim.
-    "kpcn_beats_dpcn_specular_loss",
+    # One training per model and scene: 1M iterations each on the user's nerf_synthetic scenes.
+    "refnerf_beats_mipnerf_drums": "nerf_thesis",
+    "refnerf_beats_mipnerf_materials": "nerf_thesis",
 }
 
 
-def test_a_per_run_claims_study_runs_enough_seeds_for_its_paired_test_to_show_it():
-    """A claim compared over seeds (per: run) can only show a difference with at least `min_items` seeds
-    (a signed-rank test over n seeds never gives p below 2 / 2^n): its study must sweep that many."""
-    from src.report.verdicts import min_items
+def test_every_study_claim_runs_the_seeds_its_test_needs():
+    """The ledger replicates a learned arm by its training seed (docs/ledger.md): a better or comparable
+    claim read from a study can only be decided with at least `min_items` seeds (a signed-rank test over
+    n seeds never gives p below 2 / 2^n), so its study must sweep that many, per image or per run."""
+    from src.report.signed_rank import min_items
 
     needed = min_items(0.05)
+    assert needed == 6
     for claim in CLAIMS:
         study = claim["runs"].get("study")
-        if claim["per"] != "run" or claim["rule"]["kind"] != "better" or not study:
+        if claim["rule"]["kind"] == "agreement" or not study:
             continue
-        seeds = list(swept(compose_sweep(study))["seed"].sweep_string_iterator())
-        assert len(seeds) >= needed or claim["id"] in SEED_LIMITED, (claim["id"], study, seeds)
+        seed = swept(compose_sweep(study))["seed"]
+        seeds = list(seed.sweep_string_iterator()) if seed.is_sweep_override() else [seed.value()]
+        assert len(seeds) >= needed or SEED_LIMITED.get(claim["id"]) == study, (claim["id"], study, seeds)
