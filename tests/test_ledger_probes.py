@@ -111,6 +111,15 @@ def probe_store(tmp_path_factory):
             study(
                 "recipes", model, seed, _images(base + (0.3 if model == "mipnerf" else 0.0) + shift), **recipe
             )
+        # Feature selection: the features each arm feeds are derived from it (and the random arm's subset
+        # from the seed), so they differ between and within arms without being a confound.
+        for order, features, gain in (
+            ("greedy", '["normal", "depth"]', 0.5),
+            ("random", f'["f{seed}", "g"]', 0.0),
+        ):
+            arm = {"task.feature_selection.order": order, "task.volume_features": features}
+            arm["task.feature_selection.random_seed"] = seed if order == "random" else 0
+            study("selection", "unet_kpcn", seed, _images(base + gain + shift), **arm)
     yield {"tmp": tmp, "uri": uri}
     mlflow.set_tracking_uri(previous)
 
@@ -258,6 +267,20 @@ def test_a_models_own_recipe_belongs_to_its_arm_and_its_budget_keys_are_shown(pr
     assert row.verdict.status == REPRODUCED
     assert row.arm_budget == "task.train.max_steps: mipnerf 10; nerf 12"  # a budget key: shown
     assert "precrop" not in row.arm_budget  # a recipe key outside the budget: the arm's own
+
+
+def test_keys_derived_from_the_arm_are_the_arms_own(probe_store, tmp_path, monkeypatch):
+    claim = _claim(
+        "selection", "{task.feature_selection.order: greedy}", "{task.feature_selection.order: random}"
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.verdict.status == REPRODUCED, row.verdict.numbers
+    # Not declared as derived, the same keys are a confound.
+    import src.report.matched_arms as matched_arms
+
+    monkeypatch.setattr(matched_arms, "DERIVED_FROM", {})
+    bare = evaluate_claim(claim, _settings(tmp_path))
+    assert bare.verdict.status == CONFOUNDED and "task.feature_selection.random_seed" in bare.verdict.numbers
 
 
 def test_off_profile_keys_read_the_overrides():

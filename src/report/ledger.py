@@ -31,6 +31,7 @@ from src.report.claims import Claim
 from src.report.collect import artifact_csv, find_runs, keep_latest, per_image_rows
 from src.report.matched_arms import (
     HYDRA_JOB_TAG,
+    derived_keys,
     first_confound,
     model_keys,
     off_profile_key,
@@ -339,6 +340,7 @@ def _confound(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> str
     compares each case with its published value, so each case's runs must match among themselves."""
     rule = claim.rule
     keys = _arm_keys(claim)
+    keys += derived_keys(keys)
     for arm in _arms(claim):
         keys += sorted(settings.model_keys.get(arm.get("model.name", ""), ()))
     if rule.kind == "agreement" and not claim.is_bench:

@@ -37,6 +37,13 @@ MODEL_GROUPS = ("model_profile", "model_task_profile")
 #: Params that vary between the replicates and items of one comparison by design.
 REPLICATE_PARAMS = ("data_seed", "seed", "task.scene")
 HYDRA_JOB_TAG = "tags.nrbench.hydra_job"
+#: Keys the harness derives from an arm's keys, and the prefix of the keys they follow: the sequences' input
+#: features are written at job start from the feature selection (src/kinds/sequences.py), and the random
+#: arm draws its subset with the training seed (conf/selection_arm/random.yaml).
+DERIVED_FROM = {
+    "task.volume_features": "task.feature_selection.",
+    "task.feature_selection.random_seed": "task.feature_selection.",
+}
 
 
 def _leaves(node: object, prefix: str) -> Iterable[str]:
@@ -110,6 +117,11 @@ def off_profile_key(hydra_job: object, budget: frozenset[str], allowed: Sequence
         if key in PROFILE_GROUPS[1:] or _covers(key, budget):
             return key
     return ""
+
+
+def derived_keys(arm_keys: Iterable[str]) -> list[str]:
+    """The keys `DERIVED_FROM` says follow one of `arm_keys` (they belong to the arm too)."""
+    return [key for key, prefix in DERIVED_FROM.items() if any(k.startswith(prefix) for k in arm_keys)]
 
 
 def _canonical(value: object) -> str:
