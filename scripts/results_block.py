@@ -4,16 +4,18 @@
     python scripts/results_block.py docs/results/ledger.csv --check    # exit 1 if README.md's block differs
 
 Why a snapshot: the ledger (`python -m src.run stage=ledger`, docs/ledger.md) is computed from the runs in an
-MLflow store, which a clone does not have, so the front page shows a copy of one generated
-`reports/ledger.csv` committed under docs/results/. Its first line (`# ...`) says where it came from: the
-commit, the machine and the date; the rest is the CSV exactly as `src/report/ledger_page.py` wrote it
-(`COLUMNS`). No number in the block is typed by hand: the block is the output of `render_block` on the
+MLflow store, which a clone does not have, so the front page shows the snapshot that
+`python -m src.run stage=ledger ledger.snapshot=docs/results` wrote under docs/results/. Its first line
+(`# ...`) says how it was written: the date, the commit and the fingerprint of the store's runs; the rest
+is the CSV exactly as `src/report/ledger_page.py` wrote it (`COLUMNS`). No number in the block is typed
+by hand: the block is the output of `render_block` on the
 snapshot, between the markers `<!-- ledger:begin -->` and `<!-- ledger:end -->`, and a test fails when
 README.md differs from it.
 
-The block is compact: the status counts (as the ledger's own page counts them), one row per claim that ran
-(claim, source, status, the key numbers, profile), and a link to the full snapshot for the claims that did
-not run (each with its reason and the command that runs it).
+The block is compact: the status counts of the seeds' findings and readings (as the ledger's own page
+counts them), one row per such claim that ran (claim, source, status, the Hodges-Lehmann estimate with its
+interval, the published value, the replicates, profile), the project's own targets in a table apart, and
+a link to the full snapshot for the claims that did not run (each with its reason and the command).
 """
 
 from __future__ import annotations
@@ -22,15 +24,24 @@ import argparse
 import csv
 import io
 import os
-import re
 import sys
 from pathlib import Path
 
 BEGIN = "<!-- ledger:begin -->"
 END = "<!-- ledger:end -->"
 #: The ledger's statuses in its own order (src/report/verdicts.py::STATUSES; a script, so no src import).
-STATUSES = ("reproduced", "direction only", "not reproduced", "not distinguishable", "not run")
+STATUSES = (
+    "reproduced",
+    "direction only",
+    "not reproduced",
+    "not distinguishable",
+    "underpowered",
+    "confounded",
+    "not run",
+)
 NOT_RUN = "not run"
+#: The categories the headline counts (src/report/claims.py::TALLIED): the seeds' findings and readings.
+TALLIED = ("finding", "reading")
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -40,10 +51,10 @@ def read_snapshot(path: Path) -> tuple[str, list[dict[str, str]]]:
     first, _, body = text.partition("\n")
     if not first.startswith("# "):
         raise SystemExit(
-            f"{path}: first line {first[:60]!r}; expected '# <commit, machine and date of the ledger>'"
+            f"{path}: first line {first[:60]!r}; expected '# <how the ledger was written>'"
         )
     rows = list(csv.DictReader(io.StringIO(body)))
-    needed = {"claim", "source", "status", "numbers", "profile"}
+    needed = {"claim", "category", "source", "status", "measured", "unit", "seeds", "images", "profile"}
     if not rows or not needed <= set(rows[0]):
         raise SystemExit(
             f"{path}: expected a ledger CSV with the columns {sorted(needed)} after the first line"
@@ -54,25 +65,19 @@ def read_snapshot(path: Path) -> tuple[str, list[dict[str, str]]]:
     return first[2:].strip(), rows
 
 
-def key_numbers(numbers: str) -> str:
-    """The effect, n, p-value or tolerance and the published size of a ledger `numbers` cell, without the
-    per-arm means (those stay in the full ledger); a cell of another shape is kept whole."""
-    m = re.match(r"(?P<effect>.*?) over (?P<n>\d+) paired items(?P<rest>.*)$", numbers)
-    if m is None:
-        return numbers
-    parts = [m["effect"], f"n = {m['n']}"]
-    if p := re.search(r"Wilcoxon p = ([^);]+)", m["rest"]):
-        parts.append(f"p = {p[1]}")
-    if tol := re.search(r"tolerance (±\S+?)[;,]", m["rest"] + ";"):
-        parts.append(f"tolerance {tol[1]}")
-    if size := re.search(r"published size (\S+)$", m["rest"]):
-        parts.append(f"published {size[1]}")
-    return "; ".join(parts)
+def replication(row: dict[str, str]) -> str:
+    """What a status rests on: "6 seeds x 10 images", "10 images", "7 rounds" or the cases."""
+    unit, n = row["unit"], row.get("replicates", "-")
+    if unit == "seeds":
+        return f"{row['seeds']} seeds x {row['images']} images"
+    if unit in ("images", "rounds"):
+        return f"{n} {unit}"
+    return f"{n} cases" if n not in ("", "-", "0") else "-"
 
 
 def counts(rows: list[dict[str, str]]) -> str:
-    """ "8 reproduced, 1 direction only, ..." in the ledger's order, zero counts left out."""
-    found = [r["status"] for r in rows]
+    """ "8 reproduced, 1 direction only, ..." over the findings and readings, zero counts left out."""
+    found = [r["status"] for r in rows if r["category"] in TALLIED]
     return ", ".join(f"{found.count(s)} {s}" for s in STATUSES if s in found)
 
 
@@ -80,33 +85,41 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ")
 
 
+def _table(rows: list[dict[str, str]]) -> list[str]:
+    lines = ["| claim | source | status | measured [95 % interval] | published | replicates | profile |"]
+    lines.append("|---|---|---|---|---|---|---|")
+    lines += [
+        f"| {_cell(r['claim'])} | {_cell(r['source'])} | {r['status']} | {_cell(r['measured'])} | "
+        f"{_cell(r.get('published', '-'))} | {replication(r)} | {_cell(r['profile'])} |"
+        for r in rows
+    ]
+    return lines
+
+
 def render_block(snapshot: Path, provenance: str, rows: list[dict[str, str]], link: str) -> str:
     """The block's lines between (and including) the markers; `link` is the snapshot's folder as the
     README links it."""
-    ran = [r for r in rows if r["status"] != NOT_RUN]
-    not_run = len(rows) - len(ran)
+    tallied = [r for r in rows if r["category"] in TALLIED]
+    ran = [r for r in tallied if r["status"] != NOT_RUN]
+    targets = [r for r in rows if r["category"] == "target" and r["status"] != NOT_RUN]
     lines = [
         BEGIN,
         f"<!-- generated by `python scripts/results_block.py {link}/{snapshot.name}`: "
         "do not edit by hand -->",
         "",
-        f"**{counts(rows)}** ({len(rows)} claims). Snapshot: {provenance}. "
+        f"**{counts(rows)}** ({len(tallied)} findings and readings of the seeds; {len(rows) - len(tallied)} "
+        f"targets and set-up checks are not counted). Snapshot: {provenance}. "
         f"Full ledger: [{link}/ledger.md]({link}/ledger.md) ([CSV]({link}/{snapshot.name})).",
         "",
-        "| claim | source | status | key numbers | profile |",
-        "|---|---|---|---|---|",
-    ]
-    lines += [
-        f"| {_cell(r['claim'])} | {_cell(r['source'])} | {r['status']} | "
-        f"{_cell(key_numbers(r['numbers']))} | {_cell(r['profile'])} |"
-        for r in ran
-    ]
-    lines += [
+        *_table(ran),
         "",
-        f"{not_run} claims have not run at the profiles where they mean something (a GPU, your own data or a "
-        "study that has not run yet); the full ledger gives each one's reason and the command that runs it.",
-        END,
+        f"{len(tallied) - len(ran)} findings and readings have not run at the profiles where they mean "
+        "something (a GPU, your own data or a study that has not run yet); the full ledger gives each "
+        "one's reason and the command that runs it.",
     ]
+    if targets:
+        lines += ["", "The project's own targets (not the seeds' findings):", "", *_table(targets)]
+    lines.append(END)
     return "\n".join(lines)
 
 

@@ -370,7 +370,7 @@ def _arm_budget(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> s
         key
         for arm in (claim.rule.a, claim.rule.b)
         for key in settings.model_keys.get(arm.get("model.name", ""), ())
-        if key in settings.budget_keys
+        if key in settings.budget_keys and not key.startswith("model.")  # a model's size is its own
     }
     parts = []
     for key in sorted({*claim.rule.ratio, *owned}):

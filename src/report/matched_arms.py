@@ -38,10 +38,13 @@ MODEL_GROUPS = ("model_profile", "model_task_profile")
 REPLICATE_PARAMS = ("data_seed", "seed", "task.scene")
 HYDRA_JOB_TAG = "tags.nrbench.hydra_job"
 #: Keys the harness derives from an arm's keys, and the prefix of the keys they follow: the sequences' input
-#: features are written at job start from the feature selection (src/kinds/sequences.py), and the random
+#: features and channel counts (dataset and model) follow the feature selection at job start (src/kinds/),
+#: and the random
 #: arm draws its subset with the training seed (conf/selection_arm/random.yaml).
 DERIVED_FROM = {
     "task.volume_features": "task.feature_selection.",
+    "dataset.input_channels": "task.feature_selection.",
+    "model.in_channels": "task.feature_selection.",
     "task.feature_selection.random_seed": "task.feature_selection.",
 }
 
