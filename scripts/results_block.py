@@ -68,8 +68,8 @@ def read_snapshot(path: Path) -> tuple[str, list[dict[str, str]]]:
 def replication(row: dict[str, str]) -> str:
     """What a status rests on: "6 seeds x 10 images", "10 images", "7 rounds" or the cases."""
     unit, n = row["unit"], row.get("replicates", "-")
-    if unit == "seeds":
-        return f"{row['seeds']} seeds x {row['images']} images"
+    if unit == "seeds":  # one number per run (a run metric) has no images nested in its seeds
+        return f"{row['seeds']} seeds" + ("" if row["images"] == "1" else f" x {row['images']} images")
     if unit in ("images", "rounds"):
         return f"{n} {unit}"
     return f"{n} cases" if n not in ("", "-", "0") else "-"

@@ -532,7 +532,8 @@ def _record(cfg: Any, frame: pd.DataFrame, rows: Sequence[LedgerRow], paths: dic
     from src.report.ledger_history import append_history, history_lines, store_fingerprint, write_snapshot
 
     written = datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
-    commit = git_commit() or "unknown"
+    full = git_commit() or "unknown"
+    commit = full[:12] + ("+dirty" if full.endswith("+dirty") else "")  # as the rows' commits are shown
     run_ids = [run_id for row in rows for run_id in row.run_ids]
     store = store_fingerprint(run_ids)
     lines = history_lines(frame, written, commit, store)

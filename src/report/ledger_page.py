@@ -112,7 +112,7 @@ def _published(claim) -> str:
         return f"within ±{rule.tolerance:g} ({rule.tolerance_source})"
     if rule.size and (rule.size > 1 or not claim.log):
         return f"{rule.size:g}x" if claim.log else f"{rule.size:+g}"
-    return "a better"
+    return "no size given"
 
 
 def _quote(claim) -> str:
