@@ -31,6 +31,7 @@ from src.report.claims import Claim
 from src.report.collect import artifact_csv, find_runs, keep_latest, per_image_rows
 from src.report.matched_arms import (
     HYDRA_JOB_TAG,
+    canonical_value,
     derived_keys,
     first_confound,
     model_keys,
@@ -107,18 +108,6 @@ class LedgerRow:
         return self.replicates.difference if self.claim.higher else -self.replicates.difference
 
 
-def _canonical(value: Any) -> str:
-    """A param value as compared: booleans and numbers by value ("True" = "true", "0.0" = "0"), the rest
-    as text (MLflow stores every param as a string)."""
-    text = str(value).strip()
-    if text.lower() in ("true", "false"):
-        return text.lower()
-    try:
-        return repr(float(text))
-    except ValueError:
-        return text
-
-
 def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "params.") -> pd.Series:
     """Rows of `frame` whose `<prefix><key>` equals each wanted value (a missing column matches nothing)."""
     mask = pd.Series(True, index=frame.index)
@@ -126,7 +115,7 @@ def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "para
         column = f"{prefix}{key}"
         if column not in frame:
             return pd.Series(False, index=frame.index)
-        mask &= frame[column].map(_canonical) == _canonical(value)
+        mask &= frame[column].map(canonical_value) == canonical_value(value)
     return mask
 
 

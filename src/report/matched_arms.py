@@ -127,7 +127,9 @@ def derived_keys(arm_keys: Iterable[str]) -> list[str]:
     return [key for key, prefix in DERIVED_FROM.items() if any(k.startswith(prefix) for k in arm_keys)]
 
 
-def _canonical(value: object) -> str:
+def canonical_value(value: object) -> str:
+    """A param value as compared: booleans and numbers by value ("True" = "true", "0.0" = "0"), a missing
+    one as "<unset>", the rest as text (MLflow stores every param as a string)."""
     text = "<unset>" if value is None or (isinstance(value, float) and pd.isna(value)) else str(value).strip()
     if text.lower() in ("true", "false"):
         return text.lower()
@@ -138,7 +140,7 @@ def _canonical(value: object) -> str:
 
 
 def _ratio_broken(key: str, a: pd.Series, b: pd.Series, ratio: float) -> str | None:
-    va, vb = {_canonical(v) for v in a}, {_canonical(v) for v in b}
+    va, vb = {canonical_value(v) for v in a}, {canonical_value(v) for v in b}
     if len(va) > 1 or len(vb) > 1:
         return f"{key} varies within an arm ({sorted(va)} / {sorted(vb)})"
     try:
@@ -168,7 +170,7 @@ def first_confound(
         within = [c for c in ("params.data_seed", "params.task.scene") if c in runs]
         groups = runs.groupby(within, dropna=False) if within else [("", runs)]
         for _, part in groups:
-            values = sorted({_canonical(v) for v in part[fingerprint]})
+            values = sorted({canonical_value(v) for v in part[fingerprint]})
             if len(values) > 1:
                 return f"data fingerprint differs ({', '.join(values)})"
     for key, value in ratio.items():  # declared by the claim: checked whether or not the arms differ
@@ -180,7 +182,7 @@ def first_confound(
             return broken
     # The arms' own keys, the replicate keys, paths and outputs aside (collect.differing_params).
     for key in differing_params(runs, [*arm_keys, *REPLICATE_PARAMS, *ratio]):
-        values = sorted({_canonical(v) for v in runs[f"params.{key}"]})
+        values = sorted({canonical_value(v) for v in runs[f"params.{key}"]})
         if len(values) > 1:  # "0" and "0.0" differ as text, not as values
             return f"{key} differs ({', '.join(values[:4])})"
     return None
