@@ -38,7 +38,7 @@ from src.report.matched_arms import (
     off_profile_key,
     profile_keys,
 )
-from src.report.replication import Replicates, replicate_differences
+from src.report.replication import REPLICATE, Replicates, replicate_differences
 from src.report.signed_rank import benjamini_hochberg
 from src.report.tables import item_means
 from src.report.verdicts import (
@@ -96,16 +96,8 @@ class LedgerRow:
     run_ids: tuple[str, ...] = ()
     p_adjusted: float = math.nan
     family: str = ""
-    arm_budget: str = ""  # the declared budget keys (`rule.ratio`) as each arm ran them
+    arm_budget: str = ""  # budget keys on which the arms differ (declared or a model's own), per arm
     names: tuple[str, str] = ("a", "b")  # the arms as the numbers name them
-    scores: pd.DataFrame = field(default_factory=pd.DataFrame, compare=False, repr=False)
-
-    @property
-    def advantage(self) -> pd.Series | None:
-        """Arm a's advantage per replicate (a - b, sign turned where lower is better); None without."""
-        if self.replicates is None:
-            return None
-        return self.replicates.difference if self.claim.higher else -self.replicates.difference
 
 
 def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "params.") -> pd.Series:
@@ -233,7 +225,7 @@ def _agreement(claim: Claim, scores: pd.DataFrame, prefix: str) -> Verdict:
     """Each published case's values: one per replicate (the mean over its items)."""
     cases = []
     for case in claim.rule.published:
-        values = arm_values(scores, {**case.arm, **case.where}, prefix, ["params.data_seed", "params.seed"])
+        values = arm_values(scores, {**case.arm, **case.where}, prefix, REPLICATE)
         cases.append((_label({**case.arm, **case.where}), values if len(values) else None, case.value))
     return agreement_verdict(cases, claim.rule.tolerance)
 
@@ -399,13 +391,13 @@ def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: Ledge
         )
     scores, prefix = item_scores(claim, runs)
     if claim.rule.kind == "agreement":
-        return LedgerRow(verdict=_agreement(claim, scores, prefix), scores=scores, **common)
+        return LedgerRow(verdict=_agreement(claim, scores, prefix), **common)
     prepared = _replicates(claim, scores, prefix)
     if isinstance(prepared, str):
         return LedgerRow(verdict=Verdict(NOT_RUN, prepared), **common)
     replicates, names = prepared
     verdict = _judge(claim, replicates, names, settings.alpha)
-    return LedgerRow(verdict=verdict, replicates=replicates, scores=scores, names=names, **common)
+    return LedgerRow(verdict=verdict, replicates=replicates, names=names, **common)
 
 
 def evaluate_claim(claim: Claim, settings: LedgerSettings | float = LedgerSettings()) -> LedgerRow:
@@ -514,7 +506,6 @@ def build_ledger(cfg: Any) -> dict[str, Any]:
 def _record(cfg: Any, frame: pd.DataFrame, rows: Sequence[LedgerRow], paths: dict[str, Path]) -> dict:
     """Append this write to `<out_dir>/ledger_history.csv` and, with `ledger.snapshot`, write the committed
     snapshot there (`src.report.ledger_history`); returns the paths written."""
-    import shutil
     from datetime import UTC, datetime
 
     from src.provenance import git_commit
@@ -536,13 +527,10 @@ def _record(cfg: Any, frame: pd.DataFrame, rows: Sequence[LedgerRow], paths: dic
             f"counted runs (store fingerprint {store})"
         )
         csv_text, md_text = paths["csv"].read_text(), paths["md"].read_text()
-        out["snapshot"] = write_snapshot(folder, header, csv_text, md_text, lines)[0]
-        shutil.rmtree(folder / "items", ignore_errors=True)  # the snapshot's items are this write's only
-        for row in rows:
-            if row.replicates is not None:
-                source = paths["csv"].parent / "items" / f"{row.claim.id}.csv"
-                (folder / "items").mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(source, folder / "items" / source.name)
+        items = [
+            paths["csv"].parent / "items" / f"{r.claim.id}.csv" for r in rows if r.replicates is not None
+        ]
+        out["snapshot"] = write_snapshot(folder, header, csv_text, md_text, lines, items)[0]
     return out
 
 

@@ -77,13 +77,22 @@ def changes(history: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["claim", "before", "after", "written"])
 
 
-def write_snapshot(folder: Path, header: str, csv_text: str, md_text: str, lines: pd.DataFrame) -> list[Path]:
-    """The committed snapshot in `folder`: `ledger.csv` (`# <header>` then the ledger's CSV), `ledger.md`
-    and `history.csv` with this write's lines appended."""
+def write_snapshot(
+    folder: Path, header: str, csv_text: str, md_text: str, lines: pd.DataFrame, items: Iterable[Path] = ()
+) -> list[Path]:
+    """The committed snapshot in `folder`: `ledger.csv` (`# <header>` then the ledger's CSV), `ledger.md`,
+    `items/` holding this write's per-replicate CSVs (`items`) and no older ones, and `history.csv` with
+    this write's lines appended."""
+    import shutil
+
     folder = Path(folder)
     written = [
         atomic_write_text(folder / "ledger.csv", f"# {header}\n{csv_text}"),
         atomic_write_text(folder / "ledger.md", md_text),
     ]
+    shutil.rmtree(folder / "items", ignore_errors=True)
+    for item in items:
+        (folder / "items").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(item, folder / "items" / Path(item).name)
     append_history(folder / "history.csv", lines)
     return [*written, folder / "history.csv"]

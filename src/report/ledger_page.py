@@ -18,7 +18,7 @@ import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.report.claims import CATEGORIES, TALLIED
-from src.report.verdicts import STATUSES
+from src.report.verdicts import STATUSES, effect_text
 
 COLUMNS = (
     "claim",
@@ -90,16 +90,11 @@ details { margin: 0.2em 0; font-size: 0.85em; }
 
 def _interval(row) -> str:
     """The estimate and its interval, as the numbers print them (a factor for log claims)."""
-    verdict, claim = row.verdict, row.claim
+    verdict, log = row.verdict, row.claim.log
     if not math.isfinite(verdict.estimate):
         return "-"
-
-    def shown(value: float) -> str:
-        if claim.log:
-            return f"{math.exp(value):.3g}x" if math.isfinite(value) else ("inf" if value > 0 else "0x")
-        return f"{value:+.3g}"
-
-    return f"{shown(verdict.estimate)} [{shown(verdict.low)}, {shown(verdict.high)}]"
+    low, high = effect_text(verdict.low, log, 3), effect_text(verdict.high, log, 3)
+    return f"{effect_text(verdict.estimate, log, 3)} [{low}, {high}]"
 
 
 def _published(claim) -> str:

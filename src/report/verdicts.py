@@ -63,17 +63,17 @@ class Verdict:
     high: float = math.nan
 
 
-def _number(value: float, log: bool) -> str:
-    """A difference as printed: a factor for log claims, a signed number otherwise."""
+def effect_text(value: float, log: bool, digits: int = 4) -> str:
+    """A difference as printed: a factor for log claims, a signed number otherwise (`digits` significant)."""
     if log:
-        return f"{math.exp(value):.4g}x" if math.isfinite(value) else ("inf" if value > 0 else "0x")
-    return f"{value:+.4g}"
+        return f"{math.exp(value):.{digits}g}x" if math.isfinite(value) else ("inf" if value > 0 else "0x")
+    return f"{value:+.{digits}g}"
 
 
 def _interval(result, log: bool) -> str:
     if not math.isfinite(result.low) and not math.isfinite(result.high):
         return f"no {result.level:.0%} interval with {result.n}"
-    return f"{result.level:.0%} interval [{_number(result.low, log)}, {_number(result.high, log)}]"
+    return f"{result.level:.0%} interval [{effect_text(result.low, log)}, {effect_text(result.high, log)}]"
 
 
 def _needs(
@@ -118,7 +118,7 @@ def better_verdict(
     p = result.p_value if p_adjusted is None else p_adjusted
     threshold = (math.log(size) if log else size) if size and (size > 1 or not log) else None
     numbers = (
-        f"{names[0]} better than {names[1]} by {_number(result.estimate, log)} (Hodges-Lehmann), "
+        f"{names[0]} better than {names[1]} by {effect_text(result.estimate, log)} (Hodges-Lehmann), "
         f"{_interval(result, log)} over {n} {unit}{nesting} ({result.positive} favour {names[0]}, "
         f"{result.negative} {names[1]}); signed-rank "
         f"p = {result.p_value:.2g}"
@@ -126,7 +126,7 @@ def better_verdict(
     if p_adjusted is not None:
         numbers += f", adjusted p = {p_adjusted:.2g}"
     if threshold is not None:
-        numbers += f"; published size {_number(threshold, log)}"
+        numbers += f"; published size {effect_text(threshold, log)}"
     verdict = dict(
         items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
     )
