@@ -64,6 +64,9 @@ def test_training_lowers_the_loss_and_logs_a_finished_mlflow_run(smoke_data, tmp
         "eval_noisy_energy",
     ):
         assert key in run.data.metrics, key
+    logged = run.data.metrics
+    assert logged["epochs"] == 6
+    assert logged["train_time_per_epoch_s"] == pytest.approx(logged["train_time_s"] / 6, rel=1e-5)
     history = [m.value for m in client.get_metric_history(run_id, "train_loss_diffuse")]
     assert len(history) == 6 and history[-1] < history[0]
     curves = pd.read_csv(tmp_path / "curves.csv")  # the same per-epoch values, for DVC plots
@@ -86,7 +89,17 @@ def _check_eval_values(cfg, eval_dir, logged):
     means = json.loads((eval_dir / "metrics.json").read_text())["mean"]
     rows = pd.read_csv(eval_dir / "per_image.csv")
     assert len(rows) == len(FullImageDataset(cfg.paths.prepared, "test")) > 1
-    for key in ("psnr", "ssim", "relmse", "smape", "energy", "noisy_energy", "noisy_relmse", "ms_per_mpixel"):
+    for key in (
+        "psnr",
+        "ssim",
+        "relmse",
+        "smape",
+        "energy",
+        "energy_error",
+        "noisy_energy",
+        "noisy_relmse",
+        "ms_per_mpixel",
+    ):
         assert means[key] == pytest.approx(rows[key].mean(), rel=1e-12), key
         assert logged[f"eval_{key}"] == pytest.approx(means[key], rel=1e-12), key
     assert (rows["relmse"] != rows["noisy_relmse"]).all() and (rows["psnr"] != rows["noisy_psnr"]).all()
@@ -98,6 +111,7 @@ def _check_eval_values(cfg, eval_dir, logged):
     row = rows[(rows["scene"] == item["scene"]) & (rows["spp"] == int(item["spp"]))].iloc[0]
     assert relmse(denoised, reference, cfg.metrics.relmse_eps) == pytest.approx(row["relmse"], rel=1e-6)
     assert denoised.mean() / reference.mean() == pytest.approx(row["energy"], rel=1e-6)
+    assert abs(denoised.mean() / reference.mean() - 1) == pytest.approx(row["energy_error"], abs=1e-6)
     noisy = item["color"].permute(1, 2, 0).numpy()
     assert relmse(noisy, reference, cfg.metrics.relmse_eps) == pytest.approx(row["noisy_relmse"], rel=1e-6)
     # The GP thesis's convention (Eq. 3.5) on the same images: 1.5 spp times Bako's, and its fitness ratio.

@@ -156,8 +156,10 @@ def test_image_metrics_from_the_real_config():
     reference = rng.uniform(0, 3, (24, 32, 3))  # HDR: clip_gamma clips values above 1
     denoised = reference * 1.05
     m = image_metrics(denoised, reference, cfg)
-    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse", "energy", "lpips", "flip"}
-    assert m["energy"] == pytest.approx(1.05)
+    assert set(m) == {"psnr", "ssim", "relmse", "smape", "mse", "energy", "energy_error", "lpips", "flip"}
+    assert m["energy"] == pytest.approx(1.05) and m["energy_error"] == pytest.approx(0.05)
+    darker = image_metrics(reference * 0.9, reference, cfg)
+    assert darker["energy"] == pytest.approx(0.9) and darker["energy_error"] == pytest.approx(0.1)
     x_ldr, y_ldr = tonemap(denoised, cfg.tonemap, cfg.gamma), tonemap(reference, cfg.tonemap, cfg.gamma)
     assert m["psnr"] == pytest.approx(10 * np.log10(1 / np.mean((x_ldr - y_ldr) ** 2)))
     assert m["ssim"] == pytest.approx(reference_ssim(x_ldr, y_ldr))
@@ -166,7 +168,7 @@ def test_image_metrics_from_the_real_config():
     same = image_metrics(reference, reference, cfg)
     assert same["psnr"] == float("inf") and same["ssim"] == pytest.approx(1.0)
     assert same["relmse"] == same["smape"] == same["mse"] == 0.0
-    assert same["energy"] == 1.0
+    assert same["energy"] == 1.0 and same["energy_error"] == 0.0
 
 
 def test_energy_by_value():
@@ -274,7 +276,7 @@ def test_image_metrics_passes_every_setting_through():
     assert "lpips" not in hdr
     # a section without `enabled: true` is off
     off = image_metrics(x, y, metrics_dict(flip={"mode": "hdr"}, lpips={"seed": 0}))
-    assert set(off) == {"psnr", "ssim", "relmse", "smape", "mse", "energy"}
+    assert set(off) == {"psnr", "ssim", "relmse", "smape", "mse", "energy", "energy_error"}
 
 
 def test_lpips_variant_names_the_model_that_is_used():

@@ -76,6 +76,7 @@ SCORES = (
     "smape",
     "mse",
     "energy",
+    "energy_error",
     "lpips",
     "flip",
     "temporal",

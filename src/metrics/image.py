@@ -173,6 +173,13 @@ def energy(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.mean(x)) / reference_mean if reference_mean > 0.0 else float("nan")
 
 
+def energy_error(x: np.ndarray, y: np.ndarray) -> float:
+    """|energy(x, y) - 1|: how far one image's brightness is from the reference's, in either direction.
+    A run's mean energy lets a brighter and a darker image cancel; the mean of this per-image error does not,
+    so it measures a colour (brightness) shift such as direct prediction's (Bunjevac 2019, Fig. 6.11)."""
+    return abs(energy(x, y) - 1.0)
+
+
 def _get(cfg: Mapping[str, Any], key: str, prefix: str = "metrics") -> Any:
     return require(cfg, key, prefix)
 
@@ -211,7 +218,8 @@ def lpips_variant(metrics_cfg: Mapping[str, Any]) -> str | None:
 def image_metrics(
     denoised: np.ndarray, reference: np.ndarray, metrics_cfg: Mapping[str, Any]
 ) -> dict[str, float]:
-    """psnr, ssim (both on tone-mapped values), relmse, smape, mse, energy (linear HDR) of one image pair,
+    """psnr, ssim (both on tone-mapped values), relmse, smape, mse, energy, energy_error (linear HDR) of one
+    image pair,
     plus lpips (tone-mapped) and flip (per `metrics.flip.mode`) when enabled.
 
     `metrics_cfg` is the `metrics:` config section (DictConfig or dict): tonemap, gamma, relmse_eps,
@@ -231,6 +239,7 @@ def image_metrics(
         "smape": smape(x, y, smape_eps),
         "mse": mse(x, y),
         "energy": energy(x, y),
+        "energy_error": energy_error(x, y),
     }
     lpips_cfg = _enabled(metrics_cfg, "lpips")
     if lpips_cfg is not None:
