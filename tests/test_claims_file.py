@@ -54,7 +54,7 @@ TOP_KEYS = {
 OPTIONAL_TOP_KEYS = {"caveat"}
 SOURCE_KEYS = {"document", "section", "where"}
 #: `quote` is required for findings and readings, `translation` for a quote not in English.
-OPTIONAL_SOURCE_KEYS = {"quote", "translation"}
+OPTIONAL_SOURCE_KEYS = {"quote", "translation", "budget"}
 DOCUMENTS = {"Bunjevac 2019", "Davletaliyev 2016", "Grujčić 2023", "Zhu et al. 2023"}
 RUN_SOURCES = ("study", "pipeline", "bench")
 RUN_KEYS = {*RUN_SOURCES, "experiment", "where"}
@@ -63,10 +63,11 @@ NEEDS = {None, "gpu", "user_data"}
 RULE_KEYS = {
     "better": {"kind", "a", "b", "b_metric", "size", "ratio"},
     "comparable": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio"},
+    "not_worse": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio"},
     "agreement": {"kind", "tolerance", "tolerance_source", "published"},
 }
 #: Rules whose tolerance must say where it comes from (a citation of the seed, or "project's own: ...").
-TOLERANCE_SOURCE_KINDS = {"comparable", "agreement"}
+TOLERANCE_SOURCE_KINDS = {"comparable", "not_worse", "agreement"}
 OWN_TOLERANCE = "project's own"
 #: Paragraphs of the Zhu et al. 2023 summary (one per line, the title line not counted; conf/claims.yaml's
 #: section header): a `where` citing "paragraph N" must name one of them.
@@ -94,6 +95,7 @@ LOSSES = ("diffuse", "specular", "color", "temporal", "total")
 LITERAL_RUN_METRICS = {
     "param_count": "src/eval/loop.py",
     "train_time_s": "src/train/loop.py",
+    "train_time_per_epoch_s": "src/train/trainer.py",
     "steps": "src/train/loop.py",
     "search_best": "src/tasks/filter_search.py",
     "search_best_so_far": "src/tasks/filter_search.py",
@@ -109,7 +111,7 @@ HIGHER_BETTER = {"psnr", "ssim", "tpsnr", "rays_per_s"}
 #: Positive, scale-free scores whose ratios (log: true) mean something: errors, losses, times (a training's
 #: wall-clock train_time_s among them).
 RATIO_SCORES = re.compile(
-    r"^(relmse.*|mse|smape|ms_per_.*|seconds|.*loss_.*|search_best.*|search_seconds|train_time_s)$"
+    r"^(relmse.*|mse|smape|ms_per_.*|seconds|.*loss_.*|search_best.*|search_seconds|train_time_s|train_time_per_epoch_s)$"
 )
 
 
@@ -278,10 +280,10 @@ def schema_errors(claims: list[dict]) -> list[str]:
             floor = 1.0 if c["log"] else 0.0  # a factor when log, else metric units
             if not isinstance(rule["size"], int | float) or rule["size"] < floor:
                 errors.append(f"{name}: size {rule['size']!r}; expected a number >= {floor}")
-        if kind == "comparable" and not (
+        if kind in ("comparable", "not_worse") and not (
             isinstance(rule.get("tolerance"), int | float) and rule["tolerance"] > 0
         ):
-            errors.append(f"{name}: comparable tolerance {rule.get('tolerance')!r}; expected > 0")
+            errors.append(f"{name}: {kind} tolerance {rule.get('tolerance')!r}; expected > 0")
         if kind in TOLERANCE_SOURCE_KINDS:
             tolerance_source = rule.get("tolerance_source")
             if not isinstance(tolerance_source, str) or not tolerance_source.strip():

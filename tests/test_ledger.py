@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from src.report.claims import load_claims
-from src.report.ledger import arm_values, build_ledger, matching
+from src.report.ledger import arm_values, build_ledger, matching, run_budget
 from src.report.signed_rank import min_items
 from src.report.verdicts import (
     DIRECTION_ONLY,
@@ -29,6 +29,7 @@ from src.report.verdicts import (
     agreement_verdict,
     better_verdict,
     comparable_verdict,
+    not_worse_verdict,
 )
 from tests.conftest import ROOT, one_line_cli_error, one_line_error
 
@@ -131,6 +132,27 @@ def test_comparable_from_two_replicates_is_underpowered_not_a_zero_width_interva
     assert verdict.status == UNDERPOWERED and "needs 6 or more" in verdict.numbers
 
 
+def _not_worse(advantage, tolerance, log=False):
+    return not_worse_verdict(_items(advantage), NAMES, log, tolerance, 0.05, "seeds")
+
+
+def test_not_worse_bounds_the_lower_end_of_the_interval_by_the_margin():
+    behind = [-0.1, -0.3, -0.2, -0.15, -0.25, -0.2, -0.05, -0.35]  # a slightly behind on every replicate
+    lo, hi = _not_worse(behind, 1.0).low, _not_worse(behind, 1.0).high
+    assert hi < 0  # a is worse, yet within a margin that covers the interval
+    assert _not_worse(behind, -lo).status == REPRODUCED  # the boundary counts as within
+    assert _not_worse(behind, -lo - 1e-6).status == NOT_DISTINGUISHABLE
+    assert _not_worse(behind, -hi).status == NOT_DISTINGUISHABLE  # the interval straddles -margin
+    assert _not_worse(behind, -hi - 1e-6).status == NOT_REPRODUCED  # wholly worse by more than it
+    # A clearly better arm is not worse by any margin; a failed arm a (-inf) counts against it.
+    assert _not_worse([1.0 + x for x in behind], 1e-9).status == REPRODUCED
+    failed = _not_worse([-math.inf] * 8, 0.5)
+    assert failed.status == NOT_REPRODUCED
+    assert _not_worse(behind[:5], 1.0).status == UNDERPOWERED
+    assert _not_worse([], 1.0).status == NOT_RUN
+    assert "not behind by more than 0.5x" in _not_worse(behind, math.log(2), log=True).numbers
+
+
 def test_agreement_needs_every_published_case():
     cases = [("nerf, lego", _items([31.5, 31.7]), 31.6), ("mipnerf, lego", _items([33.0, 33.2]), 33.0)]
     assert agreement_verdict(cases, 0.2).status == REPRODUCED
@@ -187,6 +209,24 @@ def test_a_target_or_an_english_quote_needs_no_translation_and_a_target_is_not_t
     assert r.rule.ratio == {"task.train.epochs": 2.0}
 
 
+def test_a_claims_seed_budget_is_its_documents_unless_it_names_its_own(tmp_path):
+    own = CLAIM.format(id="own").replace("translation: t}", "translation: t, budget: 2 epochs}")
+    text = "budgets:\n  Bunjevac 2019: 40 epochs, batch 64\nclaims:" + CLAIM.format(id="doc") + own
+    doc, mine = load_claims(_claims_file(tmp_path, text))
+    assert (doc.seed_budget, mine.seed_budget) == ("40 epochs, batch 64", "2 epochs")
+    (plain,) = load_claims(_claims_file(tmp_path, "claims:" + CLAIM.format(id="p")))
+    assert plain.seed_budget == ""
+    with pytest.raises(ConfigError) as excinfo:
+        load_claims(_claims_file(tmp_path, "budgets: [a]\nclaims:" + CLAIM.format(id="p")))
+    one_line_error(excinfo, "budgets", "expected a mapping of documents to budget texts")
+
+
+def test_run_budget_lists_each_logged_keys_values_in_numeric_order():
+    runs = pd.DataFrame({"params.e": ["16", "8", "8", "100"], "params.b": ["x", "x", None, "x"]})
+    assert run_budget(runs, ["e", "b", "absent"]) == "e 8, 16, 100; b x"
+    assert run_budget(runs, []) == "" and run_budget(runs, ["absent"]) == ""
+
+
 def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
     (claim,) = load_claims(_claims_file(tmp_path, "claims:" + CLAIM.format(id="kpcn_dpcn")))
     assert (claim.category, claim.quote, claim.translation, claim.tallied) == ("finding", "q", "t", True)
@@ -233,6 +273,11 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
             lambda t: t.replace("kind: better", "kind: comparable, tolerance: 0.5"),
             ["rule.tolerance_source"],
         ),
+        (
+            lambda t: t.replace("kind: better", "kind: not_worse, tolerance: 0.5"),
+            ["rule.tolerance_source"],
+        ),
+        (lambda t: t.replace("kind: better", "kind: not_worse"), ["rule.tolerance", "None"]),
     ],
 )
 def test_a_malformed_claim_is_one_line_naming_its_key(tmp_path, edit, needles):
@@ -395,7 +440,19 @@ def ledger_store(tmp_path_factory):
 
 LEDGER_CLAIMS = textwrap.dedent(
     f"""
+    budgets: {{Doc A: 80 epochs of Doc A}}
     claims:
+      - id: dpcn_not_worse_by_1_5db
+        category: reading
+        source: {{quote: q, translation: t, document: Doc A, section: "1"}}
+        statement: DPCN is at most 1.5 dB behind KPCN.
+        profiles: [cpu]
+        runs: {{study: {STUDY}, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: not_worse, a: {{model.name: dpcn}}, b: {{model.name: kpcn}}, tolerance: 1.5,
+                tolerance_source: t}}
       - id: kpcn_beats_dpcn
         category: finding
         source: {{quote: q, translation: t, document: Doc A, section: "1"}}
@@ -478,7 +535,7 @@ LEDGER_CLAIMS = textwrap.dedent(
         rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
       - id: unet_10x
         category: finding
-        source: {{quote: q, translation: t, document: Doc B, section: "4"}}
+        source: {{quote: q, translation: t, document: Doc B, section: "4", budget: its own budget}}
         statement: The U-Net is at least 10x faster than KPCN.
         profiles: [paper, cpu]
         needs: gpu
@@ -552,6 +609,7 @@ def _ledger_cfg(store, tmp_path, claims_text=LEDGER_CLAIMS):
                 "claims": str(conf / "claims.yaml"),
                 "out_dir": str(tmp_path / "reports"),
                 "alpha": 0.05,
+                "budget_shown": ["seed", "not.logged"],
             },
             "tracking": {"uri": store["uri"]},
         }
@@ -561,6 +619,7 @@ def _ledger_cfg(store, tmp_path, claims_text=LEDGER_CLAIMS):
 def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     summary = build_ledger(_ledger_cfg(ledger_store, tmp_path))
     assert summary["statuses"] == {
+        "dpcn_not_worse_by_1_5db": REPRODUCED,  # 1 dB behind on every seed: within the 1.5 dB margin
         "kpcn_beats_dpcn": REPRODUCED,  # +1 dB on each of 6 seeds, older reruns left out
         "kpcn_beats_dpcn_by_3db": DIRECTION_ONLY,
         "pipeline_fallback": UNDERPOWERED,  # one training per arm: 6 images are not 6 replicates
@@ -586,6 +645,10 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert kpcn["family"] == f"study {STUDY} at cpu (5 tests)"  # the tallied better-claims of the study
     assert kpcn["commits"] == "abc1234def" and kpcn["data"] == "f00d" and kpcn["source"] == "Doc A, Sec. 1"
     assert kpcn["items_csv"] == "items/kpcn_beats_dpcn.csv" and len(kpcn["run_ids"].split()) == 12
+    # ledger.budget_shown: the counted runs' values of each logged key (numbers in numeric order), beside
+    # the seed's budget from the claims file's `budgets:` (or the claim's own source.budget).
+    assert kpcn["run_budget"] == "seed 0, 1, 2, 3, 4, 5" and kpcn["seed_budget"] == "80 epochs of Doc A"
+    assert ledger.loc["unet_10x", "seed_budget"] == "its own budget"
     items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
     assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)
     fallback = ledger.loc["pipeline_fallback"]
@@ -605,9 +668,18 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     scenes = ledger.loc["needs_scenes", "numbers"]
     assert scenes.startswith("needs the user's data") and "+sweep=nerf_thesis profile=thesis" in scenes
     md = (tmp_path / "reports" / "ledger.md").read_text()
-    assert "**7 reproduced, 1 direction only, 2 underpowered, 3 not run** (findings and readings)" in md
+    assert "**8 reproduced, 1 direction only, 2 underpowered, 3 not run** (findings and readings)" in md
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    assert html.count("<tr>") == 1 + 13 and "#d4edda" in html and "#e7f1ff" in html
+    # a header row per table (findings, readings) and a row per claim
+    assert html.count("<tr>") == 2 + 14 and "#d4edda" in html and "#e7f1ff" in html
+
+
+def test_a_not_worse_claim_outside_its_margin_is_not_reproduced(ledger_store, tmp_path):
+    claims = LEDGER_CLAIMS.replace("tolerance: 1.5,", "tolerance: 0.5,")
+    row = pd.read_csv(build_ledger(_ledger_cfg(ledger_store, tmp_path, claims))["paths"]["csv"])
+    row = row.set_index("claim").loc["dpcn_not_worse_by_1_5db"]
+    assert row["status"] == NOT_REPRODUCED and "not behind by more than -0.5" in row["numbers"]
+    assert row["published"] == "not behind by more than 0.5 (t)"
 
 
 def test_a_slower_unet_is_not_reproduced(ledger_store, tmp_path):

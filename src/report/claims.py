@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 
-RULE_KINDS = ("better", "comparable", "agreement")
+RULE_KINDS = ("better", "comparable", "not_worse", "agreement")
 #: What kind of statement a claim is (docs/ledger.md): `finding` (the seed states it: quoted), `reading`
 #: (the harness's interpretation of a quoted sentence), `target` (the project's own goal, e.g. a speed
 #: ratio: shown apart, never counted as the seed's), `setup` (a parameter count or the like: checked by the
@@ -46,7 +46,8 @@ class Case:
 @dataclass(frozen=True)
 class Rule:
     """`better`: arm `a` beats arm `b` (by at least `size`, in the metric's units or as a ratio when the
-    claim compares logs); `comparable`: `a` and `b` within `tolerance`; `agreement`: each case within
+    claim compares logs); `comparable`: `a` and `b` within `tolerance`; `not_worse`: `a` at most
+    `tolerance` behind `b` (a non-inferiority: "at worst on par"); `agreement`: each case within
     `tolerance` of its published value. `b_metric`: arm `b` is scored by this metric of its runs instead
     of the claim's (a baseline the runs evaluate beside their method on the same items, e.g. the filter
     search's `baseline_relmse_spp`); `a` and `b` may then be the same runs. `tolerance_source`: where a
@@ -87,6 +88,7 @@ class Claim:
     quote: str = ""
     translation: str = ""
     caveat: str = ""
+    seed_budget: str = ""  # what the seed spent on the runs behind the claim (`budgets:` or source.budget)
 
     @property
     def citation(self) -> str:
@@ -127,7 +129,7 @@ KEYS = {
         *("id", "category", "source", "statement", "caveat", "profiles", "needs", "runs"),
         *("metric", "per", "higher", "log", "rule"),
     },
-    "source": {"document", "section", "where", "quote", "translation"},
+    "source": {"document", "section", "where", "quote", "translation", "budget"},
     "runs": {*RUN_SOURCES, "experiment", "where"},
     "rule": {"kind", "a", "b", "b_metric", "size", "tolerance", "tolerance_source", "published", "ratio"},
     "published": {"arm", "where", "value"},
@@ -189,7 +191,7 @@ def _rule(raw: Any, where: str) -> Rule:
             "b_metric)"
         )
     ratio = _ratios(raw.get("ratio"), f"{where}.ratio")
-    if kind == "comparable":
+    if kind in ("comparable", "not_worse"):
         tolerance = float(_get(raw, "tolerance", where, (int, float)))
         if tolerance <= 0:
             raise ConfigError(f"{where}.tolerance: {tolerance}; expected > 0")
@@ -223,8 +225,10 @@ def _runs_sources(raw: Any, where: str) -> tuple[tuple[str, str], ...]:
     return tuple((kind, str(raw[kind])) for kind in named)
 
 
-def parse_claim(raw: Any, index: int) -> Claim:
-    """One entry of `claims:`; a missing or malformed key is a one-line ConfigError naming it."""
+def parse_claim(raw: Any, index: int, budgets: Mapping[str, str] | None = None) -> Claim:
+    """One entry of `claims:`; a missing or malformed key is a one-line ConfigError naming it. `budgets`:
+    each document's budget (the file's `budgets:`), the claim's seed budget unless its source.budget
+    names one of its own."""
     if not isinstance(raw, Mapping):
         raise ConfigError(f"claims[{index}]: {raw!r}; expected a mapping")
     name = f"claims[{index}]" if not isinstance(raw.get("id"), str) else f"claims.{raw['id']}"
@@ -257,6 +261,7 @@ def parse_claim(raw: Any, index: int) -> Claim:
         quote=quote,
         translation=translation,
         caveat=" ".join(str(raw.get("caveat") or "").split()),
+        seed_budget=" ".join(str(source.get("budget") or (budgets or {}).get(document) or "").split()),
         document=document,
         section=str(source.get("section") or ""),
         where_stated=str(source.get("where") or ""),
@@ -286,7 +291,10 @@ def load_claims(path: str | Path) -> list[Claim]:
     entries = raw.get("claims") if isinstance(raw, Mapping) else None
     if not isinstance(entries, list) or not entries:
         raise ConfigError(f"{path}: no `claims:` list; expected one entry per claim")
-    claims = [parse_claim(entry, i) for i, entry in enumerate(entries)]
+    budgets = raw.get("budgets") or {}
+    if not isinstance(budgets, Mapping) or not all(isinstance(v, str) for v in budgets.values()):
+        raise ConfigError(f"{path}: budgets: {budgets!r}; expected a mapping of documents to budget texts")
+    claims = [parse_claim(entry, i, budgets) for i, entry in enumerate(entries)]
     seen: set[str] = set()
     for claim in claims:
         if claim.id in seen:

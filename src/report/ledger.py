@@ -49,6 +49,7 @@ from src.report.verdicts import (
     agreement_verdict,
     better_verdict,
     comparable_verdict,
+    not_worse_verdict,
 )
 
 log = logging.getLogger("nrbench.ledger")
@@ -70,14 +71,15 @@ NEEDS_REASONS = {
 @dataclass(frozen=True)
 class LedgerSettings:
     """What the ledger needs besides the claims: the test level, every profile's name, the keys a profile
-    file sets (`matched_arms.profile_keys`), groups of commits declared to be the same code, and each
-    model's own recipe keys (`matched_arms.model_keys`)."""
+    file sets (`matched_arms.profile_keys`), groups of commits declared to be the same code, each model's
+    own recipe keys (`matched_arms.model_keys`) and the budget keys a row prints (`ledger.budget_shown`)."""
 
     alpha: float = 0.05
     all_profiles: tuple[str, ...] = ()
     budget_keys: frozenset[str] = frozenset()
     equivalent_commits: tuple[tuple[str, ...], ...] = ()
     model_keys: Mapping[str, frozenset[str]] = field(default_factory=dict)
+    budget_shown: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,7 @@ class LedgerRow:
     p_adjusted: float = math.nan
     family: str = ""
     arm_budget: str = ""  # budget keys on which the arms differ (declared or a model's own), per arm
+    run_budget: str = ""  # the counted runs' values of `ledger.budget_shown`, beside the seed's budget
     names: tuple[str, str] = ("a", "b")  # the arms as the numbers name them
 
 
@@ -246,12 +249,13 @@ def _replicates(claim: Claim, scores: pd.DataFrame, prefix: str) -> tuple[Replic
 
 
 def _judge(claim: Claim, replicates: Replicates, names: tuple[str, str], alpha: float, p_adjusted=None):
-    """The status of a better or comparable claim from its replicates (`src.report.verdicts`)."""
-    unit, nesting = replicates.unit, _nesting(replicates)
+    """The status of a better, comparable or not-worse claim from its replicates (`src.report.verdicts`)."""
+    unit, nesting, tolerance = replicates.unit, _nesting(replicates), claim.rule.tolerance
     if claim.rule.kind == "comparable":
-        tolerance = claim.rule.tolerance
         return comparable_verdict(replicates.difference, names, claim.log, tolerance, alpha, unit, nesting)
     advantage = replicates.difference if claim.higher else -replicates.difference
+    if claim.rule.kind == "not_worse":
+        return not_worse_verdict(advantage, names, claim.log, tolerance, alpha, unit, nesting)
     return better_verdict(advantage, names, claim.log, claim.rule.size, alpha, unit, p_adjusted, nesting)
 
 
@@ -371,6 +375,26 @@ def _arm_budget(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> s
     return " | ".join(parts)
 
 
+def run_budget(runs: pd.DataFrame, keys: Sequence[str]) -> str:
+    """The runs' values of the budget `keys` they logged ("task.train.epochs 8, 16; task.train.batch_size
+    16"), every distinct value of a key in sorted order, to print beside the seed's budget."""
+    parts = []
+    for key in keys:
+        column = f"params.{key}"
+        if column in runs:
+            values = sorted(set(runs[column].dropna().astype(str)), key=_numeric_first)
+            if values:
+                parts.append(f"{key} {', '.join(values)}")
+    return "; ".join(parts)
+
+
+def _numeric_first(value: str) -> tuple[int, float, str]:
+    try:
+        return (0, float(value), value)
+    except ValueError:
+        return (1, 0.0, value)
+
+
 def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: LedgerSettings, note: str):
     """The ledger row of the claim's counted runs at `profile` from `source`."""
     common = dict(
@@ -383,6 +407,7 @@ def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: Ledge
         not_counted=note,
         run_ids=tuple(str(r) for r in runs.get("run_id", [])),
         arm_budget=_arm_budget(claim, runs, settings) if not claim.is_bench else "",
+        run_budget=run_budget(runs, settings.budget_shown),
     )
     confound = _confound(claim, runs, settings)
     if confound:
@@ -464,6 +489,7 @@ def settings_from(cfg: Any, claims_path: Path) -> LedgerSettings:
         budget_keys=profile_keys(conf_dir),
         equivalent_commits=tuple(tuple(str(c) for c in group) for group in groups),
         model_keys=model_keys(conf_dir),
+        budget_shown=tuple(str(k) for k in OmegaConf.select(cfg, "ledger.budget_shown", default=None) or ()),
     )
 
 

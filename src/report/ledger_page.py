@@ -41,6 +41,8 @@ COLUMNS = (
     "p_adjusted",
     "family",
     "budget",
+    "run_budget",
+    "seed_budget",
     "not_counted",
     "numbers",
     "runs",
@@ -62,6 +64,8 @@ SHOWN = (
     "profile",
     "from",
 )
+#: What each claim's details list under the tables, in this order: our budget beside the seed's.
+DETAILS = ("quote", "caveat", "numbers", "budget", "run_budget", "seed_budget", "not_counted")
 _COLOURS = {
     "reproduced": "#d4edda",
     "direction only": "#fff3cd",
@@ -105,6 +109,8 @@ def _published(claim) -> str:
         return f"{values} (±{rule.tolerance:g}; {rule.tolerance_source})"
     if rule.kind == "comparable":
         return f"within ±{rule.tolerance:g} ({rule.tolerance_source})"
+    if rule.kind == "not_worse":
+        return f"not behind by more than {rule.tolerance:g} ({rule.tolerance_source})"
     if rule.size and (rule.size > 1 or not claim.log):
         return f"{rule.size:g}x" if claim.log else f"{rule.size:+g}"
     return "no size given"
@@ -147,6 +153,8 @@ def ledger_frame(rows: Sequence) -> pd.DataFrame:
                 "p_adjusted": _p(r.p_adjusted),
                 "family": r.family or "-",
                 "budget": r.arm_budget or "-",
+                "run_budget": r.run_budget or "-",
+                "seed_budget": r.claim.seed_budget or "-",
                 "not_counted": r.not_counted or "-",
                 "numbers": r.verdict.numbers,
                 "runs": r.runs,
@@ -188,7 +196,7 @@ def ledger_markdown(frame: pd.DataFrame, subtitle: str) -> str:
     lines += ["", "## Each claim", ""]
     for _, row in frame.iterrows():
         lines.append(f"- **{row['claim']}** ({row['category']}, {row['source']}): {_cell(row['statement'])}")
-        for key in ("quote", "caveat", "numbers", "budget", "not_counted", "family", "items_csv"):
+        for key in (*DETAILS, "family", "items_csv"):
             if row[key] not in ("", "-"):
                 lines.append(f"  - {key}: {_cell(row[key])}")
     return "\n".join(lines) + "\n"
@@ -207,7 +215,7 @@ def _html_table(part: pd.DataFrame) -> list[str]:
             elif c == "claim":
                 details = "".join(
                     f"<div><i>{key}</i>: {html.escape(str(row[key]))}</div>"
-                    for key in ("source", "statement", "quote", "caveat", "numbers", "budget", "not_counted")
+                    for key in ("source", "statement", *DETAILS)
                     if str(row[key]) not in ("", "-")
                 )
                 link = row["items_csv"]

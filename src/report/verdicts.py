@@ -12,6 +12,9 @@ one estimator, the Hodges-Lehmann shift with the signed-rank test and the interv
   reproduced** when it lies on the other side; **not distinguishable** when it contains 0.
 - `comparable_verdict` (an equivalence): **reproduced** when the interval lies inside +-tolerance, **not
   reproduced** when wholly outside, else **not distinguishable**.
+- `not_worse_verdict` (a non-inferiority: arm a at worst on par with arm b): **reproduced** when the
+  interval's lower end lies above -tolerance (a is not worse by more than the margin), **not reproduced**
+  when its upper end lies below -tolerance (a is worse by more), else **not distinguishable**.
 - `agreement_verdict` (published numbers): **reproduced** when every published case ran and each case's
   mean is within the tolerance of its value, **not reproduced** when one is not.
 - Below a rule's minimum replication the status is **underpowered**, never a verdict: fewer replicates
@@ -173,6 +176,44 @@ def comparable_verdict(
     if -tolerance <= result.low and result.high <= tolerance:
         return Verdict(REPRODUCED, numbers, **verdict)
     if result.low > tolerance or result.high < -tolerance:
+        return Verdict(NOT_REPRODUCED, numbers, **verdict)
+    return Verdict(NOT_DISTINGUISHABLE, numbers, **verdict)
+
+
+def not_worse_verdict(
+    advantage: pd.Series,
+    names: tuple[str, str],
+    log: bool,
+    tolerance: float,
+    alpha: float,
+    unit: str = "items",
+    nesting: str = "",
+) -> Verdict:
+    """Whether arm a is at worst `tolerance` behind arm b (metric units; a natural-log ratio when `log`):
+    the (1 - alpha) signed-rank interval of a's advantage against -tolerance (module docstring).
+    `advantage`: per replicate, positive where a is better (+-inf where one arm failed)."""
+    n = len(advantage)
+    if n < 1:
+        return Verdict(NOT_RUN, "no replicate scored in both arms")
+    result = signed_rank(advantage.to_numpy(float), alpha)
+    numbers = (
+        f"{names[0]} ahead of {names[1]} by {effect_text(result.estimate, log)} (Hodges-Lehmann), "
+        f"{_interval(result, log)} over {n} {unit}{nesting}; margin: not behind by more than "
+        f"{effect_text(-tolerance, log)}"
+    )
+    verdict = dict(
+        items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
+    )
+    if n < min_items(alpha):
+        return Verdict(
+            UNDERPOWERED,
+            f"{numbers}; {n} {unit} cannot bound the shift at {result.level:.0%}: "
+            f"needs {min_items(alpha)} or more",
+            **verdict,
+        )
+    if result.low >= -tolerance:
+        return Verdict(REPRODUCED, numbers, **verdict)
+    if result.high < -tolerance:
         return Verdict(NOT_REPRODUCED, numbers, **verdict)
     return Verdict(NOT_DISTINGUISHABLE, numbers, **verdict)
 

@@ -97,12 +97,14 @@ class Report(Schema):
 
 class Ledger(Schema):
     """The reproduction ledger (src/report/ledger.py): the claims file, where it writes, the tests'
-    level, commits declared to be the same code, and where its committed snapshot goes (or null)."""
+    level, commits declared to be the same code, the budget keys a row prints, and where its committed
+    snapshot goes (or null)."""
 
     claims: str
     out_dir: str
     alpha: float = Field(gt=0, lt=1)
     equivalent_commits: list[list[str]] = []
+    budget_shown: list[str] = []
     snapshot: str | None = None
 
 
