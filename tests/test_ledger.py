@@ -311,7 +311,7 @@ def test_an_arm_scored_twice_on_one_item_counts_its_mean_once():
 STUDY = "toy_study"
 
 
-def log_run(client, experiment_id, tmp, params, tags, metrics=None, artifact=None):
+def log_run(client, experiment_id, tmp, params, tags, metrics=None, artifact=None, status="FINISHED"):
     run_id = client.create_run(experiment_id, tags=tags).info.run_id
     client.log_batch(
         run_id,
@@ -324,7 +324,7 @@ def log_run(client, experiment_id, tmp, params, tags, metrics=None, artifact=Non
         path.parent.mkdir(parents=True)
         frame.to_csv(path, index=False)
         client.log_artifact(run_id, str(path), folder.rsplit("/", 1)[0])
-    client.set_terminated(run_id, "FINISHED")
+    client.set_terminated(run_id, status)
     return run_id
 
 

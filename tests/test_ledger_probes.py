@@ -47,12 +47,11 @@ def probe_store(tmp_path_factory):
     client = MlflowClient()
     exp = client.create_experiment("nrbench-denoise", artifact_location=(tmp / "art").as_uri())
 
-    def study(name, model, seed, images, tags=CPU, **params):
+    def study(name, model, seed, images, tags=CPU, status="FINISHED", **params):
         job = params.pop("hydra_job", f"model={model} seed={seed} +sweep={name} profile=cpu")
         params = {"report.name": f"sweeps/{name}", "model.name": model, "seed": seed, **params}
-        log_run(
-            client, exp, tmp, params, {**tags, "nrbench.hydra_job": job}, None, ("eval/per_image.csv", images)
-        )
+        artifact = None if images is None else ("eval/per_image.csv", images)
+        log_run(client, exp, tmp, params, {**tags, "nrbench.hydra_job": job}, None, artifact, status)
 
     base = 30.0 + np.arange(10.0)
     for seed in range(3):  # two deterministic filters: the same scores under every seed
@@ -67,6 +66,16 @@ def probe_store(tmp_path_factory):
     for seed in range(3):
         study("failures", "gp_expr", seed, _images(failing, undefined), **{"model.learned": "False"})
         study("failures", "cross_bilateral", seed, _images(base), **{"model.learned": "False"})
+    # Trainings that crashed: dpcn's failed on every seed, and seed 0's was requeued and finished (1 dB
+    # below kpcn's). In a second study resnet's and kpcn's both failed on seed 1 (a failure on both sides).
+    for seed in range(6):
+        study("crashes", "kpcn", seed, _images(base + 1.0 + 0.1 * seed))
+        study("crashes", "dpcn", seed, None, status="FAILED")
+        lost = seed == 1
+        for model, gain in (("kpcn", 0.0), ("resnet", 2.0)):
+            scores = None if lost else _images(base + gain + 0.1 * seed)
+            study("crashes_both", model, seed, scores, status="FAILED" if lost else "FINISHED")
+    study("crashes", "dpcn", 0, _images(base))
     # Six seeds of kpcn 1 dB above dpcn, at different epochs; the same at another commit and data.
     for seed in range(6):
         shift = 0.1 * seed
@@ -189,6 +198,27 @@ def test_a_failed_output_is_its_arms_worst_outcome_not_a_dropped_item(probe_stor
         row.verdict.items == 10 and row.verdict.status == NOT_DISTINGUISHABLE
     )  # dropped: 6 of 6 for gp_expr
     assert "6 favour gp_expr, 4 cross_bilateral" in row.verdict.numbers
+
+
+def test_a_failed_training_is_its_arms_loss_on_that_seed_unless_a_rerun_finished(probe_store, tmp_path):
+    """dpcn's trainings failed on seeds 1-5 (seed 0's rerun finished): dropped, kpcn's win would rest on
+    one seed (underpowered); counted, each is dpcn's worst outcome (+inf for kpcn), as the thesis scores
+    an undefined expression. Where both arms' runs failed on a seed, that seed is a tie (0)."""
+    row = evaluate_claim(_claim("crashes", "{model.name: kpcn}", "{model.name: dpcn}"), _settings(tmp_path))
+    d = row.replicates.difference
+    assert row.verdict.status == REPRODUCED and row.replicates.unit == "seeds" and len(d) == 6
+    assert d.iloc[0] == pytest.approx(1.0) and np.isinf(d.iloc[1:]).all() and (d.iloc[1:] > 0).all()
+    assert row.replicates.undefined == (0, 5)
+    reverse = evaluate_claim(
+        _claim("crashes", "{model.name: dpcn}", "{model.name: kpcn}"), _settings(tmp_path)
+    )
+    assert reverse.verdict.status == NOT_REPRODUCED
+    both = evaluate_claim(
+        _claim("crashes_both", "{model.name: resnet}", "{model.name: kpcn}"), _settings(tmp_path)
+    )
+    d = both.replicates.difference
+    assert len(d) == 6 and d.iloc[1] == 0.0 and np.allclose(d.drop(d.index[1]), 2.0)
+    assert both.replicates.undefined == (1, 1)
 
 
 def test_arms_trained_at_different_budgets_are_confounded_unless_the_claim_declares_it(probe_store, tmp_path):

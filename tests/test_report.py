@@ -168,6 +168,11 @@ def test_find_runs_selects_finished_job_runs(store):
         {"experiment": EXPERIMENT, "tags": {"nrbench.model": "kpcn"}, "filter": "params.seed = '1'"}
     )
     assert list(by_filter["run_id"]) == [store["ids"][("kpcn", 1)]]
+    failed = find_runs({"experiment": EXPERIMENT, "status": "FAILED"})  # what the ledger counts as losses
+    assert list(failed["params.model.name"]) == ["broken"]
+    with pytest.raises(DataError) as excinfo:
+        find_runs({"experiment": EXPERIMENT, "status": "KILLED"})
+    one_line_error(excinfo, "report.status='KILLED'", "FINISHED", "FAILED")
 
 
 def test_keep_latest_drops_older_reruns_of_a_setting_but_keeps_seeds():

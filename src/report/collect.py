@@ -92,13 +92,18 @@ def _sweep_parent_ids(experiment_ids: list[str], sweep_dir: str) -> list[str]:
     return [str(r) for r in parents.loc[same, "run_id"]]
 
 
+#: The run statuses `find_runs` selects by: the finished runs, or those that ended in an error.
+RUN_STATUSES = ("FINISHED", "FAILED")
+
+
 def find_runs(report_cfg: Any, level: int = logging.INFO) -> pd.DataFrame:
     """FINISHED job runs selected by `report_cfg`, oldest first.
 
-    Keys (all optional except `experiment`): `tracking_uri` (else the current MLflow URI), `experiment`
-    (a name or a list of names), `parent_run_id` (a sweep's parent: its children only), `sweep_dir`
-    (matched to the parent runs' `nrbench.sweep_dir` tag), `group` (the runs' `nrbench.group` tag),
-    `tags` ({key: value}), `filter` (a free MLflow filter string, e.g.
+    Keys (all optional except `experiment`): `status` (FINISHED, or FAILED for the runs that ended in an
+    error: the ledger counts those as their arm's losses), `tracking_uri` (else the current MLflow URI),
+    `experiment` (a name or a list of names), `parent_run_id` (a sweep's parent: its children only),
+    `sweep_dir` (matched to the parent runs' `nrbench.sweep_dir` tag), `group` (the runs' `nrbench.group`
+    tag), `tags` ({key: value}), `filter` (a free MLflow filter string, e.g.
     "params.`task.train.lr` = '0.0001'"), `keep` + `axes` (see `keep_latest`). When nothing matches,
     raises `DataError` with one line naming the first filter that left no run. `level`: the log level of
     the line counting the runs (the ledger, which searches once per claim and source, keeps it quiet).
@@ -134,8 +139,11 @@ def _experiment_ids(names: list[str], uri: str) -> list[str]:
 def _filter_steps(report_cfg: Any, names: list[str], experiment_ids: list[str]) -> list[tuple[str, Any]]:
     """(what the user set, MLflow clause or row predicate) per filter of `report_cfg`, applied
     cumulatively so that an empty result names its culprit."""
+    status = str(config_value(report_cfg, "status", "FINISHED"))
+    if status not in RUN_STATUSES:
+        raise DataError(f"report.status={status!r}: expected one of {list(RUN_STATUSES)}")
     steps: list[tuple[str, Any]] = [
-        (f"report.experiment={names if len(names) > 1 else names[0]!r}", "attributes.status = 'FINISHED'")
+        (f"report.experiment={names if len(names) > 1 else names[0]!r}", f"attributes.status = '{status}'")
     ]
     steps += _sweep_steps(report_cfg, names, experiment_ids)
     group = config_value(report_cfg, "group")

@@ -23,12 +23,13 @@ from pathlib import Path
 from typing import Any
 
 import mlflow
+import numpy as np
 import pandas as pd
 from omegaconf import OmegaConf
 
 from src.errors import DataError
 from src.report.claims import Claim
-from src.report.collect import artifact_csv, find_runs, keep_latest, per_image_rows
+from src.report.collect import artifact_csv, find_runs, keep_latest, param_column, per_image_rows
 from src.report.matched_arms import (
     HYDRA_JOB_TAG,
     canonical_value,
@@ -38,7 +39,7 @@ from src.report.matched_arms import (
     off_profile_key,
     profile_keys,
 )
-from src.report.replication import REPLICATE, Replicates, replicate_differences
+from src.report.replication import REPLICATE, RUN_FAILED_COLUMN, Replicates, replicate_differences
 from src.report.signed_rank import benjamini_hochberg
 from src.report.tables import item_means
 from src.report.verdicts import (
@@ -130,14 +131,16 @@ def _arm_keys(claim: Claim) -> list[str]:
     return list(dict.fromkeys([*keys, "task.scene"]))
 
 
-def claim_runs(claim: Claim, source: tuple[str, str], profile: str) -> pd.DataFrame:
-    """The claim's FINISHED runs from `source` at `profile` that match its `where`: the newest per
-    compared setting and seed (a bench: its newest run). Empty when there are none (or no experiment)."""
+def claim_runs(claim: Claim, source: tuple[str, str], profile: str, status: str = "FINISHED") -> pd.DataFrame:
+    """The claim's FINISHED (or FAILED) runs from `source` at `profile` that match its `where`: the newest
+    per compared setting and seed (a bench: its newest run). Empty when there are none (or no
+    experiment)."""
     where, tags = _source_filter(*source)
     report_cfg = {
         "experiment": claim.experiment,
         "tags": {**tags, "nrbench.profile": profile},
         "filter": where,
+        "status": status,
     }
     try:
         runs = find_runs(report_cfg, level=logging.DEBUG)  # one claim, source and profile of many: quietly
@@ -150,6 +153,26 @@ def claim_runs(claim: Claim, source: tuple[str, str], profile: str) -> pd.DataFr
     return keep_latest(runs, [] if claim.is_bench else _arm_keys(claim))
 
 
+def failed_runs(claim: Claim, source: tuple[str, str], profile: str, finished: pd.DataFrame) -> pd.DataFrame:
+    """The claim's runs that ended in an error (MLflow status FAILED) for a compared setting and seed that
+    has no finished run among `finished`: a training that crashed or diverged is its arm's loss on that
+    replicate, never a replicate left out (a requeued job that finished later replaces it). A bench has
+    no seeds: none."""
+    if claim.is_bench:
+        return pd.DataFrame()
+    failed = _compared_runs(claim, claim_runs(claim, source, profile, status="FAILED"))
+    if failed.empty:
+        return failed
+    keys = [param_column(a) for a in [*_arm_keys(claim), "seed"]]
+
+    def key(frame: pd.DataFrame) -> pd.Series:
+        columns = frame.reindex(columns=keys).map(canonical_value)
+        return columns.apply(lambda row: "|".join(row), axis=1)
+
+    done = set(key(finished)) if not finished.empty else set()
+    return failed[~key(failed).isin(done)]
+
+
 def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
     """The rounds table of the (newest) bench run, its columns (model, round, seconds) as is; empty when
     the run has none."""
@@ -158,10 +181,14 @@ def _bench_rounds(runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame() if rounds is None else rounds
 
 
-def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str]:
+def item_scores(
+    claim: Claim, runs: pd.DataFrame, failed: pd.DataFrame | None = None
+) -> tuple[pd.DataFrame, str]:
     """(scores, the arm-key prefix): one row per scored item of every run, with its value in column
     `value`, `failed` where the evaluation counted the item's output undefined, and what selects an arm
-    (`params.*`, or a bench table's own columns)."""
+    (`params.*`, or a bench table's own columns). `failed`: runs that ended in an error (`failed_runs`),
+    one row each, marked in `replication.RUN_FAILED_COLUMN`."""
+    failed = pd.DataFrame() if failed is None else failed
     if claim.per == "round":
         rounds = _bench_rounds(runs)
         if rounds.empty or claim.metric not in rounds:
@@ -172,19 +199,25 @@ def item_scores(claim: Claim, runs: pd.DataFrame) -> tuple[pd.DataFrame, str]:
     else:
         column = f"metrics.{claim.metric}"
         scored = runs[runs[column].notna() | _failed(runs, "run")] if column in runs else runs.iloc[0:0]
+    if not failed.empty:
+        # One row per failed run: no item of it was scored (replication.RUN_FAILED).
+        lost = failed[[c for c in failed.columns if c.startswith("params.") or c == "run_id"]]
+        scored = pd.concat([scored, lost.assign(**{RUN_FAILED_COLUMN: True})], ignore_index=True)
     if scored.empty:
         return scored, "params."
     return scored.assign(
-        value=scored[f"metrics.{claim.metric}"], failed=_failed(scored, claim.per)
+        value=scored.get(f"metrics.{claim.metric}", np.nan), failed=_failed(scored, claim.per)
     ), "params."
 
 
 def _failed(scores: pd.DataFrame, per: str) -> pd.Series:
-    """Items whose output was undefined (a share of frames > 0): their arm's worst outcome."""
+    """Items whose output was undefined (a share of frames > 0), and failed runs: their arm's worst
+    outcome."""
     column = UNDEFINED_COLUMN[per]
+    lost = scores[RUN_FAILED_COLUMN].fillna(False).astype(bool) if RUN_FAILED_COLUMN in scores else False
     if column not in scores:
-        return pd.Series(False, index=scores.index)
-    return pd.to_numeric(scores[column], errors="coerce").fillna(0.0) > 0
+        return pd.Series(False, index=scores.index) | lost
+    return (pd.to_numeric(scores[column], errors="coerce").fillna(0.0) > 0) | lost
 
 
 def arm_values(scores: pd.DataFrame, arm: Mapping[str, str], prefix: str, item: Sequence[str]) -> pd.Series:
@@ -395,8 +428,16 @@ def _numeric_first(value: str) -> tuple[int, float, str]:
         return (1, 0.0, value)
 
 
-def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: LedgerSettings, note: str):
-    """The ledger row of the claim's counted runs at `profile` from `source`."""
+def _row(
+    claim: Claim,
+    profile: str,
+    source,
+    runs: pd.DataFrame,
+    settings: LedgerSettings,
+    note: str,
+    failed: pd.DataFrame | None = None,
+):
+    """The ledger row of the claim's counted runs at `profile` from `source`, and of its failed runs."""
     common = dict(
         claim=claim,
         profile=profile,
@@ -414,7 +455,7 @@ def _row(claim: Claim, profile: str, source, runs: pd.DataFrame, settings: Ledge
         return LedgerRow(
             verdict=Verdict(CONFOUNDED, f"the compared runs are not matched: {confound}"), **common
         )
-    scores, prefix = item_scores(claim, runs)
+    scores, prefix = item_scores(claim, runs, failed)
     if claim.rule.kind == "agreement":
         return LedgerRow(verdict=_agreement(claim, scores, prefix), **common)
     prepared = _replicates(claim, scores, prefix)
@@ -441,7 +482,8 @@ def evaluate_claim(claim: Claim, settings: LedgerSettings | float = LedgerSettin
             if counted.empty:
                 notes.append(f"at {profile}: {note}")
                 continue
-            return _row(claim, profile, source, counted, settings, note)
+            failed, _ = _at_budget(claim, failed_runs(claim, source, profile, runs), settings)
+            return _row(claim, profile, source, counted, settings, note, failed)
     others = [
         p
         for p in settings.all_profiles

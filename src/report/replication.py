@@ -14,7 +14,11 @@ every seed) scores each image once, whatever the seed, so its replicate is the i
 
 A failed output (an undefined GP expression's NaN weights: the evaluation's `undefined` share > 0) is its
 arm's worst outcome on that item, never dropped: the per-image difference is -inf against the arm that
-failed (0 when both failed), and a replicate with such an image inherits it.
+failed (0 when both failed), and a replicate with such an image inherits it. A run that failed as a whole
+(its training crashed or diverged: MLflow status FAILED, no finished rerun) is its arm's worst outcome on
+that replicate: the replicate's difference is -inf against it (0 when both arms' runs failed). Where both
+arms are deterministic (the images are the replicates) a failed run has no image to stand for, so it
+counts only in the arm's undefined tally.
 """
 
 from __future__ import annotations
@@ -34,6 +38,10 @@ NESTED = {
     "run": ("params.task.scene",),
     "round": (),
 }
+#: The column marking a score row that stands for a whole failed run (no item of it was scored), and the
+#: item such a row is filed under.
+RUN_FAILED_COLUMN = "run_failed"
+RUN_FAILED = "(run failed)"
 #: Scores equal to within this relative difference under every seed make an arm deterministic.
 DETERMINISTIC_RTOL = 1e-9
 
@@ -69,7 +77,7 @@ def arm_table(scores: pd.DataFrame, per: str) -> pd.DataFrame:
     table = pd.DataFrame(
         {
             "replicate": _key(scores, ("round",) if per == "round" else REPLICATE),
-            "item": _key(scores, NESTED[per]),
+            "item": _key(scores, NESTED[per]).where(~_run_failed(scores), RUN_FAILED),
             "value": pd.to_numeric(scores["value"], errors="coerce").astype(float),
             "failed": scores["failed"].astype(bool) if "failed" in scores else False,
         }
@@ -80,6 +88,12 @@ def arm_table(scores: pd.DataFrame, per: str) -> pd.DataFrame:
     return table.groupby(["replicate", "item"], sort=True).agg(
         value=("value", "mean"), failed=("failed", "any")
     )
+
+
+def _run_failed(scores: pd.DataFrame) -> pd.Series:
+    if RUN_FAILED_COLUMN not in scores:
+        return pd.Series(False, index=scores.index)
+    return scores[RUN_FAILED_COLUMN].fillna(False).astype(bool)
 
 
 def is_deterministic(table: pd.DataFrame, learned: bool | None) -> bool:
@@ -124,6 +138,8 @@ def replicate_differences(
     `model.learned` where its runs log it."""
     a, b = arm_table(a_scores, per), arm_table(b_scores, per)
     undefined = (int(a["failed"].sum()), int(b["failed"].sum()))
+    lost = (_lost_replicates(a), _lost_replicates(b))
+    a, b = _scored_items(a), _scored_items(b)
     fixed = (is_deterministic(a, learned[0]), is_deterministic(b, learned[1]))
     if per == "round":
         d = _item_differences(a, b, higher, log).droplevel("item")
@@ -139,8 +155,40 @@ def replicate_differences(
     per_image = _item_differences(a, b, higher, log)
     with np.errstate(invalid="ignore"):
         d = per_image.groupby(level="replicate").mean().fillna(0.0)  # +inf and -inf in one replicate: 0
+    present = tuple(
+        None if fixed[i] else {*table.index.get_level_values("replicate"), *lost[i]}
+        for i, table in enumerate((a, b))
+    )
+    d = _with_lost_runs(d, lost, present, higher)
     images = per_image.index.get_level_values("item").nunique()
     return Replicates(d, "seeds", len(d), images, undefined, fixed)
+
+
+def _lost_replicates(table: pd.DataFrame) -> set[str]:
+    """The replicates whose run failed as a whole (module docstring)."""
+    items = table.index.get_level_values("item")
+    return set(table.index.get_level_values("replicate")[items == RUN_FAILED])
+
+
+def _scored_items(table: pd.DataFrame) -> pd.DataFrame:
+    return table[table.index.get_level_values("item") != RUN_FAILED]
+
+
+def _with_lost_runs(
+    d: pd.Series, lost: tuple[set[str], set[str]], present: tuple[set | None, set | None], higher: bool
+) -> pd.Series:
+    """`d` with each replicate whose run failed in one arm set to that arm's worst (-inf against a's loss
+    when higher is better), 0 where both failed; only where the other arm has the replicate (`present`:
+    None for a deterministic arm, which has every one)."""
+    worst_for_a = -np.inf if higher else np.inf
+    d = d.copy()
+    for replicate in sorted(lost[0] | lost[1]):
+        if not all(p is None or replicate in p for p in present):
+            continue
+        both = replicate in lost[0] and replicate in lost[1]
+        d.loc[replicate] = 0.0 if both else (worst_for_a if replicate in lost[0] else -worst_for_a)
+    d.index.name = "replicate"
+    return d.sort_index()
 
 
 def _broadcast(once: pd.DataFrame, other: pd.DataFrame) -> pd.DataFrame:
