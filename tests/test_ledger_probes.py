@@ -15,7 +15,7 @@ from mlflow.tracking import MlflowClient
 from src.report.claims import parse_claim
 from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim
 from src.report.matched_arms import off_profile_key, profile_keys
-from src.report.replication import replicate_differences
+from src.report.replication import RUN_FAILED_COLUMN, replicate_differences
 from src.report.signed_rank import signed_rank
 from src.report.verdicts import (
     CONFOUNDED,
@@ -443,3 +443,35 @@ def test_both_arms_failing_on_an_item_is_a_tie():
         a, _arm({0: [1.0, 1.0, 1.0]}), "image", False, False, learned=(False, False)
     )
     assert list(lower.difference)[-1] == np.inf  # lower is better: a failure is +inf in a - b
+
+
+def _lost_run(seed):
+    """A run of `seed` that failed as a whole: one row, no item (src.report.ledger.item_scores)."""
+    row = {"params.seed": [seed], "value": [np.nan], "failed": [True], RUN_FAILED_COLUMN: [True]}
+    return pd.DataFrame(row)
+
+
+def _with_lost(arm, seed):
+    # As in the ledger, where every run's rows are one frame: the failed run's missing spp makes the
+    # column float for all, so the other arm's spp is float too (`_float_spp`).
+    return pd.concat([arm, _lost_run(seed)], ignore_index=True)
+
+
+def _float_spp(arm):
+    return arm.astype({"spp": float})
+
+
+def test_a_failed_run_counts_only_on_a_seed_the_other_arm_has_and_a_baseline_has_every_seed():
+    a = _with_lost(_arm({s: 31 + 0.1 * s + np.arange(3.0) for s in range(5)}), 5)
+    b = _float_spp(_arm({s: 30 + np.arange(3.0) + 0.01 * s for s in range(5)}))  # learned, no seed 5
+    reps = replicate_differences(a, b, "image", True, False)
+    assert len(reps.difference) == 5 and np.isfinite(reps.difference).all() and reps.undefined == (1, 0)
+    baseline = _float_spp(_arm({0: 30 + np.arange(3.0)}))  # deterministic: it scored seed 5's images too
+    reps = replicate_differences(a, baseline, "image", True, False, learned=(True, False))
+    assert len(reps.difference) == 6 and reps.difference.iloc[-1] == -np.inf
+    lower = replicate_differences(a, baseline, "image", False, False, learned=(True, False))
+    assert lower.difference.iloc[-1] == np.inf  # lower is better: a's loss is +inf in a - b
+    # Both arms deterministic: the images are the replicates, and a failed run stands for none of them.
+    alone = _with_lost(_arm({0: 31 + np.arange(3.0)}), 1)
+    both = replicate_differences(alone, baseline, "image", True, False, (False, False))
+    assert (both.unit, len(both.difference), both.undefined) == ("images", 3, (1, 0))
