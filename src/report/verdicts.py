@@ -144,6 +144,15 @@ def better_verdict(
     return Verdict(REPRODUCED, numbers, **verdict)
 
 
+def _cannot_bound(numbers: str, n: int, unit: str, level: float, alpha: float, verdict: dict) -> Verdict:
+    """Underpowered: too few replicates for an interval that could lie inside a tolerance or margin."""
+    return Verdict(
+        UNDERPOWERED,
+        f"{numbers}; {n} {unit} cannot bound the shift at {level:.0%}: needs {min_items(alpha)} or more",
+        **verdict,
+    )
+
+
 def comparable_verdict(
     difference: pd.Series,
     names: tuple[str, str],
@@ -167,12 +176,7 @@ def comparable_verdict(
     )
     verdict = dict(items=n, estimate=result.estimate, low=result.low, high=result.high)
     if n < min_items(alpha):
-        return Verdict(
-            UNDERPOWERED,
-            f"{numbers}; {n} {unit} cannot bound the shift at {result.level:.0%}: "
-            f"needs {min_items(alpha)} or more",
-            **verdict,
-        )
+        return _cannot_bound(numbers, n, unit, result.level, alpha, verdict)
     if -tolerance <= result.low and result.high <= tolerance:
         return Verdict(REPRODUCED, numbers, **verdict)
     if result.low > tolerance or result.high < -tolerance:
@@ -205,12 +209,7 @@ def not_worse_verdict(
         items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
     )
     if n < min_items(alpha):
-        return Verdict(
-            UNDERPOWERED,
-            f"{numbers}; {n} {unit} cannot bound the shift at {result.level:.0%}: "
-            f"needs {min_items(alpha)} or more",
-            **verdict,
-        )
+        return _cannot_bound(numbers, n, unit, result.level, alpha, verdict)
     if result.low >= -tolerance:
         return Verdict(REPRODUCED, numbers, **verdict)
     if result.high < -tolerance:
