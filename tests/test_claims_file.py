@@ -61,9 +61,9 @@ RUN_KEYS = {*RUN_SOURCES, "experiment", "where"}
 PER = {"image", "run", "round"}
 NEEDS = {None, "gpu", "user_data"}
 RULE_KEYS = {
-    "better": {"kind", "a", "b", "b_metric", "size", "ratio"},
-    "comparable": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio"},
-    "not_worse": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio"},
+    "better": {"kind", "a", "b", "b_metric", "size", "ratio", "b_distinct"},
+    "comparable": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio", "b_distinct"},
+    "not_worse": {"kind", "a", "b", "b_metric", "tolerance", "tolerance_source", "ratio", "b_distinct"},
     "agreement": {"kind", "tolerance", "tolerance_source", "published"},
 }
 #: Rules whose tolerance must say where it comes from (a citation of the seed, or "project's own: ...").

@@ -278,6 +278,10 @@ def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
             ["rule.tolerance_source"],
         ),
         (lambda t: t.replace("kind: better", "kind: not_worse"), ["rule.tolerance", "None"]),
+        (
+            lambda t: t.replace("b: {model.name: dpcn}}", "b: {model.name: dpcn}, b_distinct: {x: 1}}"),
+            ["rule.b_distinct", "counts >= 2"],
+        ),
     ],
 )
 def test_a_malformed_claim_is_one_line_naming_its_key(tmp_path, edit, needles):

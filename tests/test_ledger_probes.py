@@ -23,6 +23,7 @@ from src.report.verdicts import (
     NOT_REPRODUCED,
     NOT_RUN,
     REPRODUCED,
+    UNDERPOWERED,
 )
 from tests.test_ledger import log_run
 
@@ -311,6 +312,20 @@ def test_keys_derived_from_the_arm_are_the_arms_own(probe_store, tmp_path, monke
     monkeypatch.setattr(matched_arms, "DERIVED_FROM", {})
     bare = evaluate_claim(claim, _settings(tmp_path))
     assert bare.verdict.status == CONFOUNDED and "task.feature_selection.random_seed" in bare.verdict.numbers
+
+
+def test_a_random_baseline_must_hold_the_draws_the_claim_asks_for(probe_store, tmp_path):
+    """The random arm drew its subset per seed (6 draws): enough for b_distinct 5 or 6, not for 7; the
+    greedy arm's single subset would be one draw."""
+    a, b = "{task.feature_selection.order: greedy}", "{task.feature_selection.order: random}"
+    for needed, status in ((5, REPRODUCED), (6, REPRODUCED), (7, UNDERPOWERED)):
+        claim = _claim("selection", a, b, extra=f", b_distinct: {{task.volume_features: {needed}}}")
+        row = evaluate_claim(claim, _settings(tmp_path))
+        assert row.verdict.status == status, (needed, row.verdict.numbers)
+    assert "holds 6 distinct task.volume_features over 6 run(s); the claim needs 7" in row.verdict.numbers
+    one_draw = _claim("selection", b, a, extra=", b_distinct: {task.volume_features: 2}")
+    row = evaluate_claim(one_draw, _settings(tmp_path))
+    assert row.verdict.status == UNDERPOWERED and "holds 1 distinct" in row.verdict.numbers
 
 
 def test_off_profile_keys_read_the_overrides():

@@ -54,7 +54,8 @@ class Rule:
     comparable or agreement tolerance comes from (a citation, or "project's own"). `ratio`: budget keys
     on which the arms differ by design, as b's value over a's (`{task.train.epochs: 2}`: DPCN trained
     twice as long as KPCN, as the thesis did); any other difference between the arms' runs is a
-    confound."""
+    confound. `b_distinct`: {key: n}, arm b's runs must hold at least n distinct values of the key (a
+    baseline drawn at random per seed, e.g. random feature subsets, is more than one draw)."""
 
     kind: str
     a: dict[str, str] = field(default_factory=dict)
@@ -65,6 +66,7 @@ class Rule:
     b_metric: str | None = None
     tolerance_source: str = ""
     ratio: dict[str, float] = field(default_factory=dict)
+    b_distinct: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -131,7 +133,10 @@ KEYS = {
     },
     "source": {"document", "section", "where", "quote", "translation", "budget"},
     "runs": {*RUN_SOURCES, "experiment", "where"},
-    "rule": {"kind", "a", "b", "b_metric", "size", "tolerance", "tolerance_source", "published", "ratio"},
+    "rule": {
+        *("kind", "a", "b", "b_metric", "size", "tolerance", "tolerance_source", "published", "ratio"),
+        "b_distinct",
+    },
     "published": {"arm", "where", "value"},
 }
 
@@ -191,13 +196,27 @@ def _rule(raw: Any, where: str) -> Rule:
             "b_metric)"
         )
     ratio = _ratios(raw.get("ratio"), f"{where}.ratio")
+    extra = dict(
+        b_metric=b_metric, ratio=ratio, b_distinct=_distinct(raw.get("b_distinct"), f"{where}.b_distinct")
+    )
     if kind in ("comparable", "not_worse"):
         tolerance = float(_get(raw, "tolerance", where, (int, float)))
         if tolerance <= 0:
             raise ConfigError(f"{where}.tolerance: {tolerance}; expected > 0")
         source = _get(raw, "tolerance_source", where)
-        return Rule(kind, a, b, tolerance=tolerance, b_metric=b_metric, tolerance_source=source, ratio=ratio)
-    return Rule(kind, a, b, size=float(raw.get("size") or 0.0), b_metric=b_metric, ratio=ratio)
+        return Rule(kind, a, b, tolerance=tolerance, tolerance_source=source, **extra)
+    return Rule(kind, a, b, size=float(raw.get("size") or 0.0), **extra)
+
+
+def _distinct(raw: Any, where: str) -> dict[str, int]:
+    """`rule.b_distinct`: {config key: the least number of distinct values arm b's runs must hold}."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, Mapping) or not all(
+        isinstance(n, int) and not isinstance(n, bool) and n >= 2 for n in raw.values()
+    ):
+        raise ConfigError(f"{where}: {raw!r}; expected a mapping of config keys to counts >= 2")
+    return {str(k): int(n) for k, n in raw.items()}
 
 
 def _ratios(raw: Any, where: str) -> dict[str, float]:

@@ -408,6 +408,21 @@ def _arm_budget(claim: Claim, runs: pd.DataFrame, settings: LedgerSettings) -> s
     return " | ".join(parts)
 
 
+def _too_few_draws(claim: Claim, runs: pd.DataFrame) -> str:
+    """Why arm b's runs hold too few distinct values of a `rule.b_distinct` key ("" when enough): a
+    baseline drawn at random once is one draw, however many seeds trained on it."""
+    b = runs[matching(runs, claim.rule.b)]
+    for key, needed in claim.rule.b_distinct.items():
+        column = f"params.{key}"
+        found = b[column].map(canonical_value).nunique() if column in b else 0
+        if found < needed:
+            return (
+                f"arm {_label(claim.rule.b)} holds {found} distinct {key} over {len(b)} run(s); the claim "
+                f"needs {needed} or more (rule.b_distinct): one draw stands for no distribution of draws"
+            )
+    return ""
+
+
 def run_budget(runs: pd.DataFrame, keys: Sequence[str]) -> str:
     """The runs' values of the budget `keys` they logged ("task.train.epochs 8, 16; task.train.batch_size
     16"), every distinct value of a key in sorted order, to print beside the seed's budget."""
@@ -458,6 +473,9 @@ def _row(
     scores, prefix = item_scores(claim, runs, failed)
     if claim.rule.kind == "agreement":
         return LedgerRow(verdict=_agreement(claim, scores, prefix), **common)
+    draws = _too_few_draws(claim, runs)
+    if draws:
+        return LedgerRow(verdict=Verdict(UNDERPOWERED, draws), **common)
     prepared = _replicates(claim, scores, prefix)
     if isinstance(prepared, str):
         return LedgerRow(verdict=Verdict(NOT_RUN, prepared), **common)
