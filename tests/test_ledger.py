@@ -150,7 +150,7 @@ def test_not_worse_bounds_the_lower_end_of_the_interval_by_the_margin():
     assert failed.status == NOT_REPRODUCED
     assert _not_worse(behind[:5], 1.0).status == UNDERPOWERED
     assert _not_worse([], 1.0).status == NOT_RUN
-    assert "not behind by more than 0.5x" in _not_worse(behind, math.log(2), log=True).numbers
+    assert "margin: at most 2x behind" in _not_worse(behind, math.log(2), log=True).numbers
 
 
 def test_agreement_needs_every_published_case():
@@ -222,8 +222,9 @@ def test_a_claims_seed_budget_is_its_documents_unless_it_names_its_own(tmp_path)
 
 
 def test_run_budget_lists_each_logged_keys_values_in_numeric_order():
-    runs = pd.DataFrame({"params.e": ["16", "8", "8", "100"], "params.b": ["x", "x", None, "x"]})
-    assert run_budget(runs, ["e", "b", "absent"]) == "e 8, 16, 100; b x"
+    runs = pd.DataFrame({"params.e": ["16", "8", "8", "100"], "params.b": ["x", "x", None, "None"]})
+    assert run_budget(runs, ["e", "b", "absent"]) == "e 8, 16, 100; b x"  # null, as logged: left out
+    assert run_budget(runs.assign(**{"params.b": "None"}), ["b"]) == ""
     assert run_budget(runs, []) == "" and run_budget(runs, ["absent"]) == ""
 
 
@@ -682,7 +683,7 @@ def test_a_not_worse_claim_outside_its_margin_is_not_reproduced(ledger_store, tm
     claims = LEDGER_CLAIMS.replace("tolerance: 1.5,", "tolerance: 0.5,")
     row = pd.read_csv(build_ledger(_ledger_cfg(ledger_store, tmp_path, claims))["paths"]["csv"])
     row = row.set_index("claim").loc["dpcn_not_worse_by_1_5db"]
-    assert row["status"] == NOT_REPRODUCED and "not behind by more than -0.5" in row["numbers"]
+    assert row["status"] == NOT_REPRODUCED and "margin: at most 0.5 behind" in row["numbers"]
     assert row["published"] == "not behind by more than 0.5 (t)"
 
 

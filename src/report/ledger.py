@@ -430,7 +430,8 @@ def run_budget(runs: pd.DataFrame, keys: Sequence[str]) -> str:
     for key in keys:
         column = f"params.{key}"
         if column in runs:
-            values = sorted(set(runs[column].dropna().astype(str)), key=_numeric_first)
+            logged = runs[column].dropna().astype(str)
+            values = sorted(set(logged[logged != "None"]), key=_numeric_first)  # MLflow logs null as "None"
             if values:
                 parts.append(f"{key} {', '.join(values)}")
     return "; ".join(parts)

@@ -202,8 +202,8 @@ def not_worse_verdict(
     result = signed_rank(advantage.to_numpy(float), alpha)
     numbers = (
         f"{names[0]} ahead of {names[1]} by {effect_text(result.estimate, log)} (Hodges-Lehmann), "
-        f"{_interval(result, log)} over {n} {unit}{nesting}; margin: not behind by more than "
-        f"{effect_text(-tolerance, log)}"
+        f"{_interval(result, log)} over {n} {unit}{nesting}; margin: at most "
+        f"{effect_text(tolerance, log).lstrip('+')} behind"
     )
     verdict = dict(
         items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
