@@ -210,6 +210,7 @@ def test_a_failed_training_is_its_arms_loss_on_that_seed_unless_a_rerun_finished
     assert row.verdict.status == REPRODUCED and row.replicates.unit == "seeds" and len(d) == 6
     assert d.iloc[0] == pytest.approx(1.0) and np.isinf(d.iloc[1:]).all() and (d.iloc[1:] > 0).all()
     assert row.replicates.undefined == (0, 5)
+    assert len(row.run_ids) == 6 + 1 + 5  # kpcn's, dpcn's rerun and its five failed runs
     reverse = evaluate_claim(
         _claim("crashes", "{model.name: dpcn}", "{model.name: kpcn}"), _settings(tmp_path)
     )

@@ -454,6 +454,8 @@ def _row(
     failed: pd.DataFrame | None = None,
 ):
     """The ledger row of the claim's counted runs at `profile` from `source`, and of its failed runs."""
+    failed = pd.DataFrame() if failed is None else failed
+    ids = [*runs.get("run_id", []), *failed.get("run_id", [])]
     common = dict(
         claim=claim,
         profile=profile,
@@ -462,7 +464,7 @@ def _row(
         commits=_provenance(runs, "tags.nrbench.git_commit"),
         fingerprints=_provenance(runs, "tags.nrbench.data_fingerprint"),
         not_counted=note,
-        run_ids=tuple(str(r) for r in runs.get("run_id", [])),
+        run_ids=tuple(str(r) for r in ids),  # the failed runs' too: they count as losses
         arm_budget=_arm_budget(claim, runs, settings) if not claim.is_bench else "",
         run_budget=run_budget(runs, settings.budget_shown),
     )
