@@ -5,6 +5,7 @@ word, a run whose budget was overridden counted at its profile. Each test also c
 its rule (the matched, declared or deterministic case that must still be decided)."""
 
 import textwrap
+from dataclasses import replace
 
 import mlflow
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from src.report.claims import parse_claim
-from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim
+from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim, item_scores
 from src.report.matched_arms import off_profile_key, profile_keys
 from src.report.replication import RUN_FAILED_COLUMN, replicate_differences
 from src.report.signed_rank import signed_rank
@@ -491,3 +492,22 @@ def test_a_failed_run_counts_only_on_a_seed_the_other_arm_has_and_a_baseline_has
     alone = _with_lost(_arm({0: 31 + np.arange(3.0)}), 1)
     both = replicate_differences(alone, baseline, "image", True, False, (False, False))
     assert (both.unit, len(both.difference), both.undefined) == ("images", 3, (1, 0))
+
+
+def test_an_undefined_held_out_output_fails_the_runs_eval_scores_not_its_search_or_time():
+    """A searched expression undefined on one held-out image (eval_undefined > 0): its held-out relMSE is
+    its worst outcome, but its search fitness and its running time were measured all the same."""
+    runs = pd.DataFrame(
+        {
+            "params.seed": ["0", "0"],
+            "params.model.name": ["a", "b"],
+            "metrics.eval_relmse": [0.1, 0.2],
+            "metrics.search_seconds": [10.0, 60.0],
+            "metrics.eval_undefined": [0.1, 0.0],
+        }
+    )
+    for metric, failed in (("eval_relmse", [True, False]), ("search_seconds", [False, False])):
+        claim = replace(_claim("x", "{model.name: a}", "{model.name: b}", metric), per="run")
+        scores, _ = item_scores(claim, runs)
+        assert list(scores["failed"]) == failed, metric
+        assert list(scores["value"]) == list(runs[f"metrics.{metric}"])

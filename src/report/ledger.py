@@ -198,7 +198,8 @@ def item_scores(
         scored = per_image_rows(runs, required=claim.metric)
     else:
         column = f"metrics.{claim.metric}"
-        scored = runs[runs[column].notna() | _failed(runs, "run")] if column in runs else runs.iloc[0:0]
+        failed_output = _failed(runs, "run", claim.metric)
+        scored = runs[runs[column].notna() | failed_output] if column in runs else runs.iloc[0:0]
     if not failed.empty:
         # One row per failed run: no item of it was scored (replication.RUN_FAILED).
         lost = failed[[c for c in failed.columns if c.startswith("params.") or c == "run_id"]]
@@ -206,16 +207,17 @@ def item_scores(
     if scored.empty:
         return scored, "params."
     return scored.assign(
-        value=scored.get(f"metrics.{claim.metric}", np.nan), failed=_failed(scored, claim.per)
+        value=scored.get(f"metrics.{claim.metric}", np.nan), failed=_failed(scored, claim.per, claim.metric)
     ), "params."
 
 
-def _failed(scores: pd.DataFrame, per: str) -> pd.Series:
+def _failed(scores: pd.DataFrame, per: str, metric: str) -> pd.Series:
     """Items whose output was undefined (a share of frames > 0), and failed runs: their arm's worst
-    outcome."""
+    outcome. Per run, an undefined held-out output fails only the evaluation's scores (`eval_*`): a
+    search's fitness or a training's time is defined whatever the held-out images gave."""
     column = UNDEFINED_COLUMN[per]
     lost = scores[RUN_FAILED_COLUMN].fillna(False).astype(bool) if RUN_FAILED_COLUMN in scores else False
-    if column not in scores:
+    if column not in scores or (per == "run" and not metric.startswith("eval_")):
         return pd.Series(False, index=scores.index) | lost
     return (pd.to_numeric(scores[column], errors="coerce").fillna(0.0) > 0) | lost
 
