@@ -100,14 +100,29 @@ LITERAL_RUN_METRICS = {
     "search_best": "src/tasks/filter_search.py",
     "search_best_so_far": "src/tasks/filter_search.py",
     "search_seconds": "src/tasks/filter_search.py",
+    "search_best_initial": "src/gp/run_metrics.py",
+    "search_best_midway": "src/gp/run_metrics.py",
+    "search_feature_top_rival": "src/gp/run_metrics.py",
+}
+#: Occurrences of each feature in a search's best expression (`search_feature_<name>`, src/gp/run_metrics.py).
+FEATURE_RUN_METRICS = {
+    f"search_feature_{name}" for name in ("normal", "texture", "depth", "directIllumination")
 }
 RUN_METRICS = {
     *LITERAL_RUN_METRICS,
+    *FEATURE_RUN_METRICS,
     *(f"eval_{s}" for s in IMAGE_METRICS),
     *(f"{split}_loss_{k}" for split in ("train", "val") for k in LOSSES),
 }
 #: Scores where higher is better; every other score the claims use is an error, a loss or a time.
-HIGHER_BETTER = {"psnr", "ssim", "tpsnr", "rays_per_s"}
+HIGHER_BETTER = {"psnr", "ssim", "tpsnr", "rays_per_s", "search_feature_normal"}  # (the last: more use)
+#: A run's two measures of one quantity that a claim may pair (metric, b_metric): a search's error at its end
+#: and at its start or middle; the normal's use and its most used rival's.
+SAME_QUANTITY = {
+    ("search_best_so_far", "search_best_initial"),
+    ("search_best_so_far", "search_best_midway"),
+    ("search_feature_normal", "search_feature_top_rival"),
+}
 #: Positive, scale-free scores whose ratios (log: true) mean something: errors, losses, times (a training's
 #: wall-clock train_time_s among them).
 RATIO_SCORES = re.compile(
@@ -270,7 +285,8 @@ def schema_errors(claims: list[dict]) -> list[str]:
             b_metric = rule.get("b_metric")
             if not rule.get("a") or not rule.get("b") or (rule["a"] == rule["b"] and b_metric is None):
                 errors.append(f"{name}: arms a and b must differ (or b have its b_metric) and be non-empty")
-            if b_metric is not None and (b_metric not in known or score_name(b_metric) != score_name(metric)):
+            same = score_name(b_metric or "") == score_name(metric) or (metric, b_metric) in SAME_QUANTITY
+            if b_metric is not None and (b_metric not in known or not same):
                 errors.append(
                     f"{name}: b_metric {b_metric!r}: not logged per {per}, or not {metric} of another method"
                 )
@@ -419,9 +435,14 @@ def study_errors(c: dict) -> list[str]:
         experiment = OmegaConf.select(base, "tracking.experiment")
         if experiment != c["runs"]["experiment"]:
             errors.append(f"{name}: experiment {c['runs']['experiment']!r}; the study logs to {experiment!r}")
+        rule = c["rule"]
+        # Two measures of the same runs (b_metric) may take every job of the study: a key all of them share.
+        whole_study = rule.get("b_metric") is not None and rule.get("a") == rule.get("b")
         for arm, where in arms(c):
             for key in arm:
-                if key not in varied:
+                if key not in varied and not (
+                    whole_study and all(matches(job, {key: arm[key]}) for job in jobs)
+                ):
                     errors.append(f"{name}: arm key {key!r} is not varied by {study_name} ({sorted(varied)})")
             wanted = {**arm, **where}
             if not any(matches(job, wanted) for job in jobs):

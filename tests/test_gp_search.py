@@ -1,9 +1,10 @@
 """The GP search (src/gp/search.py, its operators src/gp/variation.py and fitness src/gp/fitness.py;
-Davletaliyev 2016 Sec. 3.2) on tiny synthetic images, and `task=filter_search` end to end (slow)."""
+Davletaliyev 2016 Sec. 3.2) on tiny synthetic images, and `task=filter_search` end to end."""
 
 import json
 import os
 import random
+import re
 import subprocess
 import sys
 import zlib
@@ -289,7 +290,6 @@ def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
     FilterSearchTask().check_stages(["render", "search"], cfg)
 
 
-@pytest.mark.slow
 def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     """render + preprocess (on a copy of the fixture's data: this task's smoke split differs), search 2
     islands x 4 for 2 generations, eval of the best expression as gp_filter; then a resumed search
@@ -313,7 +313,17 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     validate_run(cfg)
     stages.render(cfg)
     stages.preprocess(cfg)
-    summary = stages.search(cfg, Tracker(None))
+
+    class Recorder(Tracker):
+        def __init__(self):
+            super().__init__(None)
+            self.logged: dict[str, float] = {}
+
+        def log_metrics(self, metrics, step=None):
+            self.logged |= dict(metrics)
+
+    recorder = Recorder()
+    summary = stages.search(cfg, recorder)
     out = tmp_path / "run" / "search"
     rows = yaml.safe_load((out / "best_expressions.yaml").read_text())
     assert len(rows) == 2 and rows[0]["fitness"] <= rows[1]["fitness"]
@@ -323,6 +333,15 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     history = json.loads((out / "history.json").read_text())
     assert [h["generation"] for h in history] == [0, 1, 2]
     assert [len(h["islands"]) for h in history] == [2, 2, 2]
+    # the end-of-search metrics, from history.json and the best expression's text (src/gp/run_metrics.py)
+    logged = recorder.logged
+    assert logged["search_best_initial"] == min(i["best"] for i in history[0]["islands"])
+    assert logged["search_best_midway"] == min(i["best"] for h in history[:2] for i in h["islands"])
+    assert logged["search_best_so_far"] == min(i["best"] for h in history for i in h["islands"])
+    for feature in ("normal", "depth", "color", "texture"):
+        assert logged[f"search_feature_{feature}"] == len(
+            re.findall(rf"\b{feature}\b", summary["best_expression"])
+        )
     result = stages.evaluate(cfg, Tracker(None))
     metrics = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
     assert metrics["model"] == "gp_filter" and result["mean"]["relmse"] < result["mean"]["noisy_relmse"]

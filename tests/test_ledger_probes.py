@@ -6,6 +6,7 @@ its rule (the matched, declared or deterministic case that must still be decided
 
 import textwrap
 from dataclasses import replace
+from pathlib import Path
 
 import mlflow
 import numpy as np
@@ -26,6 +27,7 @@ from src.report.verdicts import (
     REPRODUCED,
     UNDERPOWERED,
 )
+from tests.conftest import CONF_DIR
 from tests.test_ledger import log_run
 
 #: Ten held-out images on which filter a beats filter b in 7 and loses in 3: signed-rank p = 0.19 over
@@ -441,6 +443,19 @@ def test_scores_that_never_share_an_image_across_seeds_do_not_make_an_arm_determ
     assert replicate_differences(a, b, "image", True, False).deterministic == (False, False)
 
 
+def test_an_arm_said_to_be_learned_stays_replicated_by_seed_when_its_scores_repeat():
+    """Counts (a feature's occurrences) can come out equal under every seed: the config's `learned` still
+    decides, and only where it says nothing do equal scores make an arm deterministic."""
+    same = _arm({s: [2.0, 2.0] for s in range(6)})
+    other = _arm({s: [1.0 + s, 2.0] for s in range(6)})
+    assert replicate_differences(same, other, "image", True, False, (True, None)).deterministic == (
+        False,
+        False,
+    )
+    seen = replicate_differences(same, other, "image", True, False)
+    assert seen.deterministic == (True, False) and (seen.unit, len(seen.difference)) == ("seeds", 6)
+
+
 def test_a_deterministic_arm_scored_once_pairs_with_every_seed_of_the_learned_arm():
     a = _arm({s: 31 + 0.1 * s + np.arange(10.0) for s in range(6)})
     b = _arm({0: 30 + np.arange(10.0)})
@@ -511,3 +526,76 @@ def test_an_undefined_held_out_output_fails_the_runs_eval_scores_not_its_search_
         scores, _ = item_scores(claim, runs)
         assert list(scores["failed"]) == failed, metric
         assert list(scores["value"]) == list(runs[f"metrics.{metric}"])
+
+
+def _search_store(tmp_path, normal, rival):
+    """A `gp_population` study at cpu: per seed and population one search whose error fell from 1.0 at
+    generation 0 to 0.5 + 0.01 x seed by generation 10 and to 0.4 + ... by 20; the normal's and its top
+    rival's occurrences in the best expression per seed."""
+    client = MlflowClient()
+    exp = client.create_experiment("nrbench-filter_search", artifact_location=(tmp_path / "art").as_uri())
+    for seed in range(6):
+        for population in (8, 64):
+            params = {
+                "report.name": "sweeps/gp_population",
+                "task.name": "filter_search",
+                "model.name": "gp_filter",
+                "model.learned": "False",
+                "task.search.population": population,
+                "seed": seed,
+            }
+            metrics = {
+                "search_best_initial": 1.0,
+                "search_best_midway": 0.5 + 0.01 * seed,
+                "search_best_so_far": 0.4 + 0.01 * seed,
+                "search_feature_normal": float(normal[seed]),
+                "search_feature_top_rival": float(rival[seed]),
+            }
+            job = f"task.search.population={population} seed={seed} +sweep=gp_population profile=cpu"
+            log_run(client, exp, tmp_path, params, {**CPU, "nrbench.hydra_job": job}, metrics)
+
+
+@pytest.mark.parametrize(
+    ("normal", "rival", "status"),
+    [([4, 3, 4, 5, 3, 4], [2, 2, 2, 2, 2, 2], REPRODUCED), ([2] * 6, [2] * 6, NOT_DISTINGUISHABLE)],
+)
+def test_the_gp_generation_and_feature_claims_read_two_measures_of_the_same_runs(
+    tmp_path, normal, rival, status
+):
+    """The claims file's own GP claims that pair two run metrics of every search (`b_metric`) on a
+    hand-made store: the error fell in every run (both halves); the normal leads its rival on every seed,
+    or ties (the seed expression's two normals against its two depths)."""
+    from src.report.claims import load_claims
+
+    previous = mlflow.get_tracking_uri()
+    mlflow.set_tracking_uri(f"sqlite:///{tmp_path}/mlflow.db")
+    try:
+        _search_store(tmp_path, normal, rival)
+        claims = {c.id: c for c in load_claims(Path(CONF_DIR) / "claims.yaml")}
+        settings = _settings(tmp_path)
+        rows = {
+            name: evaluate_claim(claims[name], settings)
+            for name in (
+                "gp_error_falls_with_generations",
+                "gp_error_still_falls_in_second_half",
+                "gp_normal_is_the_most_used_feature",
+            )
+        }
+    finally:
+        mlflow.set_tracking_uri(previous)
+    falls = rows["gp_error_falls_with_generations"]
+    assert falls.verdict.status == REPRODUCED and falls.replicates.unit == "seeds"
+    assert falls.verdict.items == 6  # one replicate per seed, its two populations nested in it
+    # 1.0 -> 0.4 + 0.01 s: the mean log ratio per seed, then the Hodges-Lehmann estimate of the six
+    expected = np.log(np.array([1.0] * 6) / (0.4 + 0.01 * np.arange(6)))
+    assert np.sort(
+        -rows["gp_error_falls_with_generations"].replicates.difference.to_numpy()
+    ) == pytest.approx(np.sort(expected))
+    half = rows["gp_error_still_falls_in_second_half"]
+    assert half.verdict.status == REPRODUCED
+    assert -half.replicates.difference.to_numpy() == pytest.approx(
+        np.log((0.5 + 0.01 * np.arange(6)) / (0.4 + 0.01 * np.arange(6)))
+    )
+    feature = rows["gp_normal_is_the_most_used_feature"]
+    assert feature.verdict.status == status, feature.verdict.numbers
+    assert feature.replicates.difference.to_numpy() == pytest.approx(np.array(normal) - np.array(rival))

@@ -36,6 +36,7 @@ STUDIES = {
     "lr_search",
     "gp_expansion",
     "gp_population",
+    "gp_search_cost",
     "gp_bias_guard",
     "gp_rules",
     "unet_vs_kpcn",
@@ -84,8 +85,8 @@ def test_sweep_composes_with_its_report_and_every_swept_value(name, profile):
             for choice in override.sweep_string_iterator():
                 job = compose_sweep(name, [f"profile={profile}", f"{key}={choice}"])
                 assert key.startswith("+") or job[key].name == choice
-        elif not group:
-            assert OmegaConf.select(cfg, key) is not None, key
+        elif not group:  # a key of the config, possibly null (task.search.crop: whole images)
+            assert OmegaConf.select(cfg, key, default=KeyError) is not KeyError, key
 
 
 @pytest.mark.parametrize("name", sorted(STUDIES - {"lr_search", "nerf_thesis"}))
@@ -201,6 +202,20 @@ def test_the_gp_population_sweep_scales_with_the_profile():
     assert cfg.task.search.population == 16 and values == [8, 16, 32, 64]
     assert list(cfg.report.axes) == ["task.search.population"]
     assert _scale(4, 0.5, 1, 2, 4) == "2,4,8,16" and _scale(100, 0.5, 4) == "50,400" and _scale(1, 0.5) == "1"
+
+
+@pytest.mark.parametrize(
+    ("profile", "generations", "crops"), [("cpu", [10, 20], [64, 128]), ("paper", [100, 200], [360, 720])]
+)
+def test_the_gp_search_cost_sweep_halves_the_generations_and_the_image_height(profile, generations, crops):
+    """Figures 4.2-4.3's axes: half and all of the profile's generations, a centre crop of half and all of
+    the dataset's image height, read from the composed profile (not typed in the sweep)."""
+    cfg = compose_sweep("gp_search_cost", [f"profile={profile}"])
+    params = swept(cfg)
+    assert [int(v) for v in params["task.search.generations"].sweep_string_iterator()] == generations
+    assert [int(v) for v in params["task.search.crop"].sweep_string_iterator()] == crops
+    assert cfg.task.search.generations == generations[1] and cfg.dataset.height == crops[1]
+    assert list(cfg.report.axes) == ["task.search.generations", "task.search.crop"]
 
 
 @pytest.mark.parametrize(

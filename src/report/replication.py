@@ -98,9 +98,11 @@ def _run_failed(scores: pd.DataFrame) -> pd.Series:
 
 def is_deterministic(table: pd.DataFrame, learned: bool | None) -> bool:
     """Whether an arm scores each item the same under every replicate: said by its config (`learned`
-    false) or seen (two or more replicates, every item's finite scores equal to `DETERMINISTIC_RTOL`)."""
-    if learned is False:
-        return True
+    false: yes; true: no, its output depends on the seed even where a coarse score such as a count comes
+    out equal under every seed) or, where the config does not say, seen (two or more replicates, every
+    item's finite scores equal to `DETERMINISTIC_RTOL`)."""
+    if learned is not None:
+        return not learned
     if table.empty or table.index.get_level_values("replicate").nunique() < 2:
         return False
     values = table["value"].dropna()

@@ -67,6 +67,8 @@ COST_METRICS: dict[str, MetricSpec] = {
     "params": ("param_count", False, "{:,.0f}"),
     "train time (s)": ("train_time_s", False, "{:.1f}"),
     "iterations": ("steps", None, "{:,.0f}"),
+    # task=filter_search: the search alone (not its evaluation), src/tasks/filter_search.py
+    "search time (s)": ("search_seconds", False, "{:.1f}"),
     "ms / image": ("eval_ms_per_image", False, "{:.1f}"),
     "ms / MP": ("eval_ms_per_mpixel", False, "{:.1f}"),
 }
@@ -277,7 +279,7 @@ def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.Data
 
 
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
-    """Parameters, training time, iterations and inference time (per image and per megapixel)."""
+    """Parameters, training or search time, iterations and inference time (per image and per megapixel)."""
     return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
 
 
@@ -408,19 +410,6 @@ FEATURE_USAGE_METRICS: dict[str, MetricSpec] = {
 }
 
 
-def feature_counts(expression: str) -> Counter[str]:
-    """How often each feature terminal (a vector terminal but `pixel`, or a scalar variable) occurs in an
-    expression, as tree nodes: `distance2(depth, depth)` counts depth twice."""
-    from deap import gp
-
-    from src.gp.grammar import VARIABLES, VECTORS
-    from src.gp.text import parse
-
-    features = (set(VECTORS) - {"pixel"}) | set(VARIABLES)
-    nodes = parse(expression)
-    return Counter(str(n.value) for n in nodes if isinstance(n, gp.Terminal) and n.value in features)
-
-
 def feature_usage_table(runs: pd.DataFrame) -> pd.DataFrame | None:
     """Feature terminals of the runs' best expressions (tag `search.best_expression`, task=filter_search):
     per feature its `occurrences` (nodes, summed over the runs), their `share` of all feature occurrences,
@@ -428,6 +417,8 @@ def feature_usage_table(runs: pd.DataFrame) -> pd.DataFrame | None:
     "frequencies of occurrences of different features"). None when no run has a parsable expression."""
     if BEST_EXPRESSION_TAG not in runs:
         return None
+    from src.gp.run_metrics import feature_counts  # the GP grammar loads torch: only for search runs
+
     total: Counter[str] = Counter()
     used: Counter[str] = Counter()
     for expression in runs[BEST_EXPRESSION_TAG].dropna():

@@ -221,6 +221,7 @@ class FilterSearchTask(DenoiseTask):
         from tqdm import tqdm
 
         from src.gp.fitness import WORST
+        from src.gp.run_metrics import search_run_metrics
         from src.gp.search import load_state
         from src.io.atomic import atomic_write_json, atomic_write_text
         from src.train.device import pick_device
@@ -288,7 +289,10 @@ class FilterSearchTask(DenoiseTask):
             "images": meta,
             "features": available,
         }
-        tracker.log_metrics({"search_seconds": seconds}, step=state.generation)
+        finished = {"search_seconds": seconds} | search_run_metrics(
+            state.history, rows[0]["model"]["expression"]
+        )
+        tracker.log_metrics(finished, step=state.generation)
         seed_fitness = state.history[0]["islands"][0]["best"]
         print(
             f"search: best fitness {rows[0]['fitness']:.4f} (generation 0: {seed_fitness:.4f}"
