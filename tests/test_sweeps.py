@@ -37,6 +37,7 @@ STUDIES = {
     "gp_expansion",
     "gp_population",
     "gp_search_cost",
+    "kernel_vs_direct",
     "gp_bias_guard",
     "gp_rules",
     "unet_vs_kpcn",

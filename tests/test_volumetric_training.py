@@ -419,3 +419,31 @@ def test_a_selection_file_naming_an_unknown_feature_is_one_line_at_job_start(tmp
     (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
     DenoiseTask().resolve_at_job_start(cfg)
     assert list(cfg.task.volume_features) == ["color", "color.var", "sigma_t"]
+
+
+@pytest.mark.parametrize("model", ["kpcn", "dpcn"])
+def test_kernel_prediction_and_direct_regression_train_and_score_on_the_sequences(vol_data, tmp_path, model):
+    """The `kernel_vs_direct` study's two arms on the sequences' one radiance branch: each trains and
+    scores the held-out frames; DPCN regresses the colour directly, KPCN predicts kernels."""
+    cfg = smoke_config(
+        vol_data,
+        tmp_path,
+        ["dataset=volumetric", f"model={model}", *SMALL, *FAST_METRICS, "task.train.epochs=1"],
+    )
+    assert list(cfg.model.branches) == ["radiance"] and cfg.model.output == (
+        "direct" if model == "dpcn" else "kernel"
+    )
+    train(cfg, Tracker(None))
+    evaluate(cfg, Tracker(None))
+    rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
+    assert len(rows) == 2 and rows["psnr"].notna().all() and set(rows["frames"]) == {4}
+
+
+def test_dpcn_trains_twice_kpcns_epochs_on_the_sequences_at_cpu():
+    """The ratio the kpcn_beats_dpcn_volumetric rule declares ({task.train.epochs: 2}), read from the
+    composed configs of the study's two arms."""
+    epochs = {
+        m: compose_config(["dataset=volumetric", f"model={m}", "profile=cpu"]).task.train.epochs
+        for m in ("kpcn", "dpcn")
+    }
+    assert epochs == {"kpcn": 8, "dpcn": 16}
