@@ -20,7 +20,7 @@ def _run_to_continue(cfg: DictConfig, stages: list[str]) -> str | None:
     """The MLflow run this job appends to: a resumed training continues its checkpoint's run, and an
     evaluation of a trained checkpoint (e.g. DVC's separate eval stage) logs into the run that trained it,
     so one run holds a model's training curves and test metrics."""
-    from src.train.checkpoint import load_checkpoint
+    from src.train.checkpoint import checkpoint_run_id
 
     if "train" in stages:
         checkpoint = cfg.task.get("train", {}).get("resume")
@@ -29,7 +29,7 @@ def _run_to_continue(cfg: DictConfig, stages: list[str]) -> str | None:
         checkpoint = checkpoint if checkpoint and Path(checkpoint).is_file() else None
     else:
         checkpoint = None
-    return load_checkpoint(checkpoint).get("mlflow_run_id") if checkpoint else None
+    return checkpoint_run_id(checkpoint) if checkpoint else None
 
 
 def _tracked_run(cfg: DictConfig, stages: list[str]):

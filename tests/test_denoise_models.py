@@ -1,6 +1,8 @@
 """Learned denoisers: parameter counts at paper size, kernel application against a brute-force reference,
 whitening buffers, shared branches, tiled inference, FLOP counting, building from config and the benchmark."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -18,7 +20,7 @@ from src.models.denoise.networks import ConvStack, ResidualKernelNet
 from src.models.denoise.summary import flops_per_pixel, model_summary, random_batch
 from src.models.instantiate import build_method
 from src.models.parameters import count_parameters
-from tests.conftest import ROOT, assert_loads_from_legacy_checkpoint, compose_config, one_line_error
+from tests.conftest import CONF_DIR, ROOT, assert_loads_from_legacy_checkpoint, compose_config, one_line_error
 
 C_IN = len(PAPER_CHANNELS)
 
@@ -320,10 +322,26 @@ def test_a_missing_argument_is_named():
     one_line_error(excinfo, "model.depth", "missing", "conv_stack_denoiser")
 
 
-@pytest.mark.parametrize("name", ["dpcn", "kpcn", "resnet", "cross_bilateral", "oidn"])
+#: Every denoiser config under conf/model/ (the radiance fields, `family: nerf`, are not denoisers).
+DENOISER_CONFIGS = sorted(
+    p.stem for p in (Path(CONF_DIR) / "model").glob("*.yaml") if "family: nerf" not in p.read_text()
+)
+
+
+def test_the_denoiser_configs_are_found_by_their_files():
+    assert {"dpcn", "kpcn", "resnet", "unet_kpcn", "cross_bilateral", "oidn", "gp_filter"} <= set(
+        DENOISER_CONFIGS
+    )
+    assert not {"nerf", "mipnerf", "refnerf"} & set(DENOISER_CONFIGS)
+
+
+@pytest.mark.parametrize("name", DENOISER_CONFIGS)
+@pytest.mark.parametrize("dataset", ["procedural", "volumetric"])
 @pytest.mark.parametrize("profile", ["smoke", "cpu", "paper"])
-def test_every_denoiser_config_instantiates(name, profile):
-    cfg = compose_config([f"model={name}", f"profile={profile}"]).model
+def test_every_denoiser_config_instantiates_on_every_denoising_kind(name, dataset, profile):
+    """Each model config builds on the stills and on the sequences at every profile, and the config's
+    `learned` (what the runs log and the ledger reads) is the built method's (what the trainer reads)."""
+    cfg = compose_config([f"model={name}", f"dataset={dataset}", f"profile={profile}"]).model
     model = build_method(cfg)
     assert model.learned == cfg.learned and callable(model)
 

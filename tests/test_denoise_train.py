@@ -19,7 +19,7 @@ from src.metrics.image import relmse
 from src.models.instantiate import build_method
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
-from src.train.checkpoint import load_checkpoint, save_checkpoint
+from src.train.checkpoint import checkpoint_run_id, load_checkpoint, save_checkpoint
 from src.train.device import precision
 from src.train.objectives import BranchLosses, component_losses, objective
 from src.train.schedules import log_linear_lr
@@ -145,6 +145,35 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_
     final = load_checkpoint(summary["checkpoint"])["model"]
     for key, value in reference.model.state_dict().items():
         assert torch.equal(final[key], value.cpu()), key
+
+
+def test_the_run_id_of_a_checkpoint_is_read_without_its_weights(tmp_path, monkeypatch):
+    """`checkpoint_run_id` (what src/run.py continues) asks torch to map the tensors instead of reading
+    them, and gives the run id by value; a broken file is the same one line."""
+    weights = {"w": torch.arange(1_000, dtype=torch.float32)}
+    state = {
+        "model_config": {},
+        "model": weights,
+        "optimizer": {},
+        "epoch": 1,
+        "batch_in_epoch": 0,
+        "step": 9,
+    }
+    save_checkpoint(tmp_path / "run.pt", {**state, "mlflow_run_id": "abc123"})
+    save_checkpoint(tmp_path / "untracked.pt", state)
+    loads = []
+    real_load = torch.load
+    monkeypatch.setattr(torch, "load", lambda *a, **kw: loads.append(kw.get("mmap")) or real_load(*a, **kw))
+    assert checkpoint_run_id(tmp_path / "run.pt") == "abc123"
+    assert checkpoint_run_id(tmp_path / "untracked.pt") is None
+    assert load_checkpoint(tmp_path / "run.pt", mmap=True)["model"]["w"][-1] == 999  # mapped, same values
+    assert loads == [True, True, True]
+    load_checkpoint(tmp_path / "run.pt")  # a training's resume reads everything
+    assert loads[-1] is False
+    (tmp_path / "broken.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError) as err:
+        checkpoint_run_id(tmp_path / "broken.pt")
+    one_line_error(err, "broken.pt")
 
 
 def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_path):

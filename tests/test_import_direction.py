@@ -99,3 +99,28 @@ def test_a_data_module_importing_the_renderer_is_found(tmp_path):
 def test_lower_packages_never_import_training_evaluation_or_tasks(package):
     for path in (SRC / package).rglob("*.py"):
         assert not _imported_packages(path) & {"train", "eval", "tasks", "run"}, path
+
+
+def private_imports(src: Path = SRC) -> list[str]:
+    """Every private name (one leading underscore) a file imports from another module of src/, top level
+    or inside a function: a shared piece has a public name in its home module."""
+    found = []
+    for path in sorted(src.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("src"):
+                found += [
+                    f"{path.relative_to(src.parent)}: {node.module}.{alias.name}"
+                    for alias in node.names
+                    if alias.name.startswith("_") and not alias.name.startswith("__")
+                ]
+    return found
+
+
+def test_no_private_name_is_imported_across_modules(tmp_path):
+    assert private_imports() == []
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "m.py").write_text(
+        "from src.data.shards import shard_name as _name\n"
+        "def f():\n    from src.render.scenes import _hidden\n"
+    )
+    assert private_imports(tmp_path) == [f"{tmp_path.name}/data/m.py: src.render.scenes._hidden"]

@@ -29,9 +29,6 @@ from src.data.kpcn_buffers import KPCN_BUFFERS
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 
-#: The value of eps used by Bako et al. 2017 (configs pass it in; functions never assume it).
-BAKO_ALBEDO_EPS = 0.00316
-
 #: Buffers `make_network_inputs` needs, with their channel counts (from the KPCN convention).
 REQUIRED_BUFFERS = {
     b: len(KPCN_BUFFERS[b])

@@ -112,12 +112,12 @@ def read_index(directory: str | os.PathLike[str]) -> dict[str, Any]:
         raise DataError(f"{path}: malformed index ({e})") from e
 
 
-def _channels_first(a: np.ndarray) -> torch.Tensor:
+def channels_first(a: np.ndarray) -> torch.Tensor:
     """(..., H, W, C) numpy -> (..., C, H, W) contiguous float32 tensor."""
     return torch.from_numpy(np.ascontiguousarray(np.moveaxis(a, -1, -3), dtype=np.float32))
 
 
-def _image_rng(seed: int, scene: str, spp: int) -> np.random.Generator:
+def image_rng(seed: int, scene: str, spp: int) -> np.random.Generator:
     """A generator per image, from the seed and a stable hash of its name: independent of the order
     (and the subset) in which images are processed."""
     return np.random.default_rng([seed, zlib.crc32(scene.encode()), spp])
@@ -215,7 +215,7 @@ class _ShardWriter:
                 "noisy files or in none (render them again with stage=render)"
             )
         if split in ("train", "val"):
-            rng = _image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
+            rng = image_rng(self.sampling["sample_seed"], entry["scene"], entry["spp"])
             patches, corners, candidates, imp = _patches(image, noisy, rng, self.sampling, n_patches)
             if split == "train" and not self.figure_written:
                 title = f"{entry['scene']} {entry['spp']} spp: importance ({self.sampling['importance']})"
@@ -231,12 +231,12 @@ class _ShardWriter:
             if split == "train":
                 for k, m in self.moments.items():
                     m.update(patches[k])
-            shard = {k: _channels_first(v) for k, v in patches.items()}
+            shard = {k: channels_first(v) for k, v in patches.items()}
             shard["corners"] = torch.from_numpy(corners)
             save_tensors(self.out_dir / "patches" / split / entry["file"], shard)
             self.indices["patches", split].append({**entry, "n_patches": len(corners)})
         if split in ("val", "test"):
-            full = {k: _channels_first(v) for k, v in image.items()}
+            full = {k: channels_first(v) for k, v in image.items()}
             save_tensors(self.out_dir / "full" / split / entry["file"], full)
             h, w = image["color"].shape[:2]
             self.indices["full", split].append({**entry, "height": h, "width": w})

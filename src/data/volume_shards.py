@@ -57,7 +57,7 @@ from src.data.kpcn_preprocess import (
 )
 from src.data.patch_sampling import check_importance, configured_importance_map
 from src.data.sequence_patches import FRAMES_KEY, extract_sequence_patches, sample_sequence_patches
-from src.data.shards import _channels_first, _image_rng, save_tensors, shard_name
+from src.data.shards import channels_first, image_rng, save_tensors, shard_name
 from src.data.splits import SPLITS, split_scenes
 from src.data.volume_buffers import SECOND_REFERENCE_DIR, group_volume_dataset, volume_exr_name
 from src.data.volume_features import (
@@ -214,7 +214,7 @@ class _SequenceWriter:
                 p,
                 s["patches_per_sequence"],
                 k,
-                _image_rng(s["sample_seed"], entry["scene"], entry["spp"]),
+                image_rng(s["sample_seed"], entry["scene"], entry["spp"]),
                 candidates_factor=s["candidates_factor"],
                 min_keep_prob=s["min_keep_prob"],
                 min_distance=s["min_distance"],
@@ -224,12 +224,12 @@ class _SequenceWriter:
             }
             if split == "train":
                 self.moments.update(samples["inputs"])
-            shard = {key: _channels_first(v) for key, v in samples.items()}
+            shard = {key: channels_first(v) for key, v in samples.items()}
             shard |= {"starts": torch.from_numpy(starts), "corners": torch.from_numpy(corners)}
             save_tensors(self.out_dir / "patches" / split / entry["file"], shard)
             self.indices["patches", split].append({**entry, "n_samples": len(starts)})
         if split in FULL_SPLITS:
-            full = {key: _channels_first(v) for key, v in arrays.items()}
+            full = {key: channels_first(v) for key, v in arrays.items()}
             save_tensors(self.out_dir / "full" / split / entry["file"], full)
             h, w = arrays["color"].shape[1:3]
             self.indices["full", split].append({**entry, "height": h, "width": w})

@@ -65,12 +65,12 @@ def _random_rotation(rng: np.random.Generator):
 
 
 def _textured_diffuse(rng: np.random.Generator, p: Mapping) -> dict:
-    from src.render.scenes import _color, random_texture
+    from src.render.scenes import draw_color, random_texture
 
     if rng.random() < float(p["textured_fraction"]):
         reflectance = random_texture(rng, p)  # checkerboard or value-noise bitmap (checker_probability)
     else:
-        reflectance = {"type": "rgb", "value": _color(rng, p["color"])}
+        reflectance = {"type": "rgb", "value": draw_color(rng, p["color"])}
     return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": reflectance}}
 
 

@@ -26,7 +26,8 @@ WORLD_UP = [0, 1, 0]
 FLOOR_ROTATION = ([1, 0, 0], -90)
 
 
-def _uniform(rng: np.random.Generator, bounds) -> float:
+def draw_uniform(rng: np.random.Generator, bounds) -> float:
+    """A number uniform in ``bounds`` = [lo, hi] (a scene config's random range)."""
     lo, hi = bounds
     return float(rng.uniform(lo, hi))
 
@@ -49,7 +50,7 @@ def value_noise(
     return (out - out.min()) / max(out.max() - out.min(), 1e-12)
 
 
-def _color(rng: np.random.Generator, bounds) -> list[float]:
+def draw_color(rng: np.random.Generator, bounds) -> list[float]:
     """An RGB colour, each channel uniform in ``bounds`` = [lo, hi]."""
     lo, hi = bounds
     return [float(c) for c in rng.uniform(lo, hi, 3)]
@@ -59,11 +60,11 @@ def random_texture(rng: np.random.Generator, rnd: Mapping) -> dict:
     """A checkerboard (chance ``checker_probability``) or a tinted value-noise bitmap, generated on the fly;
     ``rnd`` is ``dataset.randomize`` (or a block with the same texture keys)."""
     if rng.random() < float(rnd["checker_probability"]):
-        scale = _uniform(rng, rnd["checker_scale"])
+        scale = draw_uniform(rng, rnd["checker_scale"])
         return {
             "type": "checkerboard",
-            "color0": {"type": "rgb", "value": _color(rng, rnd["color"])},
-            "color1": {"type": "rgb", "value": _color(rng, rnd["color"])},
+            "color0": {"type": "rgb", "value": draw_color(rng, rnd["color"])},
+            "color1": {"type": "rgb", "value": draw_color(rng, rnd["color"])},
             "to_uv": mi.ScalarTransform4f().scale([scale, scale, 1.0]),
         }
     noise = value_noise(
@@ -73,7 +74,7 @@ def random_texture(rng: np.random.Generator, rnd: Mapping) -> dict:
         int(rnd["noise_base_cells"]),
         float(rnd["noise_persistence"]),
     )[..., None]
-    a, b = np.array(_color(rng, rnd["color"])), np.array(_color(rng, rnd["color"]))
+    a, b = np.array(draw_color(rng, rnd["color"])), np.array(draw_color(rng, rnd["color"]))
     pixels = (a * (1 - noise) + b * noise).astype(np.float32)
     return {"type": "bitmap", "bitmap": mi.Bitmap(pixels), "raw": False}
 
@@ -81,11 +82,11 @@ def random_texture(rng: np.random.Generator, rnd: Mapping) -> dict:
 def random_material(rng: np.random.Generator, rnd: Mapping) -> dict:
     """One of diffuse (plain or textured), rough conductor, rough dielectric or rough plastic."""
     kind = rng.choice(list(rnd["materials"]))
-    alpha = _uniform(rng, rnd["roughness"])
+    alpha = draw_uniform(rng, rnd["roughness"])
     if rng.random() < float(rnd["textured_probability"]):
         reflectance = random_texture(rng, rnd)
     else:
-        reflectance = {"type": "rgb", "value": _color(rng, rnd["color"])}
+        reflectance = {"type": "rgb", "value": draw_color(rng, rnd["color"])}
     if kind == "diffuse":
         return {"type": "diffuse", "reflectance": reflectance}
     if kind == "conductor":
@@ -95,7 +96,7 @@ def random_material(rng: np.random.Generator, rnd: Mapping) -> dict:
             "alpha": alpha,
         }
     if kind == "dielectric":
-        return {"type": "roughdielectric", "alpha": alpha, "int_ior": _uniform(rng, rnd["ior"])}
+        return {"type": "roughdielectric", "alpha": alpha, "int_ior": draw_uniform(rng, rnd["ior"])}
     if kind == "plastic":
         return {"type": "roughplastic", "alpha": alpha, "diffuse_reflectance": reflectance}
     raise ConfigError(
@@ -104,20 +105,20 @@ def random_material(rng: np.random.Generator, rnd: Mapping) -> dict:
     )
 
 
-def _objects(rng: np.random.Generator, rnd: Mapping, layout: Mapping) -> dict:
+def scatter_objects(rng: np.random.Generator, rnd: Mapping, layout: Mapping) -> dict:
     """A few spheres and cubes (sizes ``object_size`` x ``layout.scale``) standing on ``layout.ground_y``
     within ``layout.spread`` of ``layout.centre`` along x and z."""
     centre, spread = layout["centre"], float(layout["spread"])
     ground_y, scale = float(layout["ground_y"]), float(layout["scale"])
     objs = {}
     for k in range(int(rng.integers(rnd["n_objects"][0], rnd["n_objects"][1] + 1))):
-        size = _uniform(rng, rnd["object_size"]) * scale
+        size = draw_uniform(rng, rnd["object_size"]) * scale
         x = centre[0] + rng.uniform(-spread, spread)
         z = centre[2] + rng.uniform(-spread, spread)
         shape = "sphere" if rng.random() < float(rnd["sphere_probability"]) else "cube"
         to_world = mi.ScalarTransform4f().translate([x, ground_y + size, z])
         if shape == "cube":
-            to_world = to_world.rotate(WORLD_UP, _uniform(rng, rnd["cube_rotation"])).scale(size)
+            to_world = to_world.rotate(WORLD_UP, draw_uniform(rng, rnd["cube_rotation"])).scale(size)
         else:
             to_world = to_world.scale(size)
         objs[f"object_{k}"] = {"type": shape, "to_world": to_world, "bsdf": random_material(rng, rnd)}
@@ -127,16 +128,16 @@ def _objects(rng: np.random.Generator, rnd: Mapping, layout: Mapping) -> dict:
 def _camera(rng: np.random.Generator, rnd: Mapping, origin, target) -> dict:
     return {
         "type": "perspective",
-        "fov": _uniform(rng, rnd["fov"]),
+        "fov": draw_uniform(rng, rnd["fov"]),
         "to_world": mi.ScalarTransform4f().look_at(origin=origin, target=target, up=WORLD_UP),
     }
 
 
 def _orbit(rng: np.random.Generator, rnd: Mapping, target, distance: float) -> list[float]:
     """A camera position on a sphere around ``target`` at a random azimuth and elevation."""
-    azimuth = np.radians(_uniform(rng, rnd["azimuth"]))
-    elevation = np.radians(_uniform(rng, rnd["elevation"]))
-    d = distance * _uniform(rng, rnd["camera_distance"])
+    azimuth = np.radians(draw_uniform(rng, rnd["azimuth"]))
+    elevation = np.radians(draw_uniform(rng, rnd["elevation"]))
+    d = distance * draw_uniform(rng, rnd["camera_distance"])
     return [
         float(target[0] + d * np.cos(elevation) * np.sin(azimuth)),
         float(target[1] + d * np.sin(elevation)),
@@ -149,12 +150,12 @@ def cornell(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
     scene = mi.cornell_box()
     for key in ("integrator", "small-box", "large-box"):
         scene.pop(key)
-    scale = _uniform(rng, rnd["light_scale"])
+    scale = draw_uniform(rng, rnd["light_scale"])
     emitter = scene["light"]["emitter"]
     emitter["radiance"]["value"] = [v * scale for v in emitter["radiance"]["value"]]
-    scene.update(_objects(rng, rnd, base["objects"]))
+    scene.update(scatter_objects(rng, rnd, base["objects"]))
     cam = base["camera"]
-    d = float(cam["distance"]) * _uniform(rng, rnd["camera_distance"])
+    d = float(cam["distance"]) * draw_uniform(rng, rnd["camera_distance"])
     origin = [rng.uniform(*cam["origin_x"]), rng.uniform(*cam["origin_y"]), d]
     target = [rng.uniform(*cam["target_x"]), rng.uniform(*cam["target_y"]), float(cam["target_z"])]
     scene["sensor"] = _camera(rng, rnd, origin, target)
@@ -168,11 +169,14 @@ def sky_envmap(rng: np.random.Generator, rnd: Mapping) -> np.ndarray:
     theta = (np.arange(h) + 0.5) / h * np.pi  # polar angle from +Y
     phi = (np.arange(w) + 0.5) / w * 2 * np.pi
     t = np.clip(np.cos(theta), 0, 1)[:, None, None]
-    zenith, horizon = np.array(_color(rng, rnd["sky_zenith"])), np.array(_color(rng, rnd["sky_horizon"]))
-    ground = np.array(_color(rng, rnd["sky_ground"]))
+    zenith, horizon = (
+        np.array(draw_color(rng, rnd["sky_zenith"])),
+        np.array(draw_color(rng, rnd["sky_horizon"])),
+    )
+    ground = np.array(draw_color(rng, rnd["sky_ground"]))
     sky = np.where(np.cos(theta)[:, None, None] > 0, horizon * (1 - t) + zenith * t, ground)
     sky = np.broadcast_to(sky, (h, w, 3)).copy()
-    sun_theta = np.radians(_uniform(rng, rnd["sun_elevation"]))
+    sun_theta = np.radians(draw_uniform(rng, rnd["sun_elevation"]))
     # The sun sits at azimuth 0 of the map; `env_rotation` turns the whole sky, so its azimuth varies there.
     sun_dir = np.array([np.sin(sun_theta), np.cos(sun_theta), 0.0])
     dirs = np.stack(
@@ -184,19 +188,19 @@ def sky_envmap(rng: np.random.Generator, rnd: Mapping) -> np.ndarray:
         -1,
     )
     sun = dirs @ sun_dir > np.cos(np.radians(rnd["sun_radius_deg"]))
-    sky[sun] = _uniform(rng, rnd["sun_intensity"])
-    return (sky * _uniform(rng, rnd["light_scale"])).astype(np.float32)
+    sky[sun] = draw_uniform(rng, rnd["sun_intensity"])
+    return (sky * draw_uniform(rng, rnd["light_scale"])).astype(np.float32)
 
 
 def _env(rng: np.random.Generator, rnd: Mapping) -> dict:
     return {
         "type": "envmap",
         "bitmap": mi.Bitmap(sky_envmap(rng, rnd)),
-        "to_world": mi.ScalarTransform4f().rotate(WORLD_UP, _uniform(rng, rnd["env_rotation"])),
+        "to_world": mi.ScalarTransform4f().rotate(WORLD_UP, draw_uniform(rng, rnd["env_rotation"])),
     }
 
 
-def _ground(rng: np.random.Generator, rnd: Mapping, plane: Mapping) -> dict:
+def textured_ground(rng: np.random.Generator, rnd: Mapping, plane: Mapping) -> dict:
     """A textured square of half-width ``plane.size`` lying flat at height ``plane.y``."""
     size, y = float(plane["size"]), float(plane["y"])
     return {
@@ -216,8 +220,8 @@ def _orbit_sensor(rng: np.random.Generator, rnd: Mapping, cam: Mapping) -> dict:
 
 def tabletop(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
     """A textured table top with a still life, lit by an area light and a dim rotated sky."""
-    scene = {"type": "scene", "table": _ground(rng, rnd, base["table"])}
-    scene.update(_objects(rng, rnd, base["objects"]))
+    scene = {"type": "scene", "table": textured_ground(rng, rnd, base["table"])}
+    scene.update(scatter_objects(rng, rnd, base["objects"]))
     light = base["light"]
     target = list(light["target"])
     light_pos = _orbit(rng, {**rnd, "elevation": light["elevation"]}, target, float(light["distance"]))
@@ -230,7 +234,7 @@ def tabletop(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
             "type": "area",
             "radiance": {
                 "type": "rgb",
-                "value": [float(light["radiance"]) * _uniform(rng, rnd["light_scale"])] * 3,
+                "value": [float(light["radiance"]) * draw_uniform(rng, rnd["light_scale"])] * 3,
             },
         },
     }
@@ -243,8 +247,8 @@ def tabletop(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
 
 def outdoor(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dict:
     """An open scene on a textured ground plane lit only by a rotated HDR sky with a sun."""
-    scene = {"type": "scene", "ground": _ground(rng, rnd, base["ground"]), "sky": _env(rng, rnd)}
-    scene.update(_objects(rng, rnd, base["objects"]))
+    scene = {"type": "scene", "ground": textured_ground(rng, rnd, base["ground"]), "sky": _env(rng, rnd)}
+    scene.update(scatter_objects(rng, rnd, base["objects"]))
     scene["sensor"] = _orbit_sensor(rng, rnd, base["camera"])
     return scene
 

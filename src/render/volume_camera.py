@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
-from src.render.scenes import WORLD_UP, _uniform
+from src.render.scenes import WORLD_UP, draw_uniform
 
 
 def look_at(origin, target, up=WORLD_UP) -> np.ndarray:
@@ -100,11 +100,11 @@ def camera_path(rng: np.random.Generator, rnd: Mapping, cam: Mapping, frame: flo
     target = np.array(
         [rng.uniform(-jitter, jitter), float(cam["target_height"]), rng.uniform(-jitter, jitter)]
     )
-    azimuth0 = _uniform(rng, rnd["azimuth"])
-    elevation = np.radians(_uniform(rng, cam["elevation"]))
-    distance0 = float(cam["distance"]) * _uniform(rng, rnd["camera_distance"])
-    fov = _uniform(rng, rnd["fov"])
-    orbit, dolly = _uniform(rng, rnd["orbit_speed"]), _uniform(rng, rnd["dolly_speed"])
+    azimuth0 = draw_uniform(rng, rnd["azimuth"])
+    elevation = np.radians(draw_uniform(rng, cam["elevation"]))
+    distance0 = float(cam["distance"]) * draw_uniform(rng, rnd["camera_distance"])
+    fov = draw_uniform(rng, rnd["fov"])
+    orbit, dolly = draw_uniform(rng, rnd["orbit_speed"]), draw_uniform(rng, rnd["dolly_speed"])
     azimuth = np.radians(azimuth0 + orbit * frame)
     d = distance0 * np.exp(dolly * frame)
     origin = target + d * np.array(

@@ -18,7 +18,7 @@ import mitsuba as mi
 import numpy as np
 
 from src.render import volume_grids as vg
-from src.render.scenes import _color, _uniform
+from src.render.scenes import draw_color, draw_uniform
 
 
 def medium_box(block: Mapping, centre_offset=(0.0, 0.0, 0.0)) -> vg.Box:
@@ -45,14 +45,14 @@ def _draw_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping) -> Medium
     lattices = vg.noise_lattices(rng, int(med["octaves"]))
     albedo_lattices = vg.noise_lattices(rng, 2)
     offset = rng.uniform(0, vg.LATTICE_PERIOD, 3)
-    speed, heading = _uniform(rng, rnd["wind_speed"]), np.radians(_uniform(rng, rnd["wind_azimuth"]))
+    speed, heading = draw_uniform(rng, rnd["wind_speed"]), np.radians(draw_uniform(rng, rnd["wind_azimuth"]))
     wind = speed * np.array([np.cos(heading), 0.0, np.sin(heading)])
-    evolve = _uniform(rng, rnd["evolve_speed"])
-    density_scale = _uniform(rng, med["density_scale"])
-    grey = sorted([_uniform(rng, med["albedo"]), _uniform(rng, med["albedo"])])
-    tint = np.array(_color(rng, rnd["albedo_tint"]))
+    evolve = draw_uniform(rng, rnd["evolve_speed"])
+    density_scale = draw_uniform(rng, med["density_scale"])
+    grey = sorted([draw_uniform(rng, med["albedo"]), draw_uniform(rng, med["albedo"])])
+    tint = np.array(draw_color(rng, rnd["albedo_tint"]))
     low, high = (list(np.clip(g * tint, 0.0, 1.0)) for g in grey)
-    g = _uniform(rng, med["g"])
+    g = draw_uniform(rng, med["g"])
     isotropic = rng.random() < float(rnd["isotropic_probability"])
     phase = {"type": "isotropic"} if isotropic else {"type": "hg", "g": g}
     return MediumDraw(lattices, albedo_lattices, offset, wind, evolve, density_scale, low, high, phase)
@@ -97,7 +97,7 @@ def cloud_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res:
     cells per feature size, advected by the wind and evolving in time."""
     draw = _draw_medium(rng, rnd, med)
     features = vg.worley_points(rng, vg.LATTICE_PERIOD)
-    coverage = _uniform(rng, med["coverage"])
+    coverage = draw_uniform(rng, med["coverage"])
     box = medium_box(med["box"])
     p = vg.voxel_centres(box, vg.grid_shape(box, grid_res))
     feature = float(med["feature_size"])
@@ -159,8 +159,8 @@ def fog_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res: i
     """Height fog over ``med.box``: exp(-h / H) above the box's floor (H from ``med.scale_height``),
     modulated by drifting fBm (``med.modulation``)."""
     draw = _draw_medium(rng, rnd, med)
-    scale_height = _uniform(rng, med["scale_height"])
-    modulation = _uniform(rng, med["modulation"])
+    scale_height = draw_uniform(rng, med["scale_height"])
+    modulation = draw_uniform(rng, med["modulation"])
     box, p, noise = _drifting_fbm(draw, med, grid_res, frame)
     density = vg.height_fog_density(p[..., 1] - box.lower[1], scale_height, noise, modulation)
     return _medium_dict(density, _albedo(p, draw, float(med["feature_size"]), frame), box, draw)
@@ -169,7 +169,7 @@ def fog_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res: i
 def haze_medium(rng: np.random.Generator, rnd: Mapping, med: Mapping, grid_res: int, frame: float) -> dict:
     """Thin, nearly uniform haze over ``med.box`` (fBm ``med.modulation``) for the sun's shafts."""
     draw = _draw_medium(rng, rnd, med)
-    modulation = _uniform(rng, med["modulation"])
+    modulation = draw_uniform(rng, med["modulation"])
     box, p, noise = _drifting_fbm(draw, med, grid_res, frame)
     albedo = _albedo(p, draw, float(med["feature_size"]), frame)
     return _medium_dict(vg.haze_density(noise, modulation), albedo, box, draw)

@@ -39,7 +39,15 @@ import mitsuba as mi
 import numpy as np
 
 from src.errors import ConfigError
-from src.render.scenes import WORLD_UP, _ground, _objects, _uniform, base_constants, sky_envmap, tabletop
+from src.render.scenes import (
+    WORLD_UP,
+    base_constants,
+    draw_uniform,
+    scatter_objects,
+    sky_envmap,
+    tabletop,
+    textured_ground,
+)
 from src.render.volume_camera import Camera, camera_path
 from src.render.volume_media import cloud_medium, fog_medium, haze_medium, medium_box, plume_medium
 
@@ -67,7 +75,7 @@ def _sky(rng: np.random.Generator, rnd: Mapping, scale: float) -> dict:
     return {
         "type": "envmap",
         "bitmap": mi.Bitmap(sky_envmap(rng, {**rnd, "sun_radius_deg": 0.0})),
-        "to_world": mi.ScalarTransform4f().rotate(WORLD_UP, _uniform(rng, rnd["env_rotation"])),
+        "to_world": mi.ScalarTransform4f().rotate(WORLD_UP, draw_uniform(rng, rnd["env_rotation"])),
         "scale": float(scale),
     }
 
@@ -75,13 +83,13 @@ def _sky(rng: np.random.Generator, rnd: Mapping, scale: float) -> dict:
 def _sun(rng: np.random.Generator, rnd: Mapping, sun: Mapping) -> dict:
     """A directional sun ``sun.zenith_angle`` degrees from the zenith, at a random azimuth, of irradiance
     ``sun.irradiance``."""
-    zenith = np.radians(_uniform(rng, sun["zenith_angle"]))
-    azimuth = np.radians(_uniform(rng, rnd["azimuth"]))
+    zenith = np.radians(draw_uniform(rng, sun["zenith_angle"]))
+    azimuth = np.radians(draw_uniform(rng, rnd["azimuth"]))
     to_sun = [np.sin(zenith) * np.sin(azimuth), np.cos(zenith), np.sin(zenith) * np.cos(azimuth)]
     return {
         "type": "directional",
         "direction": [-float(c) for c in to_sun],
-        "irradiance": {"type": "rgb", "value": _uniform(rng, sun["irradiance"])},
+        "irradiance": {"type": "rgb", "value": draw_uniform(rng, sun["irradiance"])},
     }
 
 
@@ -93,7 +101,7 @@ def _canopy(rng: np.random.Generator, canopy: Mapping) -> dict:
     turn = float(rng.uniform(0, 180))
     slats = {}
     for k, z in enumerate(np.linspace(-half, half, n)):
-        width = _uniform(rng, canopy["slat_width"])
+        width = draw_uniform(rng, canopy["slat_width"])
         slats[f"slat_{k}"] = {
             "type": "cube",
             "to_world": mi.ScalarTransform4f()
@@ -125,7 +133,7 @@ def _sunlit_ground(rng: np.random.Generator, rnd: Mapping, base: Mapping) -> dic
     (``base.sky_scale``) and a directional sun (``base.sun``), drawn in that order."""
     return {
         "type": "scene",
-        "ground": _ground(rng, rnd, base["ground"]),
+        "ground": textured_ground(rng, rnd, base["ground"]),
         "sky": _sky(rng, rnd, float(base["sky_scale"])),
         "sun": _sun(rng, rnd, base["sun"]),
     }
@@ -165,7 +173,7 @@ fog_objects.__doc__ = "The table-top layout scaled up to a ground with objects, 
 def godrays(rng: np.random.Generator, rnd: Mapping, base: Mapping, media: Callable[[Mapping], dict]) -> dict:
     """Objects on a ground in thin haze, a sun shining through a slatted canopy, and a sky."""
     scene = _sunlit_ground(rng, rnd, base)
-    scene.update(_objects(rng, rnd, base["objects"]))
+    scene.update(scatter_objects(rng, rnd, base["objects"]))
     scene.update(_canopy(rng, base["canopy"]))
     return _in_atmosphere(scene, media(base["medium"]))
 

@@ -34,7 +34,7 @@ from src.report.site import html_table
 from src.report.tables import (
     RUNS_COLUMN,
     MetricSpec,
-    _aggregate,
+    aggregate,
     axis_label,
     cells,
     to_csv,
@@ -90,7 +90,7 @@ def noisebase_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd
         }
         protocol = [f"metrics.{k}" for label, (k, _, _) in specs.items() if label not in OPTIONAL]
         logged = runs[[c for c in protocol if c in runs]].notna().any(axis=1)
-        frame = _aggregate(runs[logged], axes, specs).reset_index()  # columns: the labels, `<label> std`
+        frame = aggregate(runs[logged], axes, specs).reset_index()  # columns: the labels, `<label> std`
         frame.insert(0, SOURCE, MEASURED)
         frame["spp"] = spp
         parts.append(frame)

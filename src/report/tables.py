@@ -134,7 +134,7 @@ def _shown(values: pd.Series, key: str) -> bool:
     return bool(values.notna().any())
 
 
-def _aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, MetricSpec]) -> pd.DataFrame:
+def aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, MetricSpec]) -> pd.DataFrame:
     """Mean, std and count per distinct axis value, rows in order of first appearance."""
     columns = [param_column(a) for a in axes]
     labels = [axis_label(a) for a in axes]
@@ -176,7 +176,7 @@ def noisy_key(key: str) -> str:
 def with_noisy_row(
     table: pd.DataFrame, frame: pd.DataFrame, axes: Sequence[str], keep: Sequence[str] = ()
 ) -> pd.DataFrame:
-    """`table` (built by `_aggregate` from `frame` over `axes`) with the noisy input's scores as rows on
+    """`table` (built by `aggregate` from `frame` over `axes`) with the noisy input's scores as rows on
     top: its first axis `NOISY_ROW`, the other axes blank but those in `keep` (e.g. the held-out image of
     the per-image table: one noisy row per image). Each cell is the mean over the runs (or image rows) that
     logged the noisy score of the column's metric (`noisy_key`); a std only where they differ (runs on
@@ -196,7 +196,7 @@ def with_noisy_row(
             pseudo[column] = NOISY_ROW if i == 0 else ""
     for label, column in columns.items():
         pseudo[f"metrics.{specs[label][0]}"] = pd.to_numeric(frame.loc[logged, column])
-    noisy = _aggregate(pseudo, axes, {label: specs[label] for label in columns})
+    noisy = aggregate(pseudo, axes, {label: specs[label] for label in columns})
     for label in columns:  # identical data give identical noisy scores: a std of 0 is no spread
         std = noisy[f"{label} std"]
         noisy[f"{label} std"] = std.where(std.abs() > 1e-9 * noisy[label].abs())
@@ -227,7 +227,7 @@ def comparison_table(
         metrics = per_spp_metrics(runs, metrics)
     elif group_by:
         axes.append(group_by)
-    table = _aggregate(runs, axes, metrics)
+    table = aggregate(runs, axes, metrics)
     return with_noisy_row(table, runs, axes) if noisy else table
 
 
@@ -275,12 +275,12 @@ def loss_metrics(runs: pd.DataFrame) -> dict[str, MetricSpec]:
 
 def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Final validation and training losses per component (`loss_metrics`), mean ± std over seeds."""
-    return _aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
+    return aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
 
 
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training or search time, iterations and inference time (per image and per megapixel)."""
-    return _aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
+    return aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
 
 
 #: The columns of the per-image table (`per_image_table`): the scores of `eval/per_image.csv` by label.
@@ -305,7 +305,7 @@ def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> 
         **{param_column(IMAGE_AXIS): images["scene"].astype(str) + " " + images["spp"].astype(str) + "spp"}
     )
     axes = [*(axes or DEFAULT_AXES), IMAGE_AXIS]
-    return with_noisy_row(_aggregate(images, axes, PER_IMAGE_METRICS), images, axes, keep=[IMAGE_AXIS])
+    return with_noisy_row(aggregate(images, axes, PER_IMAGE_METRICS), images, axes, keep=[IMAGE_AXIS])
 
 
 #: label -> (per-image score, compared as logs (a ratio metric), higher is better): the scores the paired

@@ -26,6 +26,12 @@ FINAL_NAME = "final.pt"
 LAST_NAME = "last.pt"
 
 
+def checkpoint_run_id(path: str | os.PathLike[str]) -> str | None:
+    """The MLflow run that wrote a checkpoint (`mlflow_run_id`; None for one written without tracking),
+    without reading its weights: a resumed training or a later evaluation logs into that run."""
+    return load_checkpoint(path, mmap=True).get("mlflow_run_id")
+
+
 def save_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None:
     """Write `state` (must contain CHECKPOINT_KEYS except `format`) atomically: a crash mid-save leaves
     the previous checkpoint intact."""
@@ -33,9 +39,10 @@ def save_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None
         torch.save({"format": FORMAT, **state}, tmp)
 
 
-def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
+def load_checkpoint(path: str | os.PathLike[str], mmap: bool = False) -> dict[str, Any]:
     """Read a checkpoint (a file, or a directory holding `last.pt`); a missing, truncated or foreign file
-    raises a one-line DataError naming it."""
+    raises a one-line DataError naming it. `mmap`: map the tensors' storage from the file instead of
+    reading it (what only needs the small entries, such as the run id, reads no weights)."""
     path = Path(path)
     if path.is_dir():
         path = path / LAST_NAME
@@ -44,7 +51,7 @@ def load_checkpoint(path: str | os.PathLike[str]) -> dict[str, Any]:
     try:
         # weights_only=False: the optimiser state and RNG states are plain containers, but numpy RNG
         # state is not allow-listed; checkpoints are the user's own files, not downloaded ones.
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        state = torch.load(path, map_location="cpu", weights_only=False, mmap=mmap)
     except Exception as e:  # torch raises several types for a corrupt zip / pickle
         raise DataError(
             f"{path}: not a readable checkpoint ({type(e).__name__}: {e})".replace("\n", " ")

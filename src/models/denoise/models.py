@@ -54,8 +54,6 @@ class BranchDenoiser(Denoiser):
             buffers start at mean 0 / std 1 (a checkpoint load then fills them).
     """
 
-    learned = True
-
     def __init__(
         self,
         nets: Mapping[str, nn.Module],

@@ -162,7 +162,6 @@ class UNetKPCN(Denoiser):
     Any H x W is accepted: the frame is replicate-padded to multiples of 2^(S-1) and cropped back.
     """
 
-    learned = True
     branches = (RADIANCE_BRANCH,)
 
     def __init__(
