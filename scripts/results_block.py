@@ -50,9 +50,7 @@ def read_snapshot(path: Path) -> tuple[str, list[dict[str, str]]]:
     text = path.read_text(encoding="utf-8")
     first, _, body = text.partition("\n")
     if not first.startswith("# "):
-        raise SystemExit(
-            f"{path}: first line {first[:60]!r}; expected '# <how the ledger was written>'"
-        )
+        raise SystemExit(f"{path}: first line {first[:60]!r}; expected '# <how the ledger was written>'")
     rows = list(csv.DictReader(io.StringIO(body)))
     needed = {"claim", "category", "source", "status", "measured", "unit", "seeds", "images", "profile"}
     if not rows or not needed <= set(rows[0]):

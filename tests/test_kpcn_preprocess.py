@@ -9,21 +9,23 @@ from src.data.features import CANDIDATE_CHANNELS
 from src.data.kpcn_preprocess import (
     compute_whitening_stats,
     image_gradients,
-    inverse_log_modulus,
     load_whitening_stats,
-    log_modulus,
-    log_modulus_variance,
     make_network_inputs,
     make_targets,
     normalize_depth,
-    rebuild_color,
     save_whitening_stats,
+    whiten,
+)
+from src.data.transforms import (
+    inverse_log_modulus,
+    log_modulus,
+    log_modulus_variance,
+    rebuild_color,
     transform_diffuse,
     transform_diffuse_variance,
     transform_specular,
     transform_specular_variance,
     transform_specular_variance_thesis,
-    whiten,
 )
 from src.errors import ConfigError, DataError
 from tests.conftest import one_line_error

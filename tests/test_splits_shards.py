@@ -10,7 +10,7 @@ from torch.utils.data import DataLoader
 
 from src.data.denoise_dataset import FullImageDataset, PatchShardDataset
 from src.data.features import PAPER_CHANNELS
-from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats, rebuild_color
+from src.data.kpcn_preprocess import compute_whitening_stats, load_whitening_stats
 from src.data.shards import (
     GP_SHARD_KEYS,
     SAMPLING_FIGURE,
@@ -22,6 +22,7 @@ from src.data.shards import (
     save_tensors,
 )
 from src.data.splits import base_scene, group_dataset, parse_exr_name, patch_quota, split_scenes
+from src.data.transforms import rebuild_color
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from tests.conftest import one_line_error

@@ -8,7 +8,7 @@ import torch.nn.functional as F
 from omegaconf import OmegaConf
 
 from src.data.color_spaces import RadianceTransform
-from src.data.volume_shards import volume_transform
+from src.data.transforms import volume_transform
 from src.errors import ConfigError
 from src.models.denoise.base import final_color
 from src.models.denoise.kernels import SOFTMAX_FLOPS_PER_TAP

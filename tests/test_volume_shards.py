@@ -12,20 +12,20 @@ import numpy as np
 import pytest
 import torch
 
-from src.data.kpcn_preprocess import inverse_log_modulus, log_modulus, log_modulus_variance
 from src.data.sequence_dataset import SequenceDataset, SequencePatchDataset
+from src.data.transforms import (
+    inverse_log_modulus,
+    inverse_volume_transform,
+    log_modulus,
+    log_modulus_variance,
+)
 from src.data.volume_buffers import VOLUME_EXR_BUFFERS, parse_volume_exr_name, volume_exr_name
 from src.data.volume_features import (
     VOLUME_CANDIDATE_CHANNELS,
     VOLUME_FEATURE_BUFFERS,
     volume_feature_channels,
 )
-from src.data.volume_shards import (
-    SEQUENCE_CHANNELS,
-    inverse_volume_transform,
-    preprocess_volume_dataset,
-    sequence_arrays,
-)
+from src.data.volume_shards import SEQUENCE_CHANNELS, preprocess_volume_dataset, sequence_arrays
 from src.errors import ConfigError, DataError
 from tests.conftest import ROOT, cli_job, one_line_error, smoke_config
 

@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 import torch
 
+from src.data.transforms import inverse_volume_transform, volume_transform
 from src.data.volume_buffers import parse_volume_exr_name
 from src.data.volume_features import VALUE_KINDS, VOLUME_FEATURE_BUFFERS
 from src.data.volume_shards import (
     SEQUENCE_CHANNELS,
-    inverse_volume_transform,
     preprocess_volume_dataset,
     sequence_arrays,
     transform_pair,
-    volume_transform,
 )
 from src.errors import ConfigError, DataError
 from tests.conftest import one_line_error

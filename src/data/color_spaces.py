@@ -17,8 +17,7 @@ from collections.abc import Mapping
 
 import torch
 
-from src.data.kpcn_preprocess import rebuild_color
-from src.data.volume_shards import inverse_volume_transform
+from src.data.transforms import inverse_volume_transform, rebuild_color
 
 Tensors = Mapping[str, torch.Tensor]
 

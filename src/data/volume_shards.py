@@ -48,17 +48,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from src.data.kpcn_preprocess import (
-    RunningMoments,
-    inverse_log_modulus,
-    log_modulus,
-    log_modulus_variance,
-    save_whitening_stats,
-)
+from src.data.kpcn_preprocess import RunningMoments, save_whitening_stats
 from src.data.patch_sampling import check_importance, configured_importance_map
 from src.data.sequence_patches import FRAMES_KEY, extract_sequence_patches, sample_sequence_patches
 from src.data.shards import channels_first, image_rng, save_tensors, shard_name
 from src.data.splits import SPLITS, split_scenes
+from src.data.transforms import check_volume_transform, log_modulus, log_modulus_variance, volume_transform
 from src.data.volume_buffers import SECOND_REFERENCE_DIR, group_volume_dataset, volume_exr_name
 from src.data.volume_features import (
     NO_VARIANCE,
@@ -69,9 +64,6 @@ from src.data.volume_features import (
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 
-#: `task.preprocess.volume_transform` choices: Zhu et al. 2023's sign(x) log(1 + |x|), or linear.
-VOLUME_TRANSFORMS = ("log_modulus", "none")
-TRANSFORM_KEY = "task.preprocess.volume_transform"
 _RGB = ("r", "g", "b")
 #: Tensors of every sample / sequence, with their channel names.
 SEQUENCE_CHANNELS: dict[str, tuple[str, ...]] = {
@@ -98,23 +90,6 @@ REFERENCE_BUFFERS = ("color", "surface", "volume")
 _DISTANCES = tuple(b for b, kind in VALUE_KINDS.items() if kind == "distance")
 
 LoadFn = Callable[[Path, Sequence[str]], Mapping[str, np.ndarray]]
-
-
-def _check_transform(transform: str) -> None:
-    if transform not in VOLUME_TRANSFORMS:
-        raise ConfigError(f"{TRANSFORM_KEY}={transform!r}: expected one of {list(VOLUME_TRANSFORMS)}")
-
-
-def volume_transform(x, transform: str):
-    """The radiance transform `transform` names (numpy or torch): log_modulus, or none (identity)."""
-    _check_transform(transform)
-    return log_modulus(x) if transform == "log_modulus" else x
-
-
-def inverse_volume_transform(y, transform: str):
-    """Inverse of `volume_transform`: the linear radiance of a target or a network output."""
-    _check_transform(transform)
-    return inverse_log_modulus(y) if transform == "log_modulus" else y
 
 
 def transform_pair(
@@ -159,7 +134,7 @@ def sequence_arrays(
     """Everything stored for one noisy sequence (per-frame buffer dicts of the noisy and the reference
     frames, in order): {`SEQUENCE_KEYS` tensor: (F, H, W, C) float32}, channels as `SEQUENCE_CHANNELS`.
     Vectorised over frames."""
-    _check_transform(transform)
+    check_volume_transform(transform)
     if len(noisy) != len(reference):
         raise DataError(f"{what}: {len(noisy)} noisy frames, {len(reference)} reference frames")
     b = _stack(noisy, NOISY_BUFFERS, what)
@@ -367,7 +342,7 @@ def preprocess_volume_dataset(
     sequence, from the seed, the scene and the spp). Returns (and writes to summary.json) the counts and
     the settings. `second_reference` (`dataset.second_reference`): the whole val and test sequences also
     hold `reference2` (`second_reference_colour`; a one-line DataError when a held-out scene lacks it)."""
-    _check_transform(volume_transform)
+    check_volume_transform(volume_transform)
     check_importance(importance)
     settings = {
         "patch_size": patch_size,

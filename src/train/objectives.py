@@ -20,7 +20,7 @@ from typing import Any
 
 import torch
 
-from src.data.volume_shards import volume_transform
+from src.data.transforms import volume_transform
 from src.errors import DataError
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.train.losses import Loss

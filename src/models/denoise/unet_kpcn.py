@@ -44,7 +44,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from src.data.sequence_dataset import RADIANCE_BRANCH
-from src.data.volume_shards import VOLUME_TRANSFORMS, inverse_volume_transform, volume_transform
+from src.data.transforms import VOLUME_TRANSFORMS, inverse_volume_transform, volume_transform
 from src.errors import ConfigError
 from src.models.denoise.base import Batch, Denoiser, branch_input
 from src.models.denoise.kernels import apply_kernel, kernel_application_flops
