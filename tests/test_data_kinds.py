@@ -7,7 +7,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError
-from tests.conftest import ROOT, one_line_error, smoke_config
+from tests.conftest import ROOT, compose_config, one_line_error, smoke_config
 
 #: Each shipped dataset config, the kind it names, and the task that reads it.
 SHIPPED = {
@@ -164,6 +164,25 @@ def test_the_benchmark_composes_a_model_with_the_data_whose_branches_it_reads():
     assert load_model_config("unet_kpcn", "paper")["in_channels"] == 62
     kpcn = load_model_config("kpcn", "paper")
     assert kpcn["in_channels"] == 28 and kpcn["branches"] == ["diffuse", "specular"]
+
+
+def test_the_benchmark_data_of_a_model_is_named_never_guessed(monkeypatch):
+    """conf/compare.yaml's bench.data names the U-Net KPCN's data; a model it does not name, whose
+    branches the default data lack, and an explicit dataset without them are one-line errors (issue 44:
+    a new dataset, first in alphabetical order, once changed the U-Net KPCN's benchmarked inputs)."""
+    from src.bench import model_configs
+
+    assert compose_config().compare.bench.data == {"unet_kpcn": "volumetric"}
+    with pytest.raises(ConfigError) as err:
+        model_configs.load_model_config("unet_kpcn", "paper", dataset="procedural")
+    one_line_error(err, "dataset=procedural", "radiance", "expected a dataset with those branches")
+    real = model_configs._compose
+    monkeypatch.setattr(
+        model_configs, "_compose", lambda o, g, resolve=True: {} if g == "compare" else real(o, g, resolve)
+    )
+    with pytest.raises(ConfigError) as err:
+        model_configs.load_model_config("unet_kpcn", "paper")
+    one_line_error(err, "compare.bench.data.unet_kpcn: missing", "radiance", "procedural")
 
 
 def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_kind():

@@ -8,6 +8,7 @@ from typing import Any
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from src.errors import ConfigError
 from src.models.instantiate import resolve_target
 
 CONF_DIR = Path(__file__).resolve().parent.parent.parent / "conf"
@@ -19,26 +20,36 @@ def _compose(overrides: list[str], group: str, resolve: bool = True) -> dict[str
     return OmegaConf.to_container(cfg[group], resolve=resolve)  # type: ignore[return-value]
 
 
+#: The key of conf/compare.yaml that names a benchmarked model's data.
+BENCH_DATA_KEY = "compare.bench.data"
+
+
 def load_model_config(
     name: str, profile: str, task: str | None = None, dataset: str | None = None
 ) -> dict[str, Any]:
     """The `model:` group as `python -m src.run [task=<task>] [dataset=<dataset>] model=<name>
     profile=<profile>` composes it (conf/model_profile/<name>_<profile>.yaml included; `task=nerf` also
     sets the NeRF dataset that `model.background` refers to; `dataset=volumetric` gives the KPCN family
-    the sequences' one `radiance` branch and its `in_channels`, as the `unet_vs_kpcn` study trains it). A
-    model whose class reads branches the default data lack (the U-Net KPCN: the sequences' `radiance`)
-    is composed with the first `conf/dataset` that has them, so its `in_channels` are those of its data."""
+    the sequences' one `radiance` branch and its `in_channels`, as the `unet_vs_kpcn` study trains it).
+    Without `dataset`, a model whose class reads branches the default data lack (the U-Net KPCN: the
+    sequences' `radiance`) is composed with the data conf/compare.yaml names for it (`bench.data`), so
+    its `in_channels` are its data's; a model it does not name is a one-line ConfigError."""
     overrides = ([f"task={task}"] if task else []) + ([f"dataset={dataset}"] if dataset else [])
     overrides += [f"model={name}", f"profile={profile}"]
     model = _compose(overrides, "model")
     reads = set(getattr(resolve_target(model), "branches", ()))
-    if not reads or reads <= set(_compose(overrides, "dataset").get("branches") or ()):
+    default = _compose(overrides, "dataset", resolve=False)
+    if not reads or reads <= set(default.get("branches") or ()):
         return model
-    for dataset in sorted(p.stem for p in (CONF_DIR / "dataset").glob("*.yaml")):
-        data = _compose([*overrides, f"dataset={dataset}"], "dataset", resolve=False)
-        if reads <= set(data.get("branches") or ()):
-            return _compose([*overrides, f"dataset={dataset}"], "model")
-    return model
+    lacking = f"model {name} reads branches {sorted(reads)}, which dataset={default.get('name')} lacks"
+    if dataset is not None:
+        raise ConfigError(f"dataset={dataset}: {lacking}; expected a dataset with those branches")
+    named = _compose(overrides, "compare").get("bench", {}).get("data", {}).get(name)
+    if named is None:
+        raise ConfigError(
+            f"{BENCH_DATA_KEY}.{name}: missing; {lacking}; expected conf/compare.yaml to name its data"
+        )
+    return _compose([*overrides, f"dataset={named}"], "model")
 
 
 def load_dataset_config(task: str, profile: str) -> dict[str, Any]:

@@ -143,12 +143,18 @@ class NerfCompare(Schema):
     scenes: list[str]
 
 
+class BenchCompare(Schema):
+    data: dict[str, str]  # benchmarked model -> the dataset it is composed with (src/bench/model_configs.py)
+
+
 class Compare(Schema):
-    """conf/compare.yaml: the models and scenes the sweeps and dvc.yaml compare."""
+    """conf/compare.yaml: the models and scenes the sweeps and dvc.yaml compare, and the data the
+    benchmark composes a model with."""
 
     denoise: DenoiseCompare
     volumetric: VolumetricCompare
     nerf: NerfCompare
+    bench: BenchCompare
 
 
 class Render(Schema):
