@@ -505,3 +505,41 @@ def test_whitening_is_an_ablation_off_by_default(profile):
     assert "model.whiten: true,false" in (sweeps / "whitening.yaml").read_text()
     for sweep in ("denoisers", "shared_vs_separate"):
         assert "whiten" not in (sweeps / f"{sweep}.yaml").read_text(), sweep
+
+
+def test_a_new_kernel_predictor_is_one_network_maker_given_to_branch_denoiser():
+    """What docs/extending.md shows for a KPCN variant (a dilated backbone): a maker out_channels ->
+    network handed to the public `branch_denoiser` gets the branches, the kernel output, whitening and
+    sharing of DPCN/KPCN. With all kernel scores equal the output is the k x k box mean of each branch."""
+    from src.models.denoise.models import branch_denoiser
+
+    class Dilated(nn.Module):
+        def __init__(self, in_channels: int, out_channels: int) -> None:
+            super().__init__()
+            self.conv = nn.Conv2d(in_channels, out_channels, 3, padding=2, dilation=2)
+            nn.init.zeros_(self.conv.weight)
+            nn.init.zeros_(self.conv.bias)
+
+        def forward(self, x):
+            return self.conv(x)
+
+    in_channels = 5
+    model = branch_denoiser(
+        lambda out: Dilated(in_channels, out),
+        in_channels,
+        {"output": "kernel", "kernel_size": 3, "shared": False, "whiten": False},
+    )
+    assert model.branches == ("diffuse", "specular") and model.diffuse_net is not model.specular_net
+    assert model.diffuse_net.conv.out_channels == 9
+    batch = random_batch(8, 8, in_channels=in_channels, generator=torch.Generator().manual_seed(0))
+    out = model(batch)
+    for branch in ("diffuse", "specular"):
+        box = F.avg_pool2d(F.pad(batch[f"{branch}_t"], (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+        # interior pixels: the padding the kernel application uses at the border may differ from this one
+        assert torch.allclose(out[branch][..., 1:-1, 1:-1], box[..., 1:-1, 1:-1], atol=1e-5)
+    shared = branch_denoiser(
+        lambda out: Dilated(in_channels, out),
+        in_channels,
+        {"output": "direct", "shared": True, "whiten": False},
+    )
+    assert shared.diffuse_net is shared.specular_net and shared.diffuse_net.conv.out_channels == 3

@@ -169,7 +169,7 @@ def output_channels(output: str, kernel_size: int | None) -> int:
     return COLOR_CHANNELS
 
 
-def _branch_model(make_net: Callable[[int], nn.Module], in_channels: int, opts: BranchArgs) -> BranchDenoiser:
+def branch_denoiser(make_net: Callable[[int], nn.Module], in_channels: int, opts: BranchArgs) -> BranchDenoiser:
     """One network (shared) or one per branch, made in branch order, around the common output/whitening
     options (checked by `BranchDenoiser`; the kernel size first, as it sets the networks' output
     channels)."""
@@ -222,7 +222,7 @@ def conv_stack_denoiser(
 ) -> BranchDenoiser:
     """DPCN (`output: direct`) or KPCN (`output: kernel`, Bako et al. 2017): a `ConvStack` per branch."""
     make = conv_stack_maker(in_channels=in_channels, width=width, depth=depth, conv_kernel=conv_kernel)
-    return _branch_model(make, in_channels, opts)
+    return branch_denoiser(make, in_channels, opts)
 
 
 def residual_denoiser(
@@ -243,7 +243,7 @@ def residual_denoiser(
         conv_kernel=conv_kernel,
         predictor_width=predictor_width,
     )
-    return _branch_model(make, in_channels, opts)
+    return branch_denoiser(make, in_channels, opts)
 
 
 def _tile_starts(size: int, tile: int) -> range:
