@@ -212,7 +212,8 @@ def test_an_item_with_an_undefined_frame_has_an_undefined_cvvdp(vol_data, tmp_pa
 
 # -- the tables ---------------------------------------------------------------------------------------------
 def test_the_comparison_table_has_a_cvvdp_column_only_where_runs_log_it():
-    from src.report.tables import NOISY_ROW, best_rows, comparison_table
+    from src.report.table_writers import best_rows
+    from src.report.tables import NOISY_ROW, comparison_table
 
     runs = pd.DataFrame(
         [

@@ -21,7 +21,7 @@ import torch
 from src.errors import ConfigError, DataError
 from src.metrics import noisebase_protocol as nbp
 from src.report.noisebase_table import best_measured, noisebase_table
-from src.report.tables import to_markdown
+from src.report.table_writers import to_markdown
 from src.schema.run import validate_run
 from tests.conftest import one_line_error, smoke_config
 from tests.sequence_eval_stub import SCALES, stub_sequence_eval

@@ -186,7 +186,8 @@ def _study():
 
 
 def test_paired_table_compares_each_row_with_the_best_by_seed_and_image():
-    from src.report.tables import paired_table, to_markdown
+    from src.report.paired import paired_table
+    from src.report.table_writers import to_markdown
 
     table = paired_table(_study(), ["model.name"])
     row = {m: table.loc[(m,)] for m in "ABCD"}
@@ -206,7 +207,7 @@ def test_paired_table_compares_each_row_with_the_best_by_seed_and_image():
 
 
 def test_paired_table_needs_two_rows_and_compares_differences_where_a_ratio_is_zero():
-    from src.report.tables import paired_table
+    from src.report.paired import paired_table
 
     study = _study()
     assert paired_table(study[study["params.model.name"] == "A"], ["model.name"]) is None
@@ -221,7 +222,7 @@ def test_paired_table_compares_sequences_on_their_flicker_and_temporal_psnr():
     """Sequence rows carry per-item `flicker_unbiased` and `tpsnr`: lower flicker and higher tPSNR are
     best; an infinite tPSNR (an output changing exactly as its reference) pairs nothing instead of
     failing; still-image rows, which lack both, get no such columns."""
-    from src.report.tables import paired_table
+    from src.report.paired import paired_table
 
     study = _study()
     assert "Flicker vs truth" not in paired_table(study, ["model.name"])

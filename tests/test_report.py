@@ -19,7 +19,8 @@ from src.errors import ConfigError, DataError
 from src.report.build import build_report
 from src.report.collect import differing_params, find_runs, keep_latest
 from src.report.figures import curve_series
-from src.report.tables import comparison_table, cost_table, select_metrics, to_csv, to_latex, to_markdown
+from src.report.table_writers import to_csv, to_latex, to_markdown
+from src.report.tables import comparison_table, cost_table, select_metrics
 from tests.conftest import compose_config, one_line_error
 
 EXPERIMENT = "nrbench-denoise"

@@ -63,7 +63,9 @@ from src.report.html import render_html
 from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
 from src.report.noisebase_table import STEM as NOISEBASE_STEM
 from src.report.noisebase_table import noisebase_html, noisebase_table, write_noisebase_table
+from src.report.paired import paired_table
 from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
+from src.report.table_writers import to_csv, to_latex, to_markdown
 from src.report.tables import (
     BEST_EXPRESSION_TAG,
     axis_label,
@@ -72,13 +74,9 @@ from src.report.tables import (
     cost_table,
     feature_usage_table,
     loss_table,
-    paired_table,
     per_image_table,
     per_value_table,
     select_metrics,
-    to_csv,
-    to_latex,
-    to_markdown,
 )
 
 log = logging.getLogger("nrbench.report")

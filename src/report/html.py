@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from src.report.tables import MISSING, NOISY_ROW, cells
+from src.report.table_writers import cells
+from src.report.tables import MISSING, NOISY_ROW
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; }

@@ -39,9 +39,9 @@ from src.report.matched_arms import (
     off_profile_key,
     profile_keys,
 )
+from src.report.paired import item_means
 from src.report.replication import REPLICATE, RUN_FAILED_COLUMN, Replicates, replicate_differences
 from src.report.signed_rank import benjamini_hochberg
-from src.report.tables import item_means
 from src.report.verdicts import (
     CONFOUNDED,
     NOT_RUN,

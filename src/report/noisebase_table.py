@@ -31,16 +31,8 @@ import pandas as pd
 from src.io.atomic import atomic_write_text
 from src.report.collect import DEFAULT_AXES
 from src.report.site import html_table
-from src.report.tables import (
-    RUNS_COLUMN,
-    MetricSpec,
-    aggregate,
-    axis_label,
-    cells,
-    to_csv,
-    to_latex,
-    to_markdown,
-)
+from src.report.table_writers import cells, to_csv, to_latex, to_markdown
+from src.report.tables import RUNS_COLUMN, MetricSpec, aggregate, axis_label
 
 STEM = "noisebase"
 HEADING = "Noisebase protocol (Balint et al. 2023): measured here, then published"

@@ -17,8 +17,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 
 from src.errors import DataError
+from src.report.collect import DEFAULT_AXES, param_column
+from src.report.tables import MISSING, RUNS_COLUMN, MetricSpec, axis_label
 
 
 @dataclass(frozen=True)
@@ -63,3 +66,102 @@ def paired_difference(a: Sequence[float], b: Sequence[float], log: bool = False)
     if len(d) >= 2 and np.any(d != 0):
         p = float(stats.wilcoxon(d).pvalue)
     return Paired(len(d), float(d.mean()), int((d > 0).sum()), int((d < 0).sum()), p, log)
+
+
+# ------------------------------------------------------------------ the paired table of a study
+
+#: label -> (per-image score, compared as logs (a ratio metric), higher is better): the scores the paired
+#: table compares each row with the best row on (`paired_table`).
+PAIRED_METRICS: dict[str, tuple[str, bool, bool]] = {
+    "relMSE / noisy": ("relmse_ratio", True, False),
+    "PSNR": ("psnr", False, True),
+    # sequences only (absent elsewhere): the flicker against the truth (data with a second reference) and
+    # Noisebase's temporal PSNR
+    "Flicker vs truth": ("flicker_unbiased", False, False),
+    "tPSNR": ("tpsnr", False, True),
+}
+
+
+#: The significance level of the paired table's verdicts (two-sided).
+PAIRED_ALPHA = 0.05
+
+
+#: What identifies an item both rows were scored on: the seed and the held-out image.
+PAIRED_ITEM = ("params.seed", "scene", "spp")
+
+
+def item_means(part: pd.DataFrame, column: str, item: Sequence[str] = PAIRED_ITEM) -> pd.Series:
+    """The scores in `column` of one compared row (or arm) `part`, one per item (the `item` columns, "-"
+    for one `part` lacks); the mean where it has one item twice. Shared by the paired table and the
+    ledger (src/report/ledger.py)."""
+    index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in item]
+    scores = pd.to_numeric(part[column]).replace([np.inf, -np.inf], np.nan)
+    return scores.groupby(index).mean().dropna()  # an infinite tPSNR (a copy of the reference) pairs nothing
+
+
+def paired_table(
+    images: pd.DataFrame, axes: Sequence[str] | None = None, alpha: float = PAIRED_ALPHA
+) -> pd.DataFrame | None:
+    """Each compared row against the best row, paired by seed and held-out image (`src.report.paired`):
+    per metric of `PAIRED_METRICS` the row whose mean is best, then for every row the geometric-mean ratio
+    (relMSE / noisy) or mean difference (PSNR, dB) against it over their common items, the two-sided
+    Wilcoxon signed-rank p, and the verdict: `best`, `shown` (p < `alpha`) or `not shown` (the difference
+    stays inside the spread of seeds and images); `pairs` is the item count of the first metric. A table
+    of means cannot say whether a difference is a finding; this one can. None with fewer than two rows or
+    no per-image scores."""
+    if images.empty:
+        return None
+    labels = [axis_label(a) for a in (axes or DEFAULT_AXES)]
+    columns = [param_column(a) for a in (axes or DEFAULT_AXES)]
+    parts = [
+        images[c].fillna(MISSING).astype(str) if c in images else pd.Series(MISSING, index=images.index)
+        for c in columns
+    ]
+    keys = pd.Series(list(zip(*parts, strict=True)), index=images.index)  # one tuple per image row
+    rows = list(dict.fromkeys(keys))
+    if len(rows) < 2:
+        return None
+    row_images = {row: images[keys.map(lambda k, r=row: k == r)] for row in rows}
+    table = pd.DataFrame(index=pd.MultiIndex.from_tuples(rows, names=labels))
+    specs: dict[str, MetricSpec] = {}
+    for label, (column, log_scale, higher) in PAIRED_METRICS.items():
+        if f"metrics.{column}" not in images or images[f"metrics.{column}"].isna().all():
+            continue
+        scores = {row: item_means(row_images[row], f"metrics.{column}") for row in rows}
+        log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
+        scored = [row for row in rows if len(scores[row])]
+        if not scored:
+            continue
+        means = {
+            row: float(np.log(scores[row]).mean() if log_scale else scores[row].mean()) for row in scored
+        }
+        best = (max if higher else min)(scored, key=lambda r: means[r])
+        against, p_values, verdicts, pairs = [], [], [], []
+        for row in rows:
+            common = scores[row].index.intersection(scores[best].index)
+            if row == best or len(common) < 2:
+                against.append(math.nan if row != best else (1.0 if log_scale else 0.0))
+                p_values.append(math.nan)
+                verdicts.append("best" if row == best else MISSING)
+                pairs.append(len(common))
+                continue
+            result = paired_difference(scores[row][common], scores[best][common], log=log_scale)
+            against.append(result.ratio if log_scale else result.mean_difference)
+            p_values.append(result.p_value)
+            verdicts.append("shown" if result.shown(alpha) else "not shown")
+            pairs.append(result.n)
+        name = f"{label} vs best" + (" (ratio)" if log_scale else " (difference)")
+        table[name], table[f"{label} p"], table[label] = against, p_values, verdicts
+        specs |= {name: ("", None, "{:.3f}"), f"{label} p": ("", None, "{:.3g}"), label: ("", None, "{}")}
+        if "pairs" not in table:
+            table["pairs"] = pairs
+            specs["pairs"] = ("", None, "{:,.0f}")
+    if not specs:
+        return None
+    table[RUNS_COLUMN] = [
+        int(row_images[row]["run_id"].nunique()) if "run_id" in images else len(row_images[row])
+        for row in rows
+    ]
+    table.attrs["metrics"] = specs
+    table.attrs["axes"] = labels
+    return table

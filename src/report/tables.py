@@ -1,4 +1,5 @@
-"""Comparison and cost tables from MLflow runs, rendered as Markdown, LaTeX (booktabs) and CSV.
+"""Comparison and cost tables from MLflow runs (written by `src/report/table_writers.py`; the paired table
+of a study is `src/report/paired.py`'s).
 
 A table is a DataFrame with one row per distinct value of the compared axes (index, named by the axes'
 display labels, e.g. `model`), and per metric label `L` the columns `L` (mean over the row's runs, i.e.
@@ -10,12 +11,10 @@ higher_is_better None means "no best value" (e.g. iteration counts).
 from __future__ import annotations
 
 import logging
-import math
 import re
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
-import numpy as np
 import pandas as pd
 
 from src.errors import ConfigError
@@ -308,101 +307,6 @@ def per_image_table(images: pd.DataFrame, axes: Sequence[str] | None = None) -> 
     return with_noisy_row(aggregate(images, axes, PER_IMAGE_METRICS), images, axes, keep=[IMAGE_AXIS])
 
 
-#: label -> (per-image score, compared as logs (a ratio metric), higher is better): the scores the paired
-#: table compares each row with the best row on (`paired_table`).
-PAIRED_METRICS: dict[str, tuple[str, bool, bool]] = {
-    "relMSE / noisy": ("relmse_ratio", True, False),
-    "PSNR": ("psnr", False, True),
-    # sequences only (absent elsewhere): the flicker against the truth (data with a second reference) and
-    # Noisebase's temporal PSNR
-    "Flicker vs truth": ("flicker_unbiased", False, False),
-    "tPSNR": ("tpsnr", False, True),
-}
-#: The significance level of the paired table's verdicts (two-sided).
-PAIRED_ALPHA = 0.05
-#: What identifies an item both rows were scored on: the seed and the held-out image.
-PAIRED_ITEM = ("params.seed", "scene", "spp")
-
-
-def item_means(part: pd.DataFrame, column: str, item: Sequence[str] = PAIRED_ITEM) -> pd.Series:
-    """The scores in `column` of one compared row (or arm) `part`, one per item (the `item` columns, "-"
-    for one `part` lacks); the mean where it has one item twice. Shared by the paired table and the
-    ledger (src/report/ledger.py)."""
-    index = [part[c].astype(str) if c in part else pd.Series("-", index=part.index) for c in item]
-    scores = pd.to_numeric(part[column]).replace([np.inf, -np.inf], np.nan)
-    return scores.groupby(index).mean().dropna()  # an infinite tPSNR (a copy of the reference) pairs nothing
-
-
-def paired_table(
-    images: pd.DataFrame, axes: Sequence[str] | None = None, alpha: float = PAIRED_ALPHA
-) -> pd.DataFrame | None:
-    """Each compared row against the best row, paired by seed and held-out image (`src.report.paired`):
-    per metric of `PAIRED_METRICS` the row whose mean is best, then for every row the geometric-mean ratio
-    (relMSE / noisy) or mean difference (PSNR, dB) against it over their common items, the two-sided
-    Wilcoxon signed-rank p, and the verdict: `best`, `shown` (p < `alpha`) or `not shown` (the difference
-    stays inside the spread of seeds and images); `pairs` is the item count of the first metric. A table
-    of means cannot say whether a difference is a finding; this one can. None with fewer than two rows or
-    no per-image scores."""
-    from src.report.paired import paired_difference
-
-    if images.empty:
-        return None
-    labels = [axis_label(a) for a in (axes or DEFAULT_AXES)]
-    columns = [param_column(a) for a in (axes or DEFAULT_AXES)]
-    parts = [
-        images[c].fillna(MISSING).astype(str) if c in images else pd.Series(MISSING, index=images.index)
-        for c in columns
-    ]
-    keys = pd.Series(list(zip(*parts, strict=True)), index=images.index)  # one tuple per image row
-    rows = list(dict.fromkeys(keys))
-    if len(rows) < 2:
-        return None
-    row_images = {row: images[keys.map(lambda k, r=row: k == r)] for row in rows}
-    table = pd.DataFrame(index=pd.MultiIndex.from_tuples(rows, names=labels))
-    specs: dict[str, MetricSpec] = {}
-    for label, (column, log_scale, higher) in PAIRED_METRICS.items():
-        if f"metrics.{column}" not in images or images[f"metrics.{column}"].isna().all():
-            continue
-        scores = {row: item_means(row_images[row], f"metrics.{column}") for row in rows}
-        log_scale = log_scale and all(bool((v > 0).all()) for v in scores.values())  # else differences
-        scored = [row for row in rows if len(scores[row])]
-        if not scored:
-            continue
-        means = {
-            row: float(np.log(scores[row]).mean() if log_scale else scores[row].mean()) for row in scored
-        }
-        best = (max if higher else min)(scored, key=lambda r: means[r])
-        against, p_values, verdicts, pairs = [], [], [], []
-        for row in rows:
-            common = scores[row].index.intersection(scores[best].index)
-            if row == best or len(common) < 2:
-                against.append(math.nan if row != best else (1.0 if log_scale else 0.0))
-                p_values.append(math.nan)
-                verdicts.append("best" if row == best else MISSING)
-                pairs.append(len(common))
-                continue
-            result = paired_difference(scores[row][common], scores[best][common], log=log_scale)
-            against.append(result.ratio if log_scale else result.mean_difference)
-            p_values.append(result.p_value)
-            verdicts.append("shown" if result.shown(alpha) else "not shown")
-            pairs.append(result.n)
-        name = f"{label} vs best" + (" (ratio)" if log_scale else " (difference)")
-        table[name], table[f"{label} p"], table[label] = against, p_values, verdicts
-        specs |= {name: ("", None, "{:.3f}"), f"{label} p": ("", None, "{:.3g}"), label: ("", None, "{}")}
-        if "pairs" not in table:
-            table["pairs"] = pairs
-            specs["pairs"] = ("", None, "{:,.0f}")
-    if not specs:
-        return None
-    table[RUNS_COLUMN] = [
-        int(row_images[row]["run_id"].nunique()) if "run_id" in images else len(row_images[row])
-        for row in rows
-    ]
-    table.attrs["metrics"] = specs
-    table.attrs["axes"] = labels
-    return table
-
-
 BEST_EXPRESSION_TAG = "tags.search.best_expression"
 FEATURE_USAGE_METRICS: dict[str, MetricSpec] = {
     "occurrences": ("", None, "{:,.0f}"),
@@ -449,6 +353,9 @@ def feature_usage_table(runs: pd.DataFrame) -> pd.DataFrame | None:
 # ------------------------------------------------------------------------------------------ cells
 
 
+# -------------------------------------------------------------------------------------- renderers
+
+
 def metric_specs(table: pd.DataFrame) -> dict[str, MetricSpec]:
     """`table.attrs["metrics"]`; a `ValueError` when absent (pandas operations such as merge drop attrs),
     instead of rendering the table silently without its metric columns."""
@@ -458,135 +365,3 @@ def metric_specs(table: pd.DataFrame) -> dict[str, MetricSpec]:
             "cost_table / loss_table and keep their attrs"
         )
     return table.attrs["metrics"]
-
-
-def best_rows(table: pd.DataFrame) -> dict[str, set[int]]:
-    """Per metric label, the row positions holding its best mean (all of them on a tie); the noisy input's
-    row (`NOISY_ROW`) is never one."""
-    out: dict[str, set[int]] = {}
-    first = table.index.get_level_values(0).astype(str)
-    method = pd.Series(first != NOISY_ROW)  # the noisy input is no method: never the best
-    for label, (_, higher, _) in metric_specs(table).items():
-        # Means are floats already; a NaN (no run of the row logged the metric) is never the best.
-        values = pd.to_numeric(table[label], errors="coerce").reset_index(drop=True).where(method)
-        if higher is None or values.dropna().nunique() < 2:  # one value, or all tied: nothing stands out
-            continue
-        target = values.max() if higher else values.min()
-        out[label] = {i for i, v in values.items() if v == target}
-    return out
-
-
-def _fmt(value: float, fmt: str) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return MISSING
-    return fmt.format(value)
-
-
-def cells(
-    table: pd.DataFrame, best: Mapping[str, set[int]] | None = None
-) -> tuple[list[str], list[bool | None], list[list[tuple[str, str | None, bool]]]]:
-    """(header labels, per-column higher_is_better (None for axes/runs), rows of (mean text, std text or
-    None, bold)) for the renderers."""
-    metrics = metric_specs(table)
-    best = best_rows(table) if best is None else best
-    axes = list(table.index.names)
-    header = [str(a) for a in axes] + list(metrics) + [RUNS_COLUMN]
-    directions: list[bool | None] = [None] * len(axes) + [spec[1] for spec in metrics.values()] + [None]
-    rows = []
-    for i, (index, row) in enumerate(table.iterrows()):
-        keys = index if isinstance(index, tuple) else (index,)
-        line: list[tuple[str, str | None, bool]] = [(str(k), None, False) for k in keys]
-        for label, (_, _, fmt) in metrics.items():
-            std = row.get(f"{label} std", math.nan)  # a table without std columns shows means only
-            std_text = None if pd.isna(std) or row[RUNS_COLUMN] < 2 else _fmt(float(std), fmt)
-            line.append((_fmt(row[label], fmt), std_text, i in best.get(label, set())))
-        line.append((str(int(row[RUNS_COLUMN])), None, False))
-        rows.append(line)
-    return header, directions, rows
-
-
-def _arrow(higher: bool | None, up: str, down: str) -> str:
-    return "" if higher is None else f" {up if higher else down}"
-
-
-# -------------------------------------------------------------------------------------- renderers
-
-
-def _notes(notes: Iterable[str] | str | None) -> list[str]:
-    if notes is None:
-        return []
-    return [notes] if isinstance(notes, str) else [str(n) for n in notes]
-
-
-def to_markdown(table: pd.DataFrame, best: Mapping[str, set[int]] | None = None, notes=None) -> str:
-    """GitHub Markdown table; best value per metric column in **bold**, `mean ± std` over several runs.
-    `notes` (e.g. the differing-params warning) go above the table as block quotes."""
-    header, directions, rows = cells(table, best)
-
-    def esc(text: str) -> str:
-        return text.replace("|", "\\|")
-
-    heads = [esc(h) + _arrow(d, "↑", "↓") for h, d in zip(header, directions, strict=True)]
-    align = ["---" if d is None and i < len(table.index.names) else "---:" for i, d in enumerate(directions)]
-    lines = [f"> **Warning:** {esc(n)}\n" for n in _notes(notes)]
-    lines += ["| " + " | ".join(heads) + " |", "|" + "|".join(align) + "|"]
-    for row in rows:
-        texts = []
-        for mean, std, bold in row:
-            text = esc(mean if std is None else f"{mean} ± {std}")
-            texts.append(f"**{text}**" if bold else text)
-        lines.append("| " + " | ".join(texts) + " |")
-    return "\n".join(lines) + "\n"
-
-
-_LATEX_SPECIAL = {
-    "\\": r"\textbackslash{}",
-    "&": r"\&",
-    "%": r"\%",
-    "$": r"\$",
-    "#": r"\#",
-    "_": r"\_",
-    "{": r"\{",
-    "}": r"\}",
-    "~": r"\textasciitilde{}",
-    "^": r"\textasciicircum{}",
-}
-
-
-def latex_escape(text: str) -> str:
-    """Escape LaTeX's special characters (underscores in model names, `%`, ...)."""
-    return "".join(_LATEX_SPECIAL.get(ch, ch) for ch in str(text))
-
-
-def to_latex(table: pd.DataFrame, best: Mapping[str, set[int]] | None = None, notes=None) -> str:
-    """booktabs `tabular` (\\toprule, \\midrule, \\bottomrule); best value per column in \\textbf{};
-    `notes` as a full-width row under the table (and as `%` comments)."""
-    header, directions, rows = cells(table, best)
-    n_axes = len(table.index.names)
-    spec = "l" * n_axes + "r" * (len(header) - n_axes)
-    heads = [
-        latex_escape(h) + _arrow(d, r"$\uparrow$", r"$\downarrow$")
-        for h, d in zip(header, directions, strict=True)
-    ]
-    lines = [f"% Warning: {n}" for n in _notes(notes)]
-    lines += [f"\\begin{{tabular}}{{{spec}}}", r"\toprule", " & ".join(heads) + r" \\", r"\midrule"]
-    for row in rows:
-        texts = []
-        for mean, std, bold in row:
-            text = latex_escape(mean) if std is None else f"{latex_escape(mean)} $\\pm$ {latex_escape(std)}"
-            texts.append(f"\\textbf{{{text}}}" if bold else text)
-        lines.append(" & ".join(texts) + r" \\")
-    lines.append(r"\bottomrule")
-    for note in _notes(notes):
-        cell = f"\\footnotesize Warning: {latex_escape(note)}"
-        lines.append(f"\\multicolumn{{{len(header)}}}{{p{{0.95\\linewidth}}}}{{{cell}}} \\\\")
-    lines.append(r"\end{tabular}")
-    return "\n".join(lines) + "\n"
-
-
-def to_csv(table: pd.DataFrame, notes=None) -> str:
-    """Plain numbers: axis columns, then per metric `<label>` (mean) and `<label> std`, then `runs`.
-    `notes` become leading `# ` comment lines (read back with `pandas.read_csv(..., comment="#")`)."""
-    text = table.reset_index().to_csv(index=False, float_format="%.10g")
-    comments = "".join(f"# Warning: {n}\n" for n in _notes(notes))
-    return comments + text

@@ -169,7 +169,9 @@ def output_channels(output: str, kernel_size: int | None) -> int:
     return COLOR_CHANNELS
 
 
-def branch_denoiser(make_net: Callable[[int], nn.Module], in_channels: int, opts: BranchArgs) -> BranchDenoiser:
+def branch_denoiser(
+    make_net: Callable[[int], nn.Module], in_channels: int, opts: BranchArgs
+) -> BranchDenoiser:
     """One network (shared) or one per branch, made in branch order, around the common output/whitening
     options (checked by `BranchDenoiser`; the kernel size first, as it sets the networks' output
     channels)."""
