@@ -240,6 +240,12 @@ def test_arms_trained_at_different_budgets_are_confounded_unless_the_claim_decla
         _claim("budgets", a, b, extra=", ratio: {task.train.epochs: 2}"), _settings(tmp_path)
     )
     assert wrong.verdict.status == CONFOUNDED and "the claim declares 2" in wrong.verdict.numbers
+    # A study under way: one arm has no run yet. The claim says so; the ratio check does not fail on it.
+    absent = evaluate_claim(
+        _claim("budgets", a, "{model.name: resnet}", extra=", ratio: {task.train.epochs: 0.5}"),
+        _settings(tmp_path),
+    )
+    assert absent.verdict.status == NOT_RUN and "no psnr scores for arm resnet" in absent.verdict.numbers
 
 
 def test_runs_at_another_commit_or_on_other_data_are_confounded(probe_store, tmp_path):

@@ -141,6 +141,8 @@ def canonical_value(value: object) -> str:
 
 def _ratio_broken(key: str, a: pd.Series, b: pd.Series, ratio: float) -> str | None:
     va, vb = {canonical_value(v) for v in a}, {canonical_value(v) for v in b}
+    if not va or not vb:  # an arm without runs (a study under way): the claim reads "no scores for arm"
+        return None
     if len(va) > 1 or len(vb) > 1:
         return f"{key} varies within an arm ({sorted(va)} / {sorted(vb)})"
     try:
