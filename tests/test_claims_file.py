@@ -435,14 +435,9 @@ def study_errors(c: dict) -> list[str]:
         experiment = OmegaConf.select(base, "tracking.experiment")
         if experiment != c["runs"]["experiment"]:
             errors.append(f"{name}: experiment {c['runs']['experiment']!r}; the study logs to {experiment!r}")
-        rule = c["rule"]
-        # Two measures of the same runs (b_metric) may take every job of the study: a key all of them share.
-        whole_study = rule.get("b_metric") is not None and rule.get("a") == rule.get("b")
         for arm, where in arms(c):
             for key in arm:
-                if key not in varied and not (
-                    whole_study and all(matches(job, {key: arm[key]}) for job in jobs)
-                ):
+                if key not in varied:
                     errors.append(f"{name}: arm key {key!r} is not varied by {study_name} ({sorted(varied)})")
             wanted = {**arm, **where}
             if not any(matches(job, wanted) for job in jobs):

@@ -535,13 +535,15 @@ def test_an_undefined_held_out_output_fails_the_runs_eval_scores_not_its_search_
 
 
 def _search_store(tmp_path, normal, rival):
-    """A `gp_population` study at cpu: per seed and population one search whose error fell from 1.0 at
-    generation 0 to 0.5 + 0.01 x seed by generation 10 and to 0.4 + ... by 20; the normal's and its top
-    rival's occurrences in the best expression per seed."""
+    """A `gp_population` study at cpu: per seed, at the profile's population (16), one search whose error
+    fell from 1.0 at generation 0 to 0.5 + 0.01 x seed by generation 10 and to 0.4 + ... by 20, with the
+    normal's and its top rival's occurrences in the best expression; and one at population 64 whose
+    numbers would change every result if the claims read it."""
     client = MlflowClient()
     exp = client.create_experiment("nrbench-filter_search", artifact_location=(tmp_path / "art").as_uri())
     for seed in range(6):
-        for population in (8, 64):
+        for population in (16, 64):
+            other = population != 16
             params = {
                 "report.name": "sweeps/gp_population",
                 "task.name": "filter_search",
@@ -553,9 +555,9 @@ def _search_store(tmp_path, normal, rival):
             metrics = {
                 "search_best_initial": 1.0,
                 "search_best_midway": 0.5 + 0.01 * seed,
-                "search_best_so_far": 0.4 + 0.01 * seed,
-                "search_feature_normal": float(normal[seed]),
-                "search_feature_top_rival": float(rival[seed]),
+                "search_best_so_far": 0.9 if other else 0.4 + 0.01 * seed,
+                "search_feature_normal": 0.0 if other else float(normal[seed]),
+                "search_feature_top_rival": 9.0 if other else float(rival[seed]),
             }
             job = f"task.search.population={population} seed={seed} +sweep=gp_population profile=cpu"
             log_run(client, exp, tmp_path, params, {**CPU, "nrbench.hydra_job": job}, metrics)
@@ -568,7 +570,7 @@ def _search_store(tmp_path, normal, rival):
 def test_the_gp_generation_and_feature_claims_read_two_measures_of_the_same_runs(
     tmp_path, normal, rival, status
 ):
-    """The claims file's own GP claims that pair two run metrics of every search (`b_metric`) on a
+    """The claims file's own GP claims at cpu that pair two run metrics of each search (`b_metric`) on a
     hand-made store: the error fell in every run (both halves); the normal leads its rival on every seed,
     or ties (the seed expression's two normals against its two depths)."""
     from src.report.claims import load_claims
@@ -582,26 +584,26 @@ def test_the_gp_generation_and_feature_claims_read_two_measures_of_the_same_runs
         rows = {
             name: evaluate_claim(claims[name], settings)
             for name in (
-                "gp_error_falls_with_generations",
-                "gp_error_still_falls_in_second_half",
-                "gp_normal_is_the_most_used_feature",
+                "gp_error_falls_with_generations_cpu",
+                "gp_error_still_falls_in_second_half_cpu",
+                "gp_normal_is_the_most_used_feature_cpu",
             )
         }
     finally:
         mlflow.set_tracking_uri(previous)
-    falls = rows["gp_error_falls_with_generations"]
+    falls = rows["gp_error_falls_with_generations_cpu"]
     assert falls.verdict.status == REPRODUCED and falls.replicates.unit == "seeds"
-    assert falls.verdict.items == 6  # one replicate per seed, its two populations nested in it
+    assert falls.verdict.items == 6  # one replicate per seed: its run at the claim's population only
     # 1.0 -> 0.4 + 0.01 s: the mean log ratio per seed, then the Hodges-Lehmann estimate of the six
     expected = np.log(np.array([1.0] * 6) / (0.4 + 0.01 * np.arange(6)))
     assert np.sort(
-        -rows["gp_error_falls_with_generations"].replicates.difference.to_numpy()
+        -rows["gp_error_falls_with_generations_cpu"].replicates.difference.to_numpy()
     ) == pytest.approx(np.sort(expected))
-    half = rows["gp_error_still_falls_in_second_half"]
+    half = rows["gp_error_still_falls_in_second_half_cpu"]
     assert half.verdict.status == REPRODUCED
     assert -half.replicates.difference.to_numpy() == pytest.approx(
         np.log((0.5 + 0.01 * np.arange(6)) / (0.4 + 0.01 * np.arange(6)))
     )
-    feature = rows["gp_normal_is_the_most_used_feature"]
+    feature = rows["gp_normal_is_the_most_used_feature_cpu"]
     assert feature.verdict.status == status, feature.verdict.numbers
     assert feature.replicates.difference.to_numpy() == pytest.approx(np.array(normal) - np.array(rival))
