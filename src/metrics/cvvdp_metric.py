@@ -46,6 +46,7 @@ import torch
 
 from src.errors import ConfigError, DataError
 from src.metrics.image import tonemap
+from src.metrics.own_modules import import_own
 
 #: The package (PyPI name) whose code computes the number, recorded beside it.
 PACKAGE = "cvvdp"
@@ -123,7 +124,7 @@ def cvvdp_jod(
     """ColorVideoVDP JOD of the linear HDR sequence `frames` (F, H, W, 3) against `reference`, both tone
     mapped (`method`, `gamma`) and shown on `display` at `fps` (module docstring); higher is better,
     `JOD_MAX` for a copy of the reference."""
-    import pycvvdp  # lazy: module docstring (`_data_dir`)
+    pycvvdp = import_own("pycvvdp", "pycvvdp")  # lazy: module docstring (`_data_dir`); own `interp`
 
     check_display(display)
     if np.shape(frames) != np.shape(reference):

@@ -56,6 +56,7 @@ import torch
 
 from src.errors import DataError
 from src.metrics import noisebase_flip
+from src.metrics.own_modules import import_own
 
 #: Frames of each sequence the protocol skips (`warmup` of Noisebase's test8 and test32 configs).
 WARMUP = 16
@@ -86,9 +87,8 @@ def import_pyfvvdp():
             import numpy.lib._shape_base_impl as moved
 
             sys.modules["numpy.lib.shape_base"] = moved
-    from pyfvvdp import fvvdp
-
-    return fvvdp
+    package = import_own("pyfvvdp", "pyfvvdp")  # its own `interp`, not pycvvdp's (own_modules.py)
+    return package.fvvdp  # the package's metric class (pyfvvdp/__init__.py)
 
 
 # -- frames ----------------------------------------------------------------------------------------------
