@@ -45,8 +45,6 @@ from src.train.trainer import data_kind
 
 log = logging.getLogger(__name__)
 
-NAN = float("nan")
-
 #: Metrics averaged in metrics.json and logged to MLflow as eval_<name> (and eval_noisy_<name>); `temporal`
 #: (flicker) and `tpsnr` only where there are sequences, `flicker_unbiased` only where they have a second
 #: reference, `cvvdp` only for sequences with `metrics.cvvdp.enabled`.

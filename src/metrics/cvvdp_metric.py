@@ -46,7 +46,7 @@ import torch
 
 from src.errors import ConfigError, DataError
 from src.metrics.image import tonemap
-from src.metrics.own_modules import import_own
+from src.metrics.own_modules import import_own, package_dir
 
 #: The package (PyPI name) whose code computes the number, recorded beside it.
 PACKAGE = "cvvdp"
@@ -67,10 +67,10 @@ def version() -> str:
 def _data_dir() -> Path:
     """The package's `vvdp_data` folder, found without importing the package (it imports torch,
     matplotlib, scipy and huggingface_hub: seconds, paid only by a run that scores with it)."""
-    spec = importlib.util.find_spec("pycvvdp")
-    if spec is None or not spec.submodule_search_locations:
+    folder = package_dir("pycvvdp")
+    if folder is None:
         raise ConfigError("metrics.cvvdp: the cvvdp package is not installed (bash scripts/setup.sh)")
-    return Path(next(iter(spec.submodule_search_locations))) / "vvdp_data"
+    return folder / "vvdp_data"
 
 
 @cache

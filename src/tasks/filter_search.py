@@ -221,7 +221,7 @@ class FilterSearchTask(DenoiseTask):
         from tqdm import tqdm
 
         from src.gp.fitness import WORST
-        from src.gp.run_metrics import search_run_metrics
+        from src.gp.run_metrics import best_through, search_run_metrics
         from src.gp.search import load_state
         from src.io.atomic import atomic_write_json, atomic_write_text
         from src.train.device import pick_device
@@ -258,7 +258,7 @@ class FilterSearchTask(DenoiseTask):
             metrics["search_best"] = best["best"]
             # The thesis's Figures 4.6-4.7 measure: the minimum over every expression so far (Sec. 4.2);
             # search_best can rise again when a generation loses its best (little replication).
-            metrics["search_best_so_far"] = min(i["best"] for h in s.history for i in h["islands"])
+            metrics["search_best_so_far"] = best_through(s.history, s.generation)
             tracker.log_metrics(metrics, step=s.generation)
             tracker.set_tags({"search.best_expression": best["best_expression"][:4000]})
             if s.generation > 0:
