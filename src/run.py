@@ -63,9 +63,9 @@ def main(cfg: DictConfig) -> dict[str, dict]:
     objective from it, e.g. `train.val_loss_color`)."""
     results: dict[str, dict] = {}
     try:
-        validate_run(cfg)  # every value checked before any data is read or any file written
+        task = task_of(cfg)  # with its data kind, built once for the whole job
+        validate_run(cfg, task)  # every value checked before any data is read or any file written
         stages = stages_to_run(cfg)
-        task = task_of(cfg)
         task.resolve_at_job_start(cfg)
         task.check_stages(stages, cfg)
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
@@ -73,10 +73,10 @@ def main(cfg: DictConfig) -> dict[str, dict]:
         with _tracked_run(cfg, in_run) as tracker:
             for name in in_run:
                 log.info("stage %s", name)
-                results[name] = STAGES[name](cfg, tracker)
+                results[name] = STAGES[name](cfg, tracker, task=task)
         for name in (s for s in stages if s in AFTER_RUN):
             log.info("stage %s", name)
-            results[name] = STAGES[name](cfg, None)
+            results[name] = STAGES[name](cfg, None, task=task)
         return results
     except NrbenchError as err:
         # One line for the user; the traceback adds nothing for a bad input or config value.

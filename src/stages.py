@@ -1,7 +1,9 @@
 """The pipeline stages ``python -m src.run`` dispatches; each reads files and writes files only.
 
 Every stage is runnable alone (DVC calls them one at a time) and writes a JSON summary that carries
-the resolved config, the git commit and the fingerprint of the data it read.
+the resolved config, the git commit and the fingerprint of the data it read. A job builds its task (and
+with it the data kind) once, `task_of`, and passes it to each stage it runs as `task=`; a stage called
+without one builds its own.
 """
 
 from __future__ import annotations
@@ -20,10 +22,11 @@ log = logging.getLogger(__name__)
 
 
 def task_of(cfg: DictConfig):
-    """The task object `task._target_` names (src/tasks/): what each stage means for this task."""
+    """The task object `task._target_` names (src/tasks/), with its data kind: what each stage means for
+    this task and these data (`Task.for_run`)."""
     from src.models.instantiate import resolve_target
 
-    return resolve_target(cfg.task, "task")()
+    return resolve_target(cfg.task, "task").for_run(cfg)
 
 
 def require_inputs(task, stage: str, cfg: DictConfig) -> None:
@@ -38,34 +41,34 @@ def require_inputs(task, stage: str, cfg: DictConfig) -> None:
             raise DataError(f"{path}: not found, {stage} needs it; run {producer} first")
 
 
-def _start_tracked(cfg: DictConfig, stage: str, tracker):
-    """The task of a stage that logs to MLflow, after checking its inputs; the run is tagged with the
-    fingerprint of the data it reads."""
-    task = task_of(cfg)
+def _start_tracked(cfg: DictConfig, stage: str, tracker, task=None):
+    """The task of a stage that logs to MLflow (`task`, or built), after checking its inputs; the run is
+    tagged with the fingerprint of the data it reads."""
+    task = task or task_of(cfg)
     require_inputs(task, stage, cfg)
     tracker.set_tags({"nrbench.data_fingerprint": data_fingerprint(task.data_dir(cfg))})
     return task
 
 
-def render(cfg: DictConfig, tracker=None) -> dict:
+def render(cfg: DictConfig, tracker=None, task=None) -> dict:
     """Render the task's dataset (denoising EXRs, or multi-view scenes)."""
-    return task_of(cfg).render(cfg)
+    return (task or task_of(cfg)).render(cfg)
 
 
-def preprocess(cfg: DictConfig, tracker=None) -> dict:
+def preprocess(cfg: DictConfig, tracker=None, task=None) -> dict:
     """Turn the rendered data into what training reads (denoising: KPCN inputs, patches, full images)."""
-    task = task_of(cfg)
+    task = task or task_of(cfg)
     require_inputs(task, "preprocess", cfg)
     return task.preprocess(cfg)
 
 
-def train(cfg: DictConfig, tracker) -> dict:
+def train(cfg: DictConfig, tracker, task=None) -> dict:
     """Fit the learned model (non-learned baselines have nothing to fit); tag the run with the data's
     fingerprint and log the final checkpoint."""
     if not cfg.model.learned:
         print(f"train: {cfg.model.name} is not learned; nothing to train")
         return {}
-    summary = _start_tracked(cfg, "train", tracker).train(cfg, tracker)
+    summary = _start_tracked(cfg, "train", tracker, task).train(cfg, tracker)
     tracker.log_artifact(summary["checkpoint"], "checkpoints")
     print(
         f"train: {cfg.model.name} {summary['steps']} steps in {summary['train_time_s']:.1f} s "
@@ -74,23 +77,23 @@ def train(cfg: DictConfig, tracker) -> dict:
     return summary
 
 
-def search(cfg: DictConfig, tracker) -> dict:
+def search(cfg: DictConfig, tracker, task=None) -> dict:
     """Search for a method (`task=filter_search`: filter expressions by GP); logs to MLflow."""
-    return _start_tracked(cfg, "search", tracker).search(cfg, tracker)
+    return _start_tracked(cfg, "search", tracker, task).search(cfg, tracker)
 
 
-def select_features(cfg: DictConfig, tracker) -> dict:
+def select_features(cfg: DictConfig, tracker, task=None) -> dict:
     """Choose the denoiser's auxiliary features automatically (the denoising task on the volumetric
     sequences: a probe trained with feature dropout, then greedy forward selection); logs to MLflow."""
-    return _start_tracked(cfg, "select_features", tracker).select_features(cfg, tracker)
+    return _start_tracked(cfg, "select_features", tracker, task).select_features(cfg, tracker)
 
 
-def evaluate(cfg: DictConfig, tracker) -> dict:
+def evaluate(cfg: DictConfig, tracker, task=None) -> dict:
     """Score the model on the held-out data; log metrics and images."""
-    return _start_tracked(cfg, "eval", tracker).evaluate(cfg, tracker)
+    return _start_tracked(cfg, "eval", tracker, task).evaluate(cfg, tracker)
 
 
-def report(cfg: DictConfig, tracker=None) -> dict:
+def report(cfg: DictConfig, tracker=None, task=None) -> dict:
     """Tables, figures and an HTML page from the logged MLflow runs (`report.*` selects them). Inside a
     multirun the sweep's callback writes one report over all its jobs when they are done instead."""
     from hydra.core.hydra_config import HydraConfig
@@ -99,30 +102,30 @@ def report(cfg: DictConfig, tracker=None) -> dict:
     if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
         print("report: written once, over all jobs, when the sweep ends")
         return {}
-    if not cfg.tracking.enabled:
-        print("report: tracking.enabled is false, so there are no logged runs to report on")
-        return {}
     from src.report.build import build_report, report_line
 
-    summary = build_report(cfg)
-    print(report_line(summary), flush=True)
-    return summary
+    return _from_logged_runs(cfg, "report", "to report on", build_report, report_line)
 
 
-def ledger(cfg: DictConfig, tracker=None) -> dict:
+def ledger(cfg: DictConfig, tracker=None, task=None) -> dict:
     """The reproduction ledger: every claim of `ledger.claims` (conf/claims.yaml) with the status the
     logged runs give it, written to `<ledger.out_dir>/ledger.{md,html,csv}` (src/report/ledger.py)."""
-    if not cfg.tracking.enabled:
-        print("ledger: tracking.enabled is false, so there are no logged runs to judge the claims by")
-        return {}
     from src.report.ledger import build_ledger, ledger_line
 
-    summary = build_ledger(cfg)
-    print(ledger_line(summary), flush=True)
+    return _from_logged_runs(cfg, "ledger", "to judge the claims by", build_ledger, ledger_line)
+
+
+def _from_logged_runs(cfg: DictConfig, stage: str, purpose: str, build: Callable, line: Callable) -> dict:
+    """`build(cfg)`'s summary, its `line` printed; nothing (and a line saying why) without tracking."""
+    if not cfg.tracking.enabled:
+        print(f"{stage}: tracking.enabled is false, so there are no logged runs {purpose}")
+        return {}
+    summary = build(cfg)
+    print(line(summary), flush=True)
     return summary
 
 
-def site(cfg: DictConfig, tracker=None) -> dict:
+def site(cfg: DictConfig, tracker=None, task=None) -> dict:
     """The report site under `report.out_dir` (src/report/site.py): `index.html` linking every report, study
     and the ledger, a page per method and the benchmark runs' page. Reports and the ledger rebuild it
     themselves (`report.site`); DVC runs it as its own stage, after them."""
@@ -137,11 +140,11 @@ def site(cfg: DictConfig, tracker=None) -> dict:
     return summary
 
 
-def export(cfg: DictConfig, tracker=None) -> dict:
+def export(cfg: DictConfig, tracker=None, task=None) -> dict:
     """The dataset's scenes as a Noisebase sample set under `export.out_dir` (src/render/noisebase_export.py):
     dataset=volumetric's animations, or dataset=procedural's still scenes as camera pans; the data kind
     says how (`DataKind.export_noisebase`)."""
-    kind = task_of(cfg).kind(cfg)
+    kind = (task or task_of(cfg)).kind
     if kind is None:
         raise ConfigError(f"task={cfg.task.name}: stage=export needs a denoising task's rendered data")
     written, e = kind.export_noisebase(cfg), cfg.export
@@ -149,13 +152,13 @@ def export(cfg: DictConfig, tracker=None) -> dict:
     return {"stores": [str(p) for p in written], "out_dir": str(e.out_dir)}
 
 
-def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
+def print_model_summary(cfg: DictConfig, tracker=None, task=None) -> dict:
     """Print the model's architecture and parameter count (and FLOPs per pixel or per ray); trains
     nothing."""
     from src.models.instantiate import build_method
 
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
-    task, model = task_of(cfg), build_method(model_cfg)
+    task, model = task or task_of(cfg), build_method(model_cfg)
     print(task.model_summary(model, model_cfg))
     extra = task.training_summary(model, cfg)
     if extra:
@@ -163,7 +166,7 @@ def print_model_summary(cfg: DictConfig, tracker=None) -> dict:
     return {}
 
 
-def write_result_config(cfg: DictConfig, tracker=None) -> dict:
+def write_result_config(cfg: DictConfig, tracker=None, task=None) -> dict:
     """Write what decides this job's results (`provenance.result_config`) to `<paths.run_dir>/params.yaml`.
 
     DVC's train/eval stages depend on this file instead of on `conf/`: it changes only when a value the

@@ -36,6 +36,13 @@ def compose_config(overrides=()):
         return compose(config_name="config", overrides=list(overrides), return_hydra_config=False)
 
 
+def data_kind(cfg):
+    """The run's data kind, built as a job builds it (`Task.for_run`)."""
+    from src.stages import task_of
+
+    return task_of(cfg).kind
+
+
 def one_line_error(excinfo, *needles):
     """The raised message is one line and names every needle (file, channel, key...); returns it."""
     msg = str(excinfo.value)

@@ -17,7 +17,7 @@ import torch
 
 from src.eval.denoise_eval import DenoiseEvaluation, OnDevice
 from src.tracking.tracker import Tracker
-from tests.conftest import smoke_config
+from tests.conftest import data_kind, smoke_config
 from tests.test_volume_shards import SPPS, synthetic_frame
 
 #: The stub's output: reference frame f times SCALES[f]; the second reference: times REF2_SCALES[f] (both
@@ -80,7 +80,7 @@ def stub_sequence_eval(
     if second_reference:
         monkeypatch.setattr(DenoiseEvaluation, "items", items)
     tracker = TagTracker()
-    evaluation = DenoiseEvaluation(cfg, tracker)
+    evaluation = DenoiseEvaluation(cfg, tracker, data_kind(cfg))
     summary = evaluation.run(desc="stub")
     header = json.loads((out / "eval" / "metrics.json").read_text())
     rows = pd.read_csv(out / "eval" / "per_image.csv")

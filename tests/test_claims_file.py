@@ -89,7 +89,7 @@ IMAGE_METRICS = {
     *(f"{prefix}_{s}" for s in SCORES for prefix in ("noisy", "baseline")),
     *("ms_per_image", "ms_per_mpixel", "rays_per_s"),
 }
-#: Losses the training objectives log (src/train/objectives.py) as train_loss_<k> / val_loss_<k>.
+#: Losses the training objectives log (src/objectives/terms.py) as train_loss_<k> / val_loss_<k>.
 LOSSES = ("diffuse", "specular", "color", "temporal", "total")
 #: Run metrics logged under a literal name, and the module that logs each.
 LITERAL_RUN_METRICS = {
@@ -572,7 +572,7 @@ def test_literal_run_metric_names_are_what_the_code_logs():
     """The catalogue above must follow the code: each literal metric name is in the module that logs it."""
     for metric, module in LITERAL_RUN_METRICS.items():
         assert f'"{metric}"' in (ROOT / module).read_text(), (metric, module)
-    objectives = (ROOT / "src/train/objectives.py").read_text()
+    objectives = (ROOT / "src/objectives/terms.py").read_text()
     assert all(f'"{k}"' in objectives or f"`{k}`" in objectives for k in LOSSES)
 
 

@@ -7,7 +7,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from src.errors import ConfigError
-from tests.conftest import ROOT, compose_config, one_line_error, smoke_config
+from tests.conftest import ROOT, compose_config, data_kind, one_line_error, smoke_config
 
 #: Every dataset config under conf/dataset/, found by its file.
 DATASET_CONFIGS = sorted(p.stem for p in (ROOT / "conf" / "dataset").glob("*.yaml"))
@@ -71,7 +71,7 @@ def test_a_task_refuses_data_of_another_family_in_one_line(tmp_path, task, datas
     if dataset == "blender":
         cfg.dataset.root = str(tmp_path)
     with pytest.raises(ConfigError) as excinfo:
-        task_of(cfg).kind(cfg)
+        task_of(cfg)
     one_line_error(excinfo, *needles)
     with pytest.raises(ConfigError) as excinfo:
         validate_run(cfg)
@@ -133,12 +133,12 @@ def test_every_denoiser_runs_on_every_denoising_kind_that_has_its_inputs(tmp_pat
         assert values["model"]["in_channels"] == (28 if dataset == "procedural" else 62)
     if model == "unet_kpcn" and dataset == "procedural":
         with pytest.raises(ConfigError) as excinfo:
-            DenoiseTask().check_stages(["train"], cfg)
+            DenoiseTask.for_run(cfg).check_stages(["train"], cfg)
         one_line_error(
             excinfo, "model=unet_kpcn", "radiance branch", "dataset=procedural", "diffuse, specular"
         )
     else:
-        DenoiseTask().check_stages(["render", "preprocess", "train", "eval"], cfg)
+        DenoiseTask.for_run(cfg).check_stages(["render", "preprocess", "train", "eval"], cfg)
 
 
 def test_a_filter_whose_guides_the_sequences_lack_is_refused_at_job_start_in_one_line(tmp_path):
@@ -151,11 +151,12 @@ def test_a_filter_whose_guides_the_sequences_lack_is_refused_at_job_start_in_one
     cfg = smoke_config(tmp_path, tmp_path / "run", ["model=gp_expr1", "dataset=volumetric"])
     cfg.paths.dataset = str(tmp_path / "volumetric")
     with pytest.raises(ConfigError) as excinfo:
-        DenoiseTask().check_stages(["eval"], cfg)
+        DenoiseTask.for_run(cfg).check_stages(["eval"], cfg)
     one_line_error(excinfo, "directIllumination", "visibility")
     # An expression of the buffers the sequences have (colour, normal, depth, albedo) passes the check.
     shared = "exp(-(distance2(depth, depth) + distance2(normal, normal) + distance2(color, color)))"
-    DenoiseTask().check_stages(["eval"], OmegaConf.merge(cfg, {"model": {"expression": shared}}))
+    merged = OmegaConf.merge(cfg, {"model": {"expression": shared}})
+    DenoiseTask.for_run(merged).check_stages(["eval"], merged)
 
 
 @pytest.mark.parametrize(
@@ -206,16 +207,14 @@ def test_the_benchmark_data_of_a_model_is_named_never_guessed(monkeypatch):
 
 def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_kind():
     from src.errors import DataError
-    from src.kinds.sequences import RenderedSequences
-    from src.kinds.stills import RenderedStills
 
-    sequences = RenderedSequences()
+    sequences = data_kind(compose_config(["dataset=volumetric", "profile=smoke"]))
     sequences.check_trained_features({"features": ["color", "albedo"]}, ["color", "albedo"], "a.pt")
     sequences.check_trained_features({}, ["color"], "a.pt")  # a checkpoint that records none
     with pytest.raises(DataError) as excinfo:
         sequences.check_trained_features({"features": None}, ["color", "albedo"], "a.pt")
     one_line_error(excinfo, "a.pt", "task.volume_features=None", "['color', 'albedo']")
-    stills = RenderedStills()
+    stills = data_kind(compose_config(["dataset=procedural", "profile=smoke"]))
     stills.check_trained_features({"features": ["color", "normal"]}, ["color", "normal"], "b.pt")
     with pytest.raises(DataError) as excinfo:
         stills.check_trained_features({"features": ["color", "normal"]}, ["color", "depth"], "b.pt")

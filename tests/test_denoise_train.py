@@ -17,17 +17,18 @@ from src.eval.denoise_eval import denoise_tiled, evaluate_denoiser
 from src.io.exr import read_exr
 from src.metrics.image import relmse
 from src.models.instantiate import build_method
+from src.objectives.terms import BranchLosses, component_losses, objective
 from src.stages import evaluate, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import checkpoint_run_id, load_checkpoint, save_checkpoint
 from src.train.device import precision
-from src.train.objectives import BranchLosses, component_losses, objective
 from src.train.schedules import log_linear_lr
 from src.train.trainer import DenoiserTrainer, train_denoiser
 from tests.conftest import (
     ROOT,
     cli_job,
     compose_config,
+    data_kind,
     one_line_cli_error,
     one_line_error,
     smoke_config,
@@ -124,12 +125,13 @@ def _check_eval_values(cfg, eval_dir, logged):
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_path):
     straight = _untracked(smoke_data, tmp_path / "a", "model=resnet", "task.train.epochs=3")
     with job_run(straight, run_name="a", tags={}) as tracker:
-        reference = DenoiserTrainer(straight, tracker)
+        reference = DenoiserTrainer(straight, tracker, kind=data_kind(straight))
         reference.fit()
     steps_per_epoch = reference.pos.step // 3
     interrupted = _untracked(smoke_data, tmp_path / "b", "model=resnet", "task.train.epochs=3")
     with job_run(interrupted, run_name="b", tags={}) as tracker, pytest.raises(KeyboardInterrupt):
-        train_denoiser(interrupted, tracker, on_step=stop_at(steps_per_epoch + 1))  # inside epoch 2
+        inside_epoch_2 = stop_at(steps_per_epoch + 1)
+        train_denoiser(interrupted, tracker, data_kind(interrupted), on_step=inside_epoch_2)
     resumed = _untracked(
         smoke_data,
         tmp_path / "c",
@@ -138,7 +140,7 @@ def test_resume_after_an_interrupt_matches_an_uninterrupted_run(smoke_data, tmp_
         f"task.train.resume={tmp_path}/b/checkpoints",
     )
     with job_run(resumed, run_name="c", tags={}) as tracker:
-        summary = train_denoiser(resumed, tracker)
+        summary = train_denoiser(resumed, tracker, data_kind(resumed))
     assert summary["steps"] == reference.pos.step
     # The resumed run's curves file continues the interrupted one's: all three epochs, in order.
     assert list(pd.read_csv(tmp_path / "c" / "curves.csv")["epoch"]) == [1, 2, 3]
@@ -200,7 +202,7 @@ def test_malformed_or_mismatched_checkpoint_is_one_clear_line(smoke_data, tmp_pa
     }
     save_checkpoint(tmp_path / "kpcn.pt", state)
     with job_run(cfg, run_name="x", tags={}) as tracker, pytest.raises(DataError) as err:
-        evaluate_denoiser(cfg, tracker)
+        evaluate_denoiser(cfg, tracker, data_kind(cfg))
     one_line_error(err, "kpcn.pt", "model.output")
 
 
@@ -266,16 +268,16 @@ def test_a_model_trains_and_evaluates_on_the_features_configured(smoke_data, tmp
     features = "task.features=[color,albedo,normal,visibility,visibility.grad]"
     cfg = _untracked(smoke_data, tmp_path, "model=dpcn", "model.whiten=true", "task.train.epochs=1", features)
     with job_run(cfg, run_name="x", tags={}) as tracker:
-        summary = train_denoiser(cfg, tracker)
+        summary = train_denoiser(cfg, tracker, data_kind(cfg))
         state = load_checkpoint(summary["checkpoint"])
         assert state["features"] == ["color", "albedo", "normal", "visibility", "visibility.grad"]
         assert state["model_config"]["in_channels"] == 12
         assert state["model"]["diffuse_mean"].numel() == 12  # whitening statistics of those channels
-        assert evaluate_denoiser(cfg, tracker)["images"] > 0
+        assert evaluate_denoiser(cfg, tracker, data_kind(cfg))["images"] > 0
         features = "task.features=[color,normal,albedo,depth,depth.grad]"
         other = _untracked(smoke_data, tmp_path, "model=dpcn", "model.whiten=true", features)
         with pytest.raises(DataError) as err:
-            evaluate_denoiser(other, tracker)
+            evaluate_denoiser(other, tracker, data_kind(other))
     one_line_error(err, "final.pt", "task.features=[color,albedo,normal,visibility,visibility.grad]")
 
 
@@ -319,10 +321,10 @@ def test_the_optimiser_and_the_loss_are_built_from_config(smoke_data, tmp_path):
         "task.train.lr=0.02",
         "task.train.optimizer._target_=torch.optim.SGD",
         "+task.train.optimizer.momentum=0.5",
-        "task.train.loss={_target_: src.train.losses.smape, eps: 0.5}",
+        "task.train.loss={_target_: src.objectives.losses.smape, eps: 0.5}",
     )
     with job_run(cfg, run_name="x", tags={}) as tracker:
-        trainer = DenoiserTrainer(cfg, tracker)
+        trainer = DenoiserTrainer(cfg, tracker, kind=data_kind(cfg))
     assert isinstance(trainer.optimizer, torch.optim.SGD)
     assert (
         trainer.optimizer.param_groups[0]["lr"] == 0.02
@@ -333,7 +335,7 @@ def test_the_optimiser_and_the_loss_are_built_from_config(smoke_data, tmp_path):
 
     bad = _untracked(smoke_data, tmp_path, "model=dpcn", "task.train.optimizer._target_=torch.optim.Adamm")
     with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
-        DenoiserTrainer(bad, tracker)
+        DenoiserTrainer(bad, tracker, kind=data_kind(bad))
     one_line_error(err, "task.train.optimizer", "Adamm")  # a bad loss's lines: tests/test_losses.py
 
 
@@ -350,7 +352,10 @@ def test_a_learning_rate_schedule_from_config_sets_each_steps_rate(smoke_data, t
     seen = []
     with job_run(cfg, run_name="x", tags={}) as tracker:
         trainer = DenoiserTrainer(
-            cfg, tracker, on_step=lambda step: seen.append(trainer.optimizer.param_groups[0]["lr"])
+            cfg,
+            tracker,
+            on_step=lambda step: seen.append(trainer.optimizer.param_groups[0]["lr"]),
+            kind=data_kind(cfg),
         )
         trainer.fit()
     assert seen == [pytest.approx(log_linear_lr(s, 1e-3, 1e-5, 2)) for s in (0, 1)]  # decays over max_steps
@@ -360,7 +365,7 @@ def test_a_learning_rate_schedule_from_config_sets_each_steps_rate(smoke_data, t
         smoke_data, tmp_path, "model=dpcn", "task.train.schedule={_target_: src.train.schedules.nope}"
     )
     with job_run(bad, run_name="x", tags={}) as tracker, pytest.raises(ConfigError) as err:
-        DenoiserTrainer(bad, tracker)
+        DenoiserTrainer(bad, tracker, kind=data_kind(bad))
     one_line_error(err, "task.train.schedule", "nope")
 
 

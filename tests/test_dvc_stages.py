@@ -215,3 +215,16 @@ def test_a_stage_that_lists_its_conf_files_lists_each_profile_file_it_reads():
         assert needed <= deps, f"{stage.addressing}: deps lack {sorted(needed - deps)}"
         checked += 1
     assert checked == 6  # render, preprocess, vol_render, vol_preprocess, nerf_render, ledger
+
+
+def test_the_stages_that_read_logged_runs_say_why_they_do_nothing_without_tracking(tmp_path, capsys):
+    """`tracking.enabled=false`: the report and the ledger write nothing and print one line each saying
+    so (with tracking on they read the store: the ledger and report tests)."""
+    cfg = compose_config(["profile=smoke", "tracking.enabled=false", f"report.out_dir={tmp_path}"])
+    assert STAGES["report"](cfg, None) == {} and STAGES["ledger"](cfg, None) == {}
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [
+        "report: tracking.enabled is false, so there are no logged runs to report on",
+        "ledger: tracking.enabled is false, so there are no logged runs to judge the claims by",
+    ]
+    assert list(tmp_path.iterdir()) == []

@@ -34,8 +34,7 @@ BASELINE = (
 
 def _filtered(vol_data, row) -> np.ndarray:
     """The baseline's frames of a row's test item, filtered here from the prepared item's tensors."""
-    from src.train.trainer import data_kind
-    from tests.conftest import smoke_config
+    from tests.conftest import data_kind, smoke_config
 
     cfg = smoke_config(vol_data, vol_data / "_cfg", ["dataset=volumetric", "model=cross_bilateral"])
     kind = data_kind(cfg)

@@ -11,6 +11,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.data.feature_choice import random_features, selected_features
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.errors import ConfigError
 from src.train.feature_selection import (
@@ -20,9 +21,7 @@ from src.train.feature_selection import (
     keep_mask,
     keep_only,
     neutral_values,
-    random_features,
     random_keep_mask,
-    selected_features,
     spread_indices,
     uniform_size_keep_mask,
 )

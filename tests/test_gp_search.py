@@ -284,10 +284,10 @@ def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
         ["task=filter_search", "profile=smoke", "task.search.spp=[4,8]", f"paths.data={tmp_path}"]
     )
     with pytest.raises(ConfigError) as excinfo:
-        FilterSearchTask().check_stages(["render", "search"], cfg)
+        FilterSearchTask.for_run(cfg).check_stages(["render", "search"], cfg)
     one_line_error(excinfo, "task.search.spp=[4, 8]", "[8] not rendered", "dataset.noisy_spp=[4, 16]")
     OmegaConf.update(cfg, "task.search.spp", [4])
-    FilterSearchTask().check_stages(["render", "search"], cfg)
+    FilterSearchTask.for_run(cfg).check_stages(["render", "search"], cfg)
 
 
 def test_filter_search_task_end_to_end(smoke_data, tmp_path):

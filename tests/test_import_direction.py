@@ -26,14 +26,16 @@ LAYERS: dict[str, int] = {
     "tracking": 3,
     "render": 4,
     "models": 4,
-    "train": 5,
+    "objectives": 5,
     "stages": 5,
-    "eval": 6,
     "schema": 6,
+    # The data kind stands below the trainer and the evaluation: the task builds it and hands it to them.
     "kinds": 7,
-    "tasks": 8,
-    "run": 9,
-    "bench": 9,
+    "train": 8,
+    "eval": 9,
+    "tasks": 10,
+    "run": 11,
+    "bench": 11,
 }
 #: src/__init__.py registers the config resolvers, which read the feature catalogues (data).
 PACKAGE_INIT_IMPORTS = {"data"}

@@ -1,12 +1,12 @@
-"""Training losses (src/train/losses.py) by value against numpy, on signed and unequal tensors."""
+"""Training losses (src/objectives/losses.py) by value against numpy, on signed and unequal tensors."""
 
 import numpy as np
 import pytest
 import torch
 
 from src.errors import ConfigError
-from src.train import losses
-from src.train.losses import LOSSES, get_loss, l1, l2, relmse, smape
+from src.objectives import losses
+from src.objectives.losses import LOSSES, get_loss, l1, l2, relmse, smape
 from tests.conftest import one_line_error
 
 
@@ -92,10 +92,10 @@ def test_get_loss_by_name_and_by_target_with_bound_options():
     for name, fn in LOSSES.items():
         assert get_loss(name) is fn
     pred, target = _t(*_pair(seed=3))
-    bound = get_loss({"_target_": "src.train.losses.smape", "eps": 0.5})
+    bound = get_loss({"_target_": "src.objectives.losses.smape", "eps": 0.5})
     expected = (np.abs(pred.numpy() - target.numpy()) / (pred.abs() + target.abs() + 0.5).numpy()).mean()
     assert bound(pred, target).item() == pytest.approx(expected, rel=1e-12)
-    assert get_loss({"_target_": "src.train.losses.relmse"}) is losses.relmse  # no options: the function
+    assert get_loss({"_target_": "src.objectives.losses.relmse"}) is losses.relmse  # no options: the function
 
 
 def test_get_loss_errors_are_one_line_naming_the_setting():
@@ -103,5 +103,5 @@ def test_get_loss_errors_are_one_line_naming_the_setting():
         get_loss("l3")
     one_line_error(err, "task.train.loss='l3'", "['l1', 'l2', 'relmse', 'smape']", "_target_")
     with pytest.raises(ConfigError) as err:
-        get_loss({"_target_": "src.train.losses.nope"})
+        get_loss({"_target_": "src.objectives.losses.nope"})
     one_line_error(err, "task.train.loss._target_", "nope")

@@ -11,7 +11,7 @@ from src.run import _run_to_continue, _tracked_run
 from src.stages import train
 from src.tracking.mlflow_tracking import job_run
 from src.train.trainer import train_denoiser
-from tests.conftest import smoke_config, stop_at
+from tests.conftest import data_kind, smoke_config, stop_at
 
 
 def test_result_config_leaves_out_paths_and_tracking_only(tmp_path):
@@ -40,7 +40,7 @@ def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, ca
     common = ["model=resnet", "task.train.epochs=2"]
     first_cfg = smoke_config(smoke_data, tmp_path / "a", common)
     with _tracked_run(first_cfg, ["train"]) as tracker, pytest.raises(KeyboardInterrupt):
-        train_denoiser(first_cfg, tracker, on_step=stop_at(3))
+        train_denoiser(first_cfg, tracker, data_kind(first_cfg), on_step=stop_at(3))
     first = tracker.run_id
     # Keep a copy of the interrupted checkpoint for the stale-run case below.
     shutil.copytree(tmp_path / "a" / "checkpoints", tmp_path / "copy")
@@ -50,7 +50,7 @@ def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, ca
     )
     assert _run_to_continue(resumed_cfg, ["train", "eval"]) == first
     with _tracked_run(resumed_cfg, ["train"]) as tracker:
-        summary = train_denoiser(resumed_cfg, tracker)
+        summary = train_denoiser(resumed_cfg, tracker, data_kind(resumed_cfg))
     assert tracker.run_id == first
     client = MlflowClient()
     run = client.get_run(first)
@@ -68,7 +68,7 @@ def test_resumed_training_continues_its_checkpoints_run(smoke_data, tmp_path, ca
     stale_cfg = smoke_config(smoke_data, tmp_path / "b", [*common, f"task.train.resume={tmp_path}/copy"])
     assert _run_to_continue(stale_cfg, ["train"]) == first
     with _tracked_run(stale_cfg, ["train"]) as tracker:
-        train_denoiser(stale_cfg, tracker)
+        train_denoiser(stale_cfg, tracker, data_kind(stale_cfg))
     assert tracker.run_id != first
     assert client.get_run(tracker.run_id).info.status == "FINISHED"
     assert f"MLflow run {first} (to resume) is not in" in caplog.text

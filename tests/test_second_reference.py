@@ -1,6 +1,6 @@
 """The second, independent reference of the held-out volumetric sequences (`dataset.second_reference`,
 issue 33): which files the render plans (`src/render/volume_dataset.py`, without Mitsuba), which scenes
-it renders them for (`src/kinds/sequences.py::held_out_scenes`, the split preprocessing makes), how
+it renders them for (`RenderedSequences.held_out_scenes`, the split preprocessing makes), how
 preprocessing stores them (`src/data/volume_shards.py`: `reference2` in the whole held-out sequences
 only) and passes them to the evaluation (`src/data/sequence_dataset.py`), the cache key, stale files;
 the whole smoke pipeline with it to `eval_flicker_unbiased` (slow)."""
@@ -20,7 +20,7 @@ from src.data.sequence_dataset import SequenceDataset
 from src.data.splits import split_scenes
 from src.data.volume_buffers import SECOND_REFERENCE_DIR, parse_volume_exr_name, volume_exr_name
 from src.errors import DataError
-from tests.conftest import ROOT, cli_job, compose_config, one_line_error, smoke_config
+from tests.conftest import ROOT, cli_job, compose_config, data_kind, one_line_error, smoke_config
 from tests.test_volume_shards import FRACTIONS, FRAMES, SCENES, SPPS, _preprocess, _raw, synthetic_frame
 
 REF = max(SPPS)
@@ -147,7 +147,6 @@ def test_the_stage_stores_the_second_reference_of_real_files_with_their_repairs(
     one with a negative pixel the repair policy clamps (recorded under reference2/, apart from its
     reference's name), stored as read."""
     from src.data.volume_buffers import write_volume_exr
-    from src.kinds.sequences import preprocess_settings
     from src.stages import preprocess
 
     cfg = smoke_config(
@@ -161,7 +160,7 @@ def test_the_stage_stores_the_second_reference_of_real_files_with_their_repairs(
         for f in range(2):
             for spp in (2, 16):
                 write_volume_exr(raw / volume_exr_name(s, f, spp), synthetic_frame(s, f, spp))
-    p = preprocess_settings(cfg)
+    p = data_kind(cfg).preprocess_settings(cfg)
     split = split_scenes(scenes, p["split_fractions"], p["split_seed"])
     held_out = split["val"] + split["test"]
     second = {(s, f): synthetic_frame(_second(s), f, 16) for s in held_out for f in range(2)}
@@ -184,13 +183,15 @@ def test_the_render_stage_picks_the_scenes_preprocessing_holds_out(tmp_path):
     """`held_out_scenes` of the smoke config is the val + test of a preprocessing of its scenes with the
     same config, and follows task.preprocess.split_seed; at the cpu profile, the twelve held-out scenes of
     the cpu data (val + test of their splits.json, six seeds per base, at issue 33)."""
-    from src.kinds.sequences import held_out_scenes, preprocess_settings
     from src.render.render_dataset import scene_sources
+
+    def held_out_scenes(config):
+        return data_kind(config).held_out_scenes(config)
 
     cfg = smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric", "dataset.second_reference=true"])
     names = [s.name for s in scene_sources(OmegaConf.to_container(cfg.dataset, resolve=True))]
     raw = _raw(tmp_path / "raw", scenes=names, frames=2)
-    settings = preprocess_settings(cfg) | {"sequence_frames": 2}
+    settings = data_kind(cfg).preprocess_settings(cfg) | {"sequence_frames": 2}
     _with_second(raw, names)  # every scene has one, so the split alone decides
     summary = _preprocess(raw, tmp_path / "out", **settings, load_fn=_loader([]), progress=False)
     splits = json.loads((tmp_path / "out" / "full" / "test" / "index.json").read_text())
@@ -219,17 +220,16 @@ def test_the_render_stage_picks_the_scenes_preprocessing_holds_out(tmp_path):
 
 
 def test_the_prepared_datas_key_changes_when_the_option_flips(tmp_path):
-    from src.kinds.sequences import RenderedSequences, preprocess_settings
-
     raw = _raw(tmp_path / "raw")
     off = smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric"])
     on = smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric", "dataset.second_reference=true"])
     assert off.dataset.second_reference is False  # the smoke profile's
-    kind = RenderedSequences()
-    assert kind.preprocess_key(on, raw) != kind.preprocess_key(off, raw)
-    assert preprocess_settings(on)["second_reference"] is True
-    assert "second_reference" not in preprocess_settings(off)  # folders made before the option keep their key
-    assert kind.preprocess_key(off, raw) == kind.preprocess_key(off, raw)
+    kind_on, kind_off = data_kind(on), data_kind(off)
+    assert kind_on.preprocess_key(on, raw) != kind_off.preprocess_key(off, raw)
+    assert kind_on.preprocess_settings(on)["second_reference"] is True
+    # folders made before the option keep their key
+    assert "second_reference" not in kind_off.preprocess_settings(off)
+    assert kind_off.preprocess_key(off, raw) == data_kind(off).preprocess_key(off, raw)
 
 
 # --- the render plan and stale second references (no Mitsuba) ---

@@ -1,4 +1,5 @@
-"""The temporal loss (src/train/temporal.py) and the temporal-stability metric (src/metrics/temporal.py)."""
+"""The temporal loss (src/objectives/temporal.py) and the temporal-stability metric
+(src/metrics/temporal.py)."""
 
 import numpy as np
 import pytest
@@ -6,7 +7,7 @@ import torch
 
 from src.errors import ConfigError, DataError
 from src.metrics.temporal import temporal_error
-from src.train.temporal import frame_differences, temporal_loss, warp_to_previous
+from src.objectives.temporal import frame_differences, temporal_loss, warp_to_previous
 
 
 def _static(n=2, k=3, c=3, h=5, w=7, seed=0):
@@ -272,7 +273,7 @@ def test_temporal_error_of_two_frames_and_its_shape_checks():
             temporal_error(output if bad.ndim == 4 else output[None], bad)
 
 
-# Surviving mutants of src/train/temporal.py (bash scripts/mutation.sh temporal), all equivalent here:
+# Surviving mutants of src/objectives/temporal.py (bash scripts/mutation.sh temporal), all equivalent here:
 # - warp_to_previous `torch.meshgrid(..., indexing="ij")` -> `indexing=None` / dropped (2 mutants): "ij" is
 #   torch.meshgrid's default; without the argument torch warns once per process, so no test can see it
 #   reliably.

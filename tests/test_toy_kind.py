@@ -36,6 +36,29 @@ def test_the_toy_frames_are_the_analytic_pattern_and_the_noise_shrinks_with_spp(
     assert [split_of(s, 8) for s in range(8)] == ["train"] * 4 + ["val"] * 2 + ["test"] * 2
 
 
+def test_the_toy_kinds_options_arrive_through_its_constructor_and_its_schema_refuses_a_bad_one(tmp_path):
+    """The kind is built from its `dataset:` group, as a method from `model:`: an option set away from its
+    default reaches the render (the noise std follows `dataset.noise`), and a value its own schema refuses
+    is one line naming the key when the job's task is built, before anything runs."""
+    from src.stages import render, task_of
+
+    cfg = _cfg(tmp_path, "dataset.noise=0.8", "dataset.scenes=4")
+    kind = task_of(cfg).kind
+    assert kind.dataset["noise"] == 0.8 and kind.dataset["scenes"] == 4 and kind.name == "toy_sequence"
+    render(cfg)
+    raw = sorted(p.name for p in (tmp_path / "toy_sequence" / "smoke" / "raw").glob("*.pt"))
+    assert raw == [f"scene{s:03d}.pt" for s in range(4)]
+    scene = torch.load(tmp_path / "toy_sequence" / "smoke" / "raw" / "scene001.pt", weights_only=True)
+    assert float((scene["noisy"]["4"] - scene["clean"]).std()) == pytest.approx(0.8 / 2, rel=0.05)
+    for override, needles in (
+        ("dataset.noise=-1.0", ("dataset.noise=-1.0", "positive")),
+        ("+dataset.nosie=0.3", ("dataset.nosie",)),
+    ):
+        with pytest.raises(ConfigError) as excinfo:
+            task_of(_cfg(tmp_path, override))
+        one_line_error(excinfo, *needles)
+
+
 def test_a_toy_denoiser_trains_and_is_evaluated_on_the_toy_sequences_with_flicker(tmp_path):
     """Render, preprocess, train (reconstruction + temporal loss) and evaluate in-process; the held-out
     rows have the sequences' frame count and flicker, the curves the kind's loss terms."""
@@ -65,7 +88,7 @@ def test_dpcn_builds_one_radiance_branch_over_the_toy_inputs_and_the_toy_colour_
     assert values["model"]["branches"] == ["radiance"] and values["model"]["in_channels"] == 4
     cfg = _cfg(tmp_path, "model=toy_color")
     with pytest.raises(ConfigError) as excinfo:
-        DenoiseTask().check_stages(["train"], cfg)
+        DenoiseTask.for_run(cfg).check_stages(["train"], cfg)
     one_line_error(excinfo, "model=toy_color", "diffuse branch", "dataset=toy_sequence", "radiance")
 
 

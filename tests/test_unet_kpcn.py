@@ -173,7 +173,7 @@ def test_stage_summary_names_flops_per_pixel_and_the_volume_features():
     text = model_summary(model, model_cfg)
     assert "FLOPs per pixel" in text and "kernel application and composition" in text
     assert "in_channels 6" in text
-    assert DenoiseTask().training_summary(model, cfg).endswith("6 channels): color, albedo")
+    assert DenoiseTask.for_run(cfg).training_summary(model, cfg).endswith("6 channels): color, albedo")
     flops = flops_per_pixel(model)
     assert 0 < flops["compositor"] < flops["conv"] and flops["kernel"] == model.kernel_flops_per_pixel()
 
@@ -213,17 +213,17 @@ def test_whitening_on_sequences_and_training_unet_kpcn_on_still_images_are_one_l
 
     cfg = compose_config(["dataset=volumetric", "model=kpcn", "profile=smoke", "model.whiten=true"])
     with pytest.raises(ConfigError) as excinfo:
-        DenoiseTask().check_stages(["train"], cfg)
+        DenoiseTask.for_run(cfg).check_stages(["train"], cfg)
     one_line_error(excinfo, "model.whiten", "dataset=volumetric")
-    DenoiseTask().check_stages(["render", "preprocess"], cfg)  # whitening matters to train and eval only
+    # whitening matters to train and eval only
+    DenoiseTask.for_run(cfg).check_stages(["render", "preprocess"], cfg)
     cfg = compose_config(["model=unet_kpcn", "profile=smoke"])
     for stage in ("train", "eval"):
         with pytest.raises(ConfigError) as excinfo:
-            DenoiseTask().check_stages([stage], cfg)
+            DenoiseTask.for_run(cfg).check_stages([stage], cfg)
         one_line_error(excinfo, "model=unet_kpcn", "radiance branch", f"stage={stage}", "dataset=procedural")
-    DenoiseTask().check_stages(
-        ["train"], smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric", "model=unet_kpcn"])
-    )
+    volumetric = smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric", "model=unet_kpcn"])
+    DenoiseTask.for_run(volumetric).check_stages(["train"], volumetric)
 
 
 # --- the whole forward pass against an independent reference -------------------------------------------

@@ -23,7 +23,15 @@ from src.tracking.mlflow_tracking import job_run
 from src.tracking.tracker import Tracker
 from src.train.checkpoint import load_checkpoint
 from src.train.trainer import DenoiserTrainer
-from tests.conftest import ROOT, cli_job, compose_config, one_line_cli_error, one_line_error, smoke_config
+from tests.conftest import (
+    ROOT,
+    cli_job,
+    compose_config,
+    data_kind,
+    one_line_cli_error,
+    one_line_error,
+    smoke_config,
+)
 from tests.test_temporal import _np_temporal_loss
 from tests.test_volume_shards import SPPS, synthetic_frame
 
@@ -97,7 +105,7 @@ def test_the_flicker_column_is_the_metric_of_the_denoised_frames(vol_data, tmp_p
         "infer",
         lambda self, item: item["item"]["reference"] * _FRAME_SCALES.view(4, 1, 1, 1),
     )
-    evaluation = DenoiseEvaluation(cfg, Tracker())
+    evaluation = DenoiseEvaluation(cfg, Tracker(), data_kind(cfg))
     summary = evaluation.run(desc="stub")
     rows = pd.read_csv(tmp_path / "eval" / "per_image.csv")
     assert len(rows) == 2
@@ -170,7 +178,7 @@ def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the
 
 def _trainer(data, run_dir, weight, probe=False, *overrides):
     cfg = _cfg(data, run_dir, f"task.train.volumetric.temporal_weight={weight}", *overrides)
-    return DenoiserTrainer(cfg, Tracker(), probe=probe)
+    return DenoiserTrainer(cfg, Tracker(), probe=probe, kind=data_kind(cfg))
 
 
 def test_the_sequences_train_on_their_own_schedule_else_the_tasks(vol_data, tmp_path):
@@ -248,8 +256,8 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
     instead of a trained one: its order, losses, channel counts, table, logged curve and `size` arms."""
     from omegaconf import OmegaConf
 
+    from src.data.feature_choice import features_for_size
     from src.train import select_features as stage
-    from src.train.select_features import features_for_size
     from src.train.trainer import _FeatureDropout
     from tests.test_feature_selection import COVER_NEUTRAL, _cover_inputs, _cover_probe_loss
 
@@ -306,7 +314,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
         model = torch.nn.Identity()
         val_data = list(range(8))
 
-        def __init__(self, probe_cfg, tracker, probe=False):
+        def __init__(self, probe_cfg, tracker, probe=False, kind=None):
             made.append((probe_cfg, probe))
             self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.task.volume_features), "radiance_in")
 
@@ -333,7 +341,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
 
     monkeypatch.setattr(stage, "DenoiserTrainer", FixedProbe)
     tracker = Recorder()
-    rows = stage.select_features(cfg, tracker)["rows"]
+    rows = stage.select_features(cfg, tracker, kind=None)["rows"]
     probe_cfg, probe = made[0]
     assert probe and list(probe_cfg.task.volume_features) == ["color", *candidates]  # all, start first
     order = ["transmittance", "sigma_t", "depth", "albedo.var"]  # by marginal gain, ties to the earlier
@@ -374,7 +382,7 @@ def test_a_selected_size_without_a_selection_is_one_line_from_the_command_line(t
 def test_feature_selection_needs_the_volumetric_candidates(tmp_path):
     cfg = smoke_config(tmp_path, tmp_path / "run", ["stage=select_features"])
     with pytest.raises(ConfigError) as excinfo:
-        DenoiseTask().check_stages(["select_features"], cfg)
+        DenoiseTask.for_run(cfg).check_stages(["select_features"], cfg)
     one_line_error(excinfo, "stage=select_features", "dataset=volumetric")
 
 
@@ -385,7 +393,7 @@ def test_an_interrupted_probe_resumes_to_the_weights_of_an_uninterrupted_one(vol
     from tests.conftest import stop_at
 
     def probe_trainer(cfg, tracker, on_step=None):
-        return DenoiserTrainer(cfg, tracker, on_step, probe=True)
+        return DenoiserTrainer(cfg, tracker, on_step, probe=True, kind=data_kind(cfg))
 
     def cfg(name, *extra):
         return _cfg(vol_data, tmp_path / name, "task.train.epochs=2", "tracking.enabled=false", *extra)
@@ -412,12 +420,12 @@ def test_a_selection_file_naming_an_unknown_feature_is_one_line_at_job_start(tmp
         ["dataset=volumetric", f"task.feature_selection.dir={tmp_path}", "task.feature_selection.size=1"]
     )
     with pytest.raises(ConfigError) as err:
-        DenoiseTask().resolve_at_job_start(cfg)
+        DenoiseTask.for_run(cfg).resolve_at_job_start(cfg)
     one_line_error(err, "task.volume_features[2]='fog_density'", "expected a buffer of")
     assert cfg.task.volume_features is None  # nothing settled
     rows[1]["features"][2] = "sigma_t"
     (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
-    DenoiseTask().resolve_at_job_start(cfg)
+    DenoiseTask.for_run(cfg).resolve_at_job_start(cfg)
     assert list(cfg.task.volume_features) == ["color", "color.var", "sigma_t"]
 
 

@@ -41,7 +41,6 @@ from src.metrics.image import tonemap
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.models.instantiate import build_method
-from src.train.trainer import data_kind
 
 log = logging.getLogger(__name__)
 
@@ -99,9 +98,9 @@ class DenoiseEvaluation(Evaluation):
 
     artifact_folders = ("strips", "png", "noisebase")
 
-    def __init__(self, cfg: DictConfig, tracker) -> None:
+    def __init__(self, cfg: DictConfig, tracker, kind: Any) -> None:
         super().__init__(cfg, tracker)
-        self.kind = data_kind(cfg)
+        self.kind = kind
         self.unit = self.kind.eval_unit
         self.features = self.kind.features(cfg)
         if self.checkpoint is not None:
@@ -222,9 +221,10 @@ class DenoiseEvaluation(Evaluation):
         return metrics
 
 
-def evaluate_denoiser(cfg: DictConfig, tracker) -> dict[str, Any]:
-    """Denoise and score every held-out item; returns (and writes) the summary of means."""
-    return DenoiseEvaluation(cfg, tracker).run(desc=f"eval {cfg.model.name}")
+def evaluate_denoiser(cfg: DictConfig, tracker, kind: Any) -> dict[str, Any]:
+    """Denoise and score every held-out item of the data kind `kind` (the task built it); returns (and
+    writes) the summary of means."""
+    return DenoiseEvaluation(cfg, tracker, kind).run(desc=f"eval {cfg.model.name}")
 
 
 def _save_images(

@@ -1,9 +1,11 @@
-"""What every data kind implements (`dataset._target_`), and how a job finds its kind.
+"""What every data kind implements (`dataset._target_`), and how a job builds its kind.
 
-A kind is a class with no constructor arguments: each method gets the resolved run config, as the task
-methods do (the `dataset:` group is one part of what they read; the task's settings and paths are others).
-A task declares the family of kinds it reads (`DenoisingKind` for the denoising tasks, `MultiViewKind` for
-the radiance fields) and refuses another family in one line before any stage runs.
+A kind is configured as a method is: its options are the `dataset:` group, resolved, passed to its
+constructor and checked there against its `schema` (one line naming the `dataset.` key). A job builds its
+kind once (`build_kind`, called by `Task.for_run`) and hands the object to the stages, the trainer and the
+evaluation. Its methods also get the run config for what is not the data's: the task's settings and the
+paths. A task declares the family of kinds it reads (`DenoisingKind` for the denoising tasks,
+`MultiViewKind` for the radiance fields) and refuses another family in one line before any stage runs.
 
 A new kind of data = one class here (or in the user's package) and one `conf/dataset/<name>.yaml` whose
 `_target_` names it.
@@ -18,14 +20,23 @@ from omegaconf import DictConfig
 from pydantic import BaseModel
 
 from src.errors import ConfigError
+from src.schema.checks import check
 
 
 class DataKind:
     """One kind of dataset. `schema` is the pydantic model of its `dataset:` group (`src/schema/dataset.py`),
-    checked when a job starts; `describes` says in a few words what it is, for error lines."""
+    checked by the constructor; `describes` says in a few words what it is, for error lines."""
 
     schema: type[BaseModel] | None = None
     describes: str = "a dataset"
+
+    def __init__(self, **options: Any) -> None:
+        """`options`: the resolved `dataset:` group (`name`, `_target_` and the kind's own keys), kept as
+        `self.dataset`; a one-line ConfigError naming the first key its `schema` refuses."""
+        if self.schema is not None:
+            check(self.schema, options, "dataset")
+        self.dataset: dict[str, Any] = options
+        self.name = str(options.get("name"))
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""
@@ -55,7 +66,7 @@ class DataKind:
         `export.out_dir` (src/render/noisebase_export.py); the stores written. Only kinds that render
         scenes can."""
         raise ConfigError(
-            f"dataset={cfg.dataset.get('name')}: stage=export renders dataset=volumetric's sequences or "
+            f"dataset={self.name}: stage=export renders dataset=volumetric's sequences or "
             f"dataset=procedural's scenes, not {self.describes}"
         )
 
@@ -73,12 +84,16 @@ def kind_class(dataset: Any) -> type[DataKind]:
     return found
 
 
-def kind_of(cfg: DictConfig, family: type[DataKind], task: str) -> Any:
-    """The data kind of this run, checked to be of the `family` task `task` reads."""
+def build_kind(cfg: DictConfig, family: type[DataKind], task: str) -> Any:
+    """The data kind of this run, built from `dataset:` (resolved) once its class is known to be of the
+    `family` task `task` reads: a one-line ConfigError for another family (before its options are
+    resolved, which would fail less clearly), an unresolvable value or a value its schema refuses."""
+    from src.schema.run import resolved  # one line for a resolver's error
+
     found = kind_class(cfg.dataset)
     if not issubclass(found, family):
         raise ConfigError(
             f"dataset={cfg.dataset.get('name')}: {found.describes} ({found.__module__}.{found.__name__}); "
             f"task={task} reads {family.describes}"
         )
-    return found()
+    return found(**resolved(cfg.dataset))

@@ -58,7 +58,8 @@ def repaired_note(summary: dict[str, Any]) -> str:
 
 class DenoisingKind(DataKind):
     """Noisy renders with their references and auxiliary buffers, prepared for the denoisers. A kind of
-    this family also implements `preprocess`, `train` and `evaluate` (the summaries the task prints)."""
+    this family also implements `preprocess` and answers what the one trainer (`src/train/trainer.py`) and
+    the one evaluation (`src/eval/denoise_eval.py`) ask of the data; the task hands it to them."""
 
     describes = "denoising data (noisy and reference renders with their buffers)"
 
@@ -68,12 +69,12 @@ class DenoisingKind(DataKind):
         whose prepared items exist checks now that they hold every buffer the method reads."""
         if stage not in ("train", "eval", "select_features"):
             return
-        have = [str(b) for b in cfg.dataset.branches]
+        have = [str(b) for b in self.dataset["branches"]]
         missing = [b for b in model_branches(cfg.model) if b not in have]
         if missing:
             raise ConfigError(
                 f"model={cfg.model.name} reads the {', '.join(missing)} branch: stage={stage} needs data "
-                f"with it; dataset={cfg.dataset.name} has the {', '.join(have)} branches"
+                f"with it; dataset={self.name} has the {', '.join(have)} branches"
             )
         if stage == "eval" and held_out_index(cfg).is_file():
             self._check_held_out_inputs(cfg)
@@ -173,8 +174,8 @@ class DenoisingKind(DataKind):
             write_summary(tmp / PREPROCESS_PROVENANCE, summary, cfg, raw, cache_key=key)
         return summary, True
 
-    # -- what the one denoising trainer and evaluation ask of the data (src/train/trainer.py,
-    # src/eval/denoise_eval.py) -----------------------------------------------------------------------------
+    # -- what the one denoising trainer and evaluation ask of the data, which the task hands them
+    # (src/train/trainer.py, src/eval/denoise_eval.py) ---------------------------------------------------
     #: Progress-bar units of a training sample and of a held-out item; whether items are sequences (their
     #: rows then carry a frame count and the flicker metric); the input group the feature-selection probe
     #: drops features of (None: no probe on these data).
@@ -217,25 +218,13 @@ class DenoisingKind(DataKind):
         return cfg.task.train.get("schedule")
 
     def loss_terms(self, cfg: DictConfig, train_data):
-        """What the model is fitted to (`src.train.objectives`)."""
+        """What the model is fitted to (`src.objectives.terms`)."""
         raise NotImplementedError
 
     def held_out(self, cfg: DictConfig, features: list[str] | None, model):
         """The held-out items of `task.eval.split`: (F, C, H, W) tensors and `scene`, `spp`,
         `reference_spp`; checked against what `model` reads where the data allow it before any frame."""
         raise NotImplementedError
-
-    def train(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Fit the denoiser (`src.train.trainer`)."""
-        from src.train.trainer import train_denoiser
-
-        return train_denoiser(cfg, tracker)
-
-    def evaluate(self, cfg: DictConfig, tracker) -> dict[str, Any]:
-        """Score the method on the held-out items (`src.eval.denoise_eval`)."""
-        from src.eval.denoise_eval import evaluate_denoiser
-
-        return evaluate_denoiser(cfg, tracker)
 
     def training_summary(self, model, cfg: DictConfig) -> str:
         """Lines `stage=summary` adds about the inputs a model reads on this data (default: none)."""

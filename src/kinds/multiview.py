@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from src.data.blender import scene_dir
 from src.kinds.base import DataKind
@@ -44,9 +44,7 @@ class RenderedScenes(MultiViewKind):
         from src.render.multiview import render_multiview_dataset
 
         scenes = Path(cfg.paths.scenes)
-        summary = render_multiview_dataset(
-            OmegaConf.to_container(cfg.dataset, resolve=True), scenes, cfg.render.variant
-        )
+        summary = render_multiview_dataset(self.dataset, scenes, cfg.render.variant)
         print(
             f"render: {summary.get('scenes_rendered', 0)} scenes rendered, {summary.get('scenes_cached', 0)} "
             f"up to date in {scenes} ({(summary.get('rays_per_second') or 0) / 1e6:.2f} M rays/s)"
@@ -63,5 +61,5 @@ class BlenderScenes(MultiViewKind):
     producer = "stage=render (or dvc repro; for your own scenes, dataset=blender dataset.root=...)"
 
     def render(self, cfg: DictConfig) -> dict[str, Any]:
-        print(f"render: dataset {cfg.dataset.name} is read from {cfg.paths.scenes}; nothing to render")
+        print(f"render: dataset {self.name} is read from {cfg.paths.scenes}; nothing to render")
         return {}

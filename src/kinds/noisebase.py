@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from src.kinds.base import DataKind
 from src.kinds.sequences import RenderedSequences
@@ -32,8 +32,7 @@ class NoisebaseSequences(RenderedSequences):
         from src.data.noisebase import convert_to_volume_exrs
 
         raw = self.raw_dir(cfg)
-        ds = OmegaConf.to_container(cfg.dataset, resolve=True)
-        summary = convert_to_volume_exrs(ds, raw)
+        summary = convert_to_volume_exrs(self.dataset, raw)
         if summary["files_written"]:
             print(
                 f"render: {summary['files_written']} files from {summary['sequences']} Noisebase sequences "

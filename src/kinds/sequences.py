@@ -19,38 +19,9 @@ from src.data.sequence_patches import FRAMES_KEY
 from src.data.volume_features import run_volume_features
 from src.errors import ConfigError, DataError
 from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
+from src.objectives.losses import get_loss
+from src.objectives.terms import TemporalLosses
 from src.schema.dataset import VolumetricDataset
-from src.train.losses import get_loss
-from src.train.objectives import TemporalLosses
-
-
-def preprocess_settings(cfg: DictConfig) -> dict[str, Any]:
-    """The keyword arguments of `preprocess_volume_dataset` from `task.preprocess`."""
-    p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
-    return {
-        **{k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")},
-        "split_fractions": p["split"],
-        **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
-        "min_distance": p["min_distance"] * p["patch_size"],
-        **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
-        # only when on: the cache keys of folders made before the option stay the same
-        **({"split_by_base": True} if p.get("split_by_base") else {}),
-        # the held-out sequences' second reference (dataset.second_reference; absent when off, as above)
-        **({"second_reference": True} if cfg.dataset.get("second_reference") else {}),
-    }
-
-
-def held_out_scenes(cfg: DictConfig) -> list[str]:
-    """The val and test scenes preprocessing will make of this config's renders: `split_scenes` of every
-    scene the dataset renders, with the same `task.preprocess` keys (`preprocess_settings`) as
-    `preprocess_volume_dataset`; the scenes whose second reference the render stage makes."""
-    from src.data.splits import split_scenes
-    from src.render.render_dataset import scene_sources
-
-    s = preprocess_settings(cfg)
-    names = [source.name for source in scene_sources(OmegaConf.to_container(cfg.dataset, resolve=True))]
-    splits = split_scenes(names, s["split_fractions"], s["split_seed"], s.get("split_by_base", False))
-    return sorted(splits["val"] + splits["test"])
 
 
 class RenderedSequences(DenoisingKind):
@@ -59,11 +30,40 @@ class RenderedSequences(DenoisingKind):
     schema = VolumetricDataset
     describes = "image sequences"
 
+    def preprocess_settings(self, cfg: DictConfig) -> dict[str, Any]:
+        """The keyword arguments of `preprocess_volume_dataset` from `task.preprocess`."""
+        p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+        return {
+            **{
+                k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")
+            },
+            "split_fractions": p["split"],
+            **{k: p[k] for k in ("split_seed", "sample_seed", "candidates_factor", "min_keep_prob")},
+            "min_distance": p["min_distance"] * p["patch_size"],
+            **{k: p[k] for k in ("importance", "importance_window", "importance_percentile", "whiten_eps")},
+            # only when on: the cache keys of folders made before the option stay the same
+            **({"split_by_base": True} if p.get("split_by_base") else {}),
+            # the held-out sequences' second reference (dataset.second_reference; absent when off, as above)
+            **({"second_reference": True} if self.dataset.get("second_reference") else {}),
+        }
+
+    def held_out_scenes(self, cfg: DictConfig) -> list[str]:
+        """The val and test scenes preprocessing will make of this config's renders: `split_scenes` of every
+        scene the dataset renders, with the same `task.preprocess` keys (`preprocess_settings`) as
+        `preprocess_volume_dataset`; the scenes whose second reference the render stage makes."""
+        from src.data.splits import split_scenes
+        from src.render.render_dataset import scene_sources
+
+        s = self.preprocess_settings(cfg)
+        names = [source.name for source in scene_sources(self.dataset)]
+        splits = split_scenes(names, s["split_fractions"], s["split_seed"], s.get("split_by_base", False))
+        return sorted(splits["val"] + splits["test"])
+
     def export_noisebase(self, cfg: DictConfig) -> list[Path]:
         """Every frame of the `export.scenes` animations, `export.spp` 1-spp passes each."""
         from src.render.noisebase_export import export_volumetric_sequences
 
-        e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
+        e, ds = cfg.export, self.dataset
         scenes = list(e.scenes) if e.scenes is not None else None
         return export_volumetric_sequences(ds, Path(e.out_dir), e.format, e.spp, scenes, cfg.render.variant)
 
@@ -73,9 +73,9 @@ class RenderedSequences(DenoisingKind):
         reference of the held-out scenes (`held_out_scenes`)."""
         from src.render.volume_dataset import render_volumetric_dataset
 
-        ds = OmegaConf.to_container(cfg.dataset, resolve=True)
+        ds = self.dataset
         scenes, frames = ds.get("render_scenes"), ds.get("render_frames")
-        second = held_out_scenes(cfg) if ds.get("second_reference") else []
+        second = self.held_out_scenes(cfg) if ds.get("second_reference") else []
         summary = render_volumetric_dataset(
             ds, raw, cfg.render.variant, scenes=scenes, frames=frames, second_reference=second
         )
@@ -89,7 +89,7 @@ class RenderedSequences(DenoisingKind):
         """Besides the branch check: a preprocessing window longer than the sequences, and input
         whitening (no whitening statistics of the sequences' inputs are passed to a model), are one line."""
         super().check_stage(stage, cfg)
-        k, frames = cfg.task.preprocess.sequence_frames, cfg.dataset.frames
+        k, frames = cfg.task.preprocess.sequence_frames, self.dataset["frames"]
         if stage == "preprocess" and k > frames:
             raise ConfigError(
                 f"{FRAMES_KEY}={k} is more than the dataset.frames={frames} frames of each volumetric "
@@ -107,8 +107,8 @@ class RenderedSequences(DenoisingKind):
         follows; null leaves the configured features. The chosen names get the schema's check (it ran
         before they were known): a hand-edited selection file is one line, not a failure later."""
         if cfg.task.feature_selection.size is not None:
+            from src.data.feature_choice import features_for_size
             from src.data.volume_features import volume_feature_channels
-            from src.train.select_features import features_for_size
 
             features = features_for_size(cfg.task.feature_selection)
             volume_feature_channels(features)
@@ -120,7 +120,7 @@ class RenderedSequences(DenoisingKind):
         from src.data.volume_shards import SEQUENCE_KEYS
 
         repair = OmegaConf.to_container(cfg.task.preprocess.repair, resolve=True)
-        settings = {**preprocess_settings(cfg), "repair": repair}
+        settings = {**self.preprocess_settings(cfg), "repair": repair}
         return cache_key(settings, raw, (*SEQUENCE_KEYS, *VOLUME_CANDIDATE_CHANNELS))
 
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
@@ -129,7 +129,7 @@ class RenderedSequences(DenoisingKind):
         from src.data.volume_buffers import load_volume_exr
         from src.data.volume_shards import preprocess_volume_dataset
 
-        settings = preprocess_settings(cfg)
+        settings = self.preprocess_settings(cfg)
         key = self.preprocess_key(cfg, self.raw_dir(cfg))
 
         def build(raw: Path, tmp: Path, load) -> dict[str, Any]:

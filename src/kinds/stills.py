@@ -15,9 +15,9 @@ from src.data.denoise_dataset import FramesOfOne, ImagesAsFrames
 from src.data.features import CANDIDATE_CHANNELS, check_trained_features, input_features
 from src.errors import ConfigError
 from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
+from src.objectives.losses import get_loss
+from src.objectives.terms import BranchLosses
 from src.schema.dataset import ProceduralDataset
-from src.train.losses import get_loss
-from src.train.objectives import BranchLosses
 
 #: `task.preprocess` keys only the sequences read (`src.kinds.sequences`): changing them leaves prepared
 #: still images valid.
@@ -48,7 +48,7 @@ class RenderedStills(DenoisingKind):
         frame, `export.spp` 1-spp passes each."""
         from src.render.noisebase_export import export_still_sequences
 
-        e, ds = cfg.export, OmegaConf.to_container(cfg.dataset, resolve=True)
+        e, ds = cfg.export, self.dataset
         scenes = list(e.scenes) if e.scenes is not None else None
         return export_still_sequences(
             ds, Path(e.out_dir), e.format, e.spp, e.frames, e.pan_deg, scenes, cfg.render.variant
@@ -57,8 +57,7 @@ class RenderedStills(DenoisingKind):
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
         from src.render.render_dataset import render_denoise_dataset
 
-        ds = OmegaConf.to_container(cfg.dataset, resolve=True)
-        summary = render_denoise_dataset(ds, raw, cfg.render.variant)
+        summary = render_denoise_dataset(self.dataset, raw, cfg.render.variant)
         return summary, Path(cfg.paths.dataset) / "render_summary.json"
 
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
@@ -70,7 +69,7 @@ class RenderedStills(DenoisingKind):
         if stage == "select_features":
             raise ConfigError(
                 f"stage=select_features: the feature selection chooses among the volumetric candidates "
-                f"(task.volume_features); dataset={cfg.dataset.name} has a fixed feature list "
+                f"(task.volume_features); dataset={self.name} has a fixed feature list "
                 "(task.features); run it with dataset=volumetric"
             )
 

@@ -9,7 +9,7 @@ The metric here compares the frame-to-frame changes of the output with those of 
 on the tone-mapped frames (the display values PSNR/SSIM see, `metrics.tonemap`), so it is in display
 units, comparable across scenes, and zero for an output that changes exactly as the reference does (a
 copy of it; not the noise-free truth: see its floor below). It is the signed temporal-derivative term of
-the training loss (`src.train.temporal.temporal_loss`, after Chaitanya et al. 2017 and the 2023
+the training loss (`src.objectives.temporal.temporal_loss`, after Chaitanya et al. 2017 and the 2023
 production volumetric denoising talk) used as a metric, unwarped: camera and media motion are in the
 reference's differences too, so they cancel wherever the output follows the reference.
 

@@ -73,7 +73,7 @@ class Preprocess(Schema):
 
 def _known_loss(value: Any) -> Any:
     """The trainer's own check (`get_loss`): a known name, or an importable `_target_`."""
-    from src.train.losses import get_loss
+    from src.objectives.losses import get_loss
 
     passes(get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True))
     return value

@@ -2,9 +2,10 @@
 `src/stages.py`, which calls these methods and has no task-name branches). A new task subclasses `Task`,
 implements the stages its `task.stages` list names, and ships a `conf/task/<name>.yaml`.
 
-A task that reads data names the family of data kinds it reads (`kinds`, `src/kinds/`); what a stage
-reads, which stages the data can serve and how they are rendered is then the kind's (`dataset._target_`),
-and the task adds only what is its own: training, evaluation, the lines it prints."""
+A task that reads data names the family of data kinds it reads (`kinds`, `src/kinds/`); a job builds its
+task once (`Task.for_run`) with the data kind `dataset._target_` names, built once too. What a stage
+reads, which stages the data can serve and how they are rendered is then the kind's, and the task adds
+only what is its own: it hands the kind to its trainer and evaluation and prints their lines."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from typing import Any
 from omegaconf import DictConfig
 from pydantic import BaseModel
 
-from src.kinds.base import DataKind, kind_of
+from src.kinds.base import DataKind, build_kind
 
 
 class Task:
@@ -26,41 +27,43 @@ class Task:
     schema: type[BaseModel]
     kinds: type[DataKind] | None = None
 
-    def kind(self, cfg: DictConfig) -> Any:
-        """The data kind `dataset._target_` names, checked to be of this task's family (a one-line
-        ConfigError otherwise); its `schema` checks the `dataset:` group at job start. None for a task
-        that reads no data kind."""
-        return None if self.kinds is None else kind_of(cfg, self.kinds, str(cfg.task.name))
+    def __init__(self, kind: Any = None) -> None:
+        """`kind`: the run's data kind (None for a task that reads none)."""
+        self.kind = kind
+
+    @classmethod
+    def for_run(cls, cfg: DictConfig) -> Task:
+        """This task with the data kind `dataset._target_` names, built from `dataset:` and checked to be
+        of the task's family (`src.kinds.base.build_kind`: a one-line ConfigError otherwise, or for a
+        value the kind's schema refuses)."""
+        return cls(None if cls.kinds is None else build_kind(cfg, cls.kinds, str(cfg.task.name)))
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
         """What `stage` reads, each with what produces it (a stage or command), so that a stage started too
         early says what to run first instead of failing on a missing file: the data kind's. (A learned
         method's checkpoint, which every task's evaluation needs, is added by `stages.require_inputs`.)"""
-        kind = self.kind(cfg)
-        return {} if kind is None else kind.inputs(stage, cfg)
+        return {} if self.kind is None else self.kind.inputs(stage, cfg)
 
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
         """Settle, in place, the config values that depend on another stage's output (read once, when a job
         starts, after the schema check and before any stage runs; a missing output is a one-line
         ConfigError): the data kind's."""
-        kind = self.kind(cfg)
-        if kind is not None:
-            kind.resolve_at_job_start(cfg)
+        if self.kind is not None:
+            self.kind.resolve_at_job_start(cfg)
 
     def check_stages(self, stages: list[str], cfg: DictConfig) -> None:
         """Raise a one-line ConfigError when this config cannot run one of `stages` (checked at job start,
         before any stage runs): the data kind's refusals."""
-        kind = self.kind(cfg)
-        if kind is not None:
-            kind.check_stages(stages, cfg)
+        if self.kind is not None:
+            self.kind.check_stages(stages, cfg)
 
     def data_dir(self, cfg: DictConfig) -> Path:
         """The data a run's `nrbench.data_fingerprint` tag identifies."""
-        return self.kind(cfg).data_dir(cfg)
+        return self.kind.data_dir(cfg)
 
     def render(self, cfg: DictConfig) -> dict[str, Any]:
         """Produce (or locate) the task's dataset."""
-        return self.kind(cfg).render(cfg)
+        return self.kind.render(cfg)
 
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
         """Turn the rendered data into what training reads; only tasks listing the stage implement it."""

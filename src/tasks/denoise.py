@@ -17,19 +17,25 @@ class DenoiseTask(Task):
     kinds = DenoisingKind
 
     def preprocess(self, cfg: DictConfig) -> dict:
-        return self.kind(cfg).preprocess(cfg)
+        return self.kind.preprocess(cfg)
 
     def train(self, cfg: DictConfig, tracker) -> dict:
-        return self.kind(cfg).train(cfg, tracker)
+        """Fit the denoiser on the kind's data (`src.train.trainer`)."""
+        from src.train.trainer import train_denoiser
+
+        return train_denoiser(cfg, tracker, self.kind)
 
     def select_features(self, cfg: DictConfig, tracker) -> dict:
         """The feature-selection probe and its greedy forward selection (`src.train.select_features`)."""
         from src.train.select_features import select_features
 
-        return select_features(cfg, tracker)
+        return select_features(cfg, tracker, self.kind)
 
     def evaluate(self, cfg: DictConfig, tracker) -> dict:
-        summary = self.kind(cfg).evaluate(cfg, tracker)
+        """Score the method on the kind's held-out items (`src.eval.denoise_eval`); print its line."""
+        from src.eval.denoise_eval import evaluate_denoiser
+
+        summary = evaluate_denoiser(cfg, tracker, self.kind)
         mean = summary["mean"]
         flicker = (
             f", flicker {mean['temporal']:.4f} (noisy {mean['noisy_temporal']:.4f})"
@@ -50,4 +56,4 @@ class DenoiseTask(Task):
         return model_summary(model, model_cfg)
 
     def training_summary(self, model, cfg: DictConfig) -> str:
-        return self.kind(cfg).training_summary(model, cfg)
+        return self.kind.training_summary(model, cfg)

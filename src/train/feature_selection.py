@@ -20,7 +20,7 @@ volumetric denoiser of the Pixar/Disney 2023 talk "Denoising Production Volumetr
    at each round the candidate whose addition lowers the probe's validation loss most, the features
    not selected set to their neutral values (`keep_only`), with NO retraining; this gives the
    loss-vs-feature-count curve and the ordered feature list;
-3. train final denoisers on the first `size` features of that list (`selected_features`) and, as the
+3. train final denoisers on the first `size` features of that list (`src.data.feature_choice`) and, as the
    study's baseline arm, on the same number chosen at random (`random_features`).
 
 Neutral values are in the space of the inputs the probe sees (after the value transform and, when the
@@ -31,12 +31,12 @@ is 0 (no noise) unless overridden by its full name (`albedo.var`).
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable, Collection, Mapping, Sequence
 
 import torch
 from tqdm import tqdm
 
+from src.data.feature_choice import FEATURE_SELECTION_KEY, remaining_candidates
 from src.data.volume_features import (
     VOLUME_CANDIDATE_FEATURES,
     VOLUME_FEATURE_BUFFERS,
@@ -46,9 +46,7 @@ from src.data.volume_features import (
 from src.errors import ConfigError
 
 #: Where the settings live, for error messages.
-FEATURE_SELECTION_KEY = "task.feature_selection"
 NEUTRAL_KEY = f"{FEATURE_SELECTION_KEY}.neutral"
-SIZE_KEY = f"{FEATURE_SELECTION_KEY}.size"
 P_DROP_KEY = "task.feature_selection.dropout"
 SUBSETS_KEY = f"{FEATURE_SELECTION_KEY}.subsets"
 #: How the probe draws a training sample's subset (`task.feature_selection.subsets`; `keep_mask`).
@@ -195,11 +193,6 @@ def spread_indices(total: int, count: int | None) -> list[int]:
     return sorted({int(i * total / count) for i in range(count)})
 
 
-def _remaining(candidates: Sequence[str], start: Sequence[str]) -> list[str]:
-    """`candidates` without the start set and repeats, in order."""
-    return [c for c in dict.fromkeys(candidates) if c not in set(start)]
-
-
 def greedy_forward_selection(
     loss_of: Callable[[Sequence[str]], float],
     candidates: Sequence[str],
@@ -211,7 +204,7 @@ def greedy_forward_selection(
     candidate whose addition gives the lowest `loss_of(selection)` (ties and NaNs: the earlier
     candidate), until `max_size` features are added (None: every candidate). Candidates in `start` are
     skipped. Rows: {"round", "added", "features" (ordered selection so far, start included), "loss"}."""
-    remaining = _remaining(candidates, start)
+    remaining = remaining_candidates(candidates, start)
     if max_size is not None and max_size < 0:
         raise ConfigError(f"{FEATURE_SELECTION_KEY}.max_size={max_size!r}: expected >= 0 or null (all)")
     rounds = len(remaining) if max_size is None else min(max_size, len(remaining))
@@ -233,25 +226,3 @@ def greedy_forward_selection(
             rows.append({"round": r, "added": best, "features": list(selected), "loss": best_loss})
             bar.set_postfix(added=best, loss=f"{best_loss:.4g}")
     return rows
-
-
-def _check_size(size: int, available: int) -> None:
-    if isinstance(size, bool) or not isinstance(size, int) or not 0 <= size <= available:
-        raise ConfigError(f"{SIZE_KEY}={size!r}: expected an integer in [0, {available}] (features to add)")
-
-
-def selected_features(rows: Sequence[Row], size: int) -> list[str]:
-    """The start set plus the first `size` features the greedy selection added; a one-line ConfigError
-    naming `task.feature_selection.size` when `size` < 0 or more than the rounds run."""
-    _check_size(size, len(rows) - 1)
-    return list(rows[size]["features"])
-
-
-def random_features(candidates: Sequence[str], start: Sequence[str], size: int, seed: int) -> list[str]:
-    """The start set plus `size` candidates (not in `start`) chosen at random: the baseline arm of the
-    study. The sets are nested over `size` for one seed (a prefix of one shuffle), as the greedy ones are;
-    a one-line ConfigError naming `task.feature_selection.size` when `size` is out of range."""
-    remaining = _remaining(candidates, start)
-    _check_size(size, len(remaining))
-    random.Random(seed).shuffle(remaining)
-    return [*start, *remaining[:size]]

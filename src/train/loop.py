@@ -235,9 +235,14 @@ def build_schedule(node: DictConfig | None) -> Callable[..., float] | None:
 
 
 def run_training(
-    trainer_class: type[TrainingLoop], cfg: DictConfig, tracker, on_step: OnStep, logged: tuple[str, ...]
+    trainer_class: Callable[..., TrainingLoop],
+    cfg: DictConfig,
+    tracker,
+    on_step: OnStep,
+    logged: tuple[str, ...],
 ) -> dict[str, Any]:
-    """Build a trainer, resume from `task.train.resume` when set, fit, log the summary's `logged` keys."""
+    """Build a trainer (`trainer_class(cfg, tracker, on_step)`: a class, or one with its other arguments
+    bound), resume from `task.train.resume` when set, fit, log the summary's `logged` keys."""
     trainer = trainer_class(cfg, tracker, on_step)
     if cfg.task.train.resume:
         trainer.restore(cfg.task.train.resume)

@@ -13,14 +13,13 @@ Writes, under `task.feature_selection.dir`: `probe/` (its checkpoints and curves
 ordered rows, what made them), `selection.csv` (the talk's "Table 1": rank, feature, channels, validation
 loss) and `selection_curve.png` (loss against the number of features); all are also MLflow artifacts of
 the run, with `select_loss` logged per round. A later run with `size=k` trains on the start set plus the
-first k (`features_for_size`, read by the task when a job starts), so the feature count follows a
-storage budget without a new selection.
+first k (`src.data.feature_choice.features_for_size`, read by the data kind when a job starts), so the
+feature count follows a storage budget without a new selection.
 """
 
 from __future__ import annotations
 
 import copy
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -28,41 +27,13 @@ from typing import Any
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, volume_feature_channels
-from src.errors import ConfigError
+from src.data.feature_choice import SELECTION_FILE, selection_candidates
+from src.data.volume_features import volume_feature_channels
 from src.io.atomic import atomic_path, atomic_write_csv, atomic_write_json
 from src.provenance import provenance
 from src.train import feature_selection as fs
 from src.train.loop import Means
 from src.train.trainer import DenoiserTrainer, flatten_frames
-
-SELECTION_FILE = "selection.json"
-KEY = "task.feature_selection"
-
-
-def selection_candidates(start: list[str], candidates: list[str] | None) -> list[str]:
-    """The features tried: `candidates`, or every stored candidate not in the start set."""
-    pool = list(candidates) if candidates is not None else list(VOLUME_CANDIDATE_FEATURES)
-    return [f for f in pool if f not in start]
-
-
-def features_for_size(selection: DictConfig) -> list[str]:
-    """What `task.volume_features` becomes with `size` = k: the start set plus the selection's first k
-    (`order: greedy`, read from `<dir>/selection.json`) or k candidates drawn at random (`order: random`)."""
-    start, size = [str(f) for f in selection.start], int(selection.size)
-    if selection.order == "random":
-        pool = selection_candidates(start, selection.candidates)
-        return fs.random_features(pool, start, size, int(selection.random_seed))
-    path = Path(selection.dir) / SELECTION_FILE
-    if not path.is_file():
-        raise ConfigError(
-            f"{KEY}.size={size}: {path} not found; run stage=select_features dataset=volumetric first "
-            f"(or set {KEY}.order=random)"
-        )
-    rows = json.loads(path.read_text())["rows"]
-    if [str(f) for f in rows[0]["features"]] != start:
-        raise ConfigError(f"{KEY}.start={start}: {path} was selected from {rows[0]['features']}")
-    return fs.selected_features(rows, size)
 
 
 def probe_config(cfg: DictConfig) -> DictConfig:
@@ -114,11 +85,12 @@ def _save_curve(path: Path, rows: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
-def select_features(cfg: DictConfig, tracker) -> dict[str, Any]:
-    """Train the probe, run the greedy selection, write and log the ordered table (module docstring)."""
+def select_features(cfg: DictConfig, tracker, kind: Any) -> dict[str, Any]:
+    """Train the probe on the data kind `kind`'s samples, run the greedy selection, write and log the
+    ordered table (module docstring)."""
     sel = cfg.task.feature_selection
     probe = probe_config(cfg)
-    trainer = DenoiserTrainer(probe, tracker, probe=True)
+    trainer = DenoiserTrainer(probe, tracker, probe=True, kind=kind)
     if cfg.task.train.resume:
         trainer.restore(cfg.task.train.resume)
     summary = trainer.fit()

@@ -3,7 +3,7 @@
 The kind of data (`dataset._target_`, `src/kinds/`) gives what differs: its training and validation
 datasets (items of k frames; a still image is a sequence of one), the input features a checkpoint
 records, the colour space its branches map back through, what the model is fitted to
-(`src.train.objectives`: the branches' losses for still images, reconstruction + temporal loss for
+(`src.objectives.terms`: the branches' losses for still images, reconstruction + temporal loss for
 sequences) and the learning-rate schedule. The frames of a batch's samples are flattened into one
 batch for the model (`flatten_frames`). Per step (every `log_every`) and per epoch, on train and
 validation data, each logged loss is written: `{train,val}_loss_<name>`.
@@ -20,6 +20,7 @@ data order of an epoch depends only on (seed, epoch), so a resumed run ends with
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import Iterator
@@ -32,7 +33,6 @@ from tqdm import tqdm
 
 from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.models.denoise.base import Batch
-from src.models.instantiate import resolve_target
 from src.train import feature_selection as fs
 from src.train.curves import write_curves
 from src.train.device import autocast, autocast_dtype
@@ -42,11 +42,6 @@ log = logging.getLogger(__name__)
 
 #: Batch entries that are not per-frame tensors (a sample's first frame and crop corner).
 _SAMPLE_META = ("start", "corner")
-
-
-def data_kind(cfg: DictConfig) -> Any:
-    """The data kind `dataset._target_` names (`src/kinds/`), which this run's data are."""
-    return resolve_target(cfg.dataset, "dataset")()
 
 
 def flatten_frames(batch: Batch) -> dict[str, torch.Tensor]:
@@ -65,10 +60,12 @@ def _autocast(device: torch.device, amp: bool):
 
 class DenoiserTrainer(TrainingLoop):
     """Samples of k frames from the prepared data, epochs of the training split, validation after every
-    epoch; what is fitted comes from the data kind (module docstring)."""
+    epoch; what is fitted comes from the data kind `kind` (module docstring), which the task built."""
 
-    def __init__(self, cfg: DictConfig, tracker, on_step: OnStep = None, probe: bool = False) -> None:
-        self.kind = data_kind(cfg)
+    def __init__(
+        self, cfg: DictConfig, tracker, on_step: OnStep = None, probe: bool = False, *, kind: Any
+    ) -> None:
+        self.kind = kind
         self.unit = self.kind.sample_unit
         self.features = self.kind.features(cfg)
         self.train_data, self.val_data = self.kind.training_data(cfg, self.features)
@@ -197,7 +194,8 @@ class _FeatureDropout:
         return fs.drop_features(inputs, keep, self.slices, self.neutral.to(inputs.device), channel_axis=1)
 
 
-def train_denoiser(cfg: DictConfig, tracker, on_step: OnStep = None) -> dict[str, Any]:
-    """Train `cfg.model` on `cfg.paths.prepared`; resume from `task.train.resume` when set."""
+def train_denoiser(cfg: DictConfig, tracker, kind: Any, on_step: OnStep = None) -> dict[str, Any]:
+    """Train `cfg.model` on the data kind `kind`'s prepared data (`paths.prepared`); resume from
+    `task.train.resume` when set."""
     logged = ("train_time_s", "param_count", "steps", "epochs", "train_time_per_epoch_s")
-    return run_training(DenoiserTrainer, cfg, tracker, on_step, logged)
+    return run_training(functools.partial(DenoiserTrainer, kind=kind), cfg, tracker, on_step, logged)

@@ -4,8 +4,10 @@ noisy render at s spp adds Gaussian noise of std `noise / sqrt(s)`, seeded per (
 owns its render (the clean and noisy frames into `paths.raw`), its preprocessing (k-frame training
 samples and whole held-out sequences into `paths.prepared`), the datasets the one denoising trainer and
 evaluation read, its colour space (one `radiance` branch, linear) and its loss terms (reconstruction plus
-the temporal term). Its config is `tests/conf/dataset/toy_sequence.yaml`; the tests train and evaluate a
-toy denoiser and DPCN on it through a multirun and the report, without any edit under `src/`."""
+the temporal term). Its options are its `dataset:` group (`tests/conf/dataset/toy_sequence.yaml`), which
+the job passes to its constructor and its `schema` checks there (`self.dataset` holds them); the tests
+train and evaluate a toy denoiser and DPCN on it through a multirun and the report, without any edit
+under `src/`."""
 
 from __future__ import annotations
 
@@ -22,8 +24,10 @@ from torch.utils.data import IterableDataset
 from src.data.color_spaces import RadianceTransform
 from src.io.atomic import atomic_directory, atomic_write_json
 from src.kinds.denoising import DenoisingKind
-from src.train.losses import get_loss
-from src.train.objectives import TemporalLosses
+from src.objectives.losses import get_loss
+from src.objectives.terms import TemporalLosses
+from src.schema.dataset import DenoisingData
+from src.schema.types import PositiveFloat, PositiveInt
 
 SPLITS = ("train", "val", "test")
 
@@ -81,38 +85,55 @@ class ToySamples(IterableDataset):
             yield {k: v[i] for k, v in self.samples.items()}
 
 
+class ToyData(DenoisingData):
+    """The toy kind's `dataset:` keys: a value outside these is one line naming the key at job start."""
+
+    name: str
+    experiment_suffix: str
+    scenes: PositiveInt
+    frames: PositiveInt
+    sequence_frames: PositiveInt
+    width: PositiveInt
+    height: PositiveInt
+    noisy_spp: list[PositiveInt]
+    noise: PositiveFloat
+    temporal_weight: float
+    seed: int
+
+
 class ToySequences(DenoisingKind):
     """Analytic sequences with Gaussian noise (module docstring)."""
 
+    schema = ToyData
     describes = "toy analytic sequences"
     eval_unit = "seq"
     temporal = True
 
     def render(self, cfg: DictConfig) -> dict[str, Any]:
-        ds, raw = cfg.dataset, self.raw_dir(cfg)
+        ds, raw = self.dataset, self.raw_dir(cfg)
         with atomic_directory(raw) as tmp:
-            for scene in range(int(ds.scenes)):
-                clean = clean_frames(scene, int(ds.frames), int(ds.height), int(ds.width))
+            for scene in range(ds["scenes"]):
+                clean = clean_frames(scene, ds["frames"], ds["height"], ds["width"])
                 noisy = {}
-                for spp in ds.noisy_spp:
-                    rng = np.random.default_rng([int(ds.seed), scene, int(spp)])
-                    noise = rng.normal(0.0, float(ds.noise) / math.sqrt(spp), clean.shape)
+                for spp in ds["noisy_spp"]:
+                    rng = np.random.default_rng([ds["seed"], scene, spp])
+                    noise = rng.normal(0.0, ds["noise"] / math.sqrt(spp), clean.shape)
                     noisy[str(spp)] = torch.from_numpy((clean + noise).astype(np.float32))
                 torch.save({"clean": torch.from_numpy(clean), "noisy": noisy}, tmp / f"scene{scene:03d}.pt")
-        print(f"render: {int(ds.scenes)} toy sequences -> {raw}")
-        return {"scenes": int(ds.scenes)}
+        print(f"render: {ds['scenes']} toy sequences -> {raw}")
+        return {"scenes": ds["scenes"]}
 
     def preprocess(self, cfg: DictConfig) -> dict[str, Any]:
-        ds, out, k = cfg.dataset, Path(cfg.paths.prepared), int(cfg.dataset.sequence_frames)
+        ds, out, k = self.dataset, Path(cfg.paths.prepared), self.dataset["sequence_frames"]
         samples: dict[str, list[dict[str, torch.Tensor]]] = {"train": [], "val": []}
         full: dict[str, list[dict[str, Any]]] = {"val": [], "test": []}
-        for scene in range(int(ds.scenes)):
+        for scene in range(ds["scenes"]):
             data = torch.load(self.raw_dir(cfg) / f"scene{scene:03d}.pt", weights_only=True)
-            split = split_of(scene, int(ds.scenes))
+            split = split_of(scene, ds["scenes"])
             for spp, noisy in data["noisy"].items():
-                item = sequence_item(data["clean"].numpy(), noisy.numpy(), float(ds.noise) ** 2 / int(spp))
+                item = sequence_item(data["clean"].numpy(), noisy.numpy(), ds["noise"] ** 2 / int(spp))
                 if split in samples:
-                    for start in range(int(ds.frames) - k + 1):
+                    for start in range(ds["frames"] - k + 1):
                         samples[split].append({key: v[start : start + k] for key, v in item.items()})
                 if split in full:
                     full[split].append({"scene": f"scene{scene:03d}", "spp": int(spp), **item})
@@ -154,7 +175,7 @@ class ToySequences(DenoisingKind):
         return TemporalLosses(
             get_loss(cfg.task.train.loss),
             self.color_space(cfg),
-            weight=float(cfg.dataset.temporal_weight),
+            weight=self.dataset["temporal_weight"],
             mode="signed",
             warp=False,
             transform="none",

@@ -44,7 +44,8 @@ LOSSES: dict[str, Loss] = {"l1": l1, "l2": l2, "smape": smape, "relmse": relmse}
 
 def get_loss(spec) -> Loss:
     """A loss by name (`LOSSES`), or a user's callable named by a `{_target_: ..., <keyword>: ...}`
-    mapping, its other keys bound as keyword arguments (`{_target_: src.train.losses.smape, eps: 0.1}`)."""
+    mapping, its other keys bound as keyword arguments
+    (`{_target_: src.objectives.losses.smape, eps: 0.1}`)."""
     if isinstance(spec, str):
         if spec not in LOSSES:
             expected = f"expected one of {sorted(LOSSES)} or a {{_target_: ...}} mapping"

@@ -9,7 +9,8 @@ logged loss; `objective` says which of them the optimiser minimises.
   `color` (a colour model: `color`).
 - `TemporalLosses` (sequences; Zhu et al. 2023, the Pixar/Disney talk): reconstruction on linear colour
   (SMAPE by default) plus `temporal_weight` times the temporal loss of the frame-to-frame differences in
-  the stored radiance space (`src.train.temporal`). Logged: `color` (reconstruction), `temporal`, `total`.
+  the stored radiance space (`src.objectives.temporal`). Logged: `color` (reconstruction), `temporal`,
+  `total`.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import torch
 from src.data.transforms import volume_transform
 from src.errors import DataError
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
-from src.train.losses import Loss
-from src.train.temporal import temporal_loss
+from src.objectives.losses import Loss
+from src.objectives.temporal import temporal_loss
 
 
 def component_losses(model: Denoiser, batch: Batch, loss: Loss, space: ColorSpace) -> dict[str, torch.Tensor]:
