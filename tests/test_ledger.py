@@ -656,6 +656,11 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert ledger.loc["unet_10x", "seed_budget"] == "its own budget"
     items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
     assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)
+    index = pd.read_csv(tmp_path / "reports" / "items" / "index.csv").set_index("claim")
+    assert index.loc["kpcn_beats_dpcn", "replicates"] == 6 and index.loc["kpcn_beats_dpcn", "file"] == (
+        "kpcn_beats_dpcn.csv"
+    )
+    assert "needs_scenes" not in index.index and "smoke_only" not in index.index  # not run: no items
     fallback = ledger.loc["pipeline_fallback"]
     assert fallback["from"] == "pipeline" and fallback["runs"] == 2
     assert "over 1 seeds (6 item(s) nested in each)" in fallback["numbers"]
@@ -714,3 +719,14 @@ def test_the_ledger_stage_refuses_a_bad_claims_file_in_one_line(tmp_path):
     )
     one_line_cli_error(result, "claims.x.per", "pixel")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_ledger_without_any_counted_run_still_writes_its_items_folder(tmp_path):
+    """The folder is a DVC output of the ledger stage: a store with no counted run (the smoke pipeline's)
+    must leave it, with an index of no claims, instead of failing `dvc repro` at its last stage."""
+    from src.report.ledger_page import ledger_frame, write_ledger
+
+    paths = write_ledger(ledger_frame([]), tmp_path, "no runs")
+    index = pd.read_csv(tmp_path / "items" / "index.csv")
+    assert list(index.columns) == ["claim", "file", "replicates"] and index.empty
+    assert paths["csv"].is_file()

@@ -268,11 +268,20 @@ def _items_csv(row) -> str:
 
 
 def write_ledger(frame: pd.DataFrame, out_dir: Path, subtitle: str, rows: Sequence = ()) -> dict[str, Path]:
-    """`ledger.{md,html,csv}` and `items/<claim>.csv` under `out_dir`; returns the ledger paths by suffix."""
+    """`ledger.{md,html,csv}` and `items/<claim>.csv` under `out_dir`, with `items/index.csv` listing the
+    claims that have items (written even when none has: the folder is a DVC output of the ledger stage,
+    and a store without a counted run, e.g. at `profile=smoke`, must not fail it); returns the ledger
+    paths by suffix."""
     out_dir = Path(out_dir)
+    listed = []
     for row in rows:
         if row.replicates is not None:
             atomic_write_text(out_dir / "items" / f"{row.claim.id}.csv", _items_csv(row))
+            listed.append(
+                {"claim": row.claim.id, "file": f"{row.claim.id}.csv", "replicates": row.verdict.items}
+            )
+    index = pd.DataFrame(listed, columns=["claim", "file", "replicates"])
+    atomic_write_text(out_dir / "items" / "index.csv", index.to_csv(index=False))
     texts = {
         "md": ledger_markdown(frame, subtitle),
         "html": ledger_html(frame, subtitle),
