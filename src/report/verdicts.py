@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -98,6 +99,17 @@ def _needs(
     return text
 
 
+#: The verdict of a comparison no replicate was scored in by both arms.
+NO_REPLICATE = Verdict(NOT_RUN, "no replicate scored in both arms")
+
+
+def _tested(values: pd.Series, alpha: float) -> tuple[int, Any, dict[str, float]]:
+    """(n, the signed-rank result, the Verdict fields it fills) of one value per replicate."""
+    result = signed_rank(values.to_numpy(float), alpha)
+    fields = dict(p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high)
+    return len(values), result, {"items": len(values), **fields}
+
+
 def better_verdict(
     advantage: pd.Series,
     names: tuple[str, str],
@@ -114,10 +126,9 @@ def better_verdict(
     a factor (> 1) when `log`; 0: any. `p_adjusted`: the p after the family's correction, which decides
     significance when given (the interval stays the claim's own). `unit`: what a replicate is (seeds,
     images, rounds); `nesting`: what each holds, as printed after it."""
-    n = len(advantage)
-    if n < 1:
-        return Verdict(NOT_RUN, "no replicate scored in both arms")
-    result = signed_rank(advantage.to_numpy(float), alpha)
+    if len(advantage) < 1:
+        return NO_REPLICATE
+    n, result, verdict = _tested(advantage, alpha)
     p = result.p_value if p_adjusted is None else p_adjusted
     threshold = (math.log(size) if log else size) if size and (size > 1 or not log) else None
     numbers = (
@@ -130,9 +141,6 @@ def better_verdict(
         numbers += f", adjusted p = {p_adjusted:.2g}"
     if threshold is not None:
         numbers += f"; published size {effect_text(threshold, log)}"
-    verdict = dict(
-        items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
-    )
     if n < min_items(alpha):
         return Verdict(UNDERPOWERED, numbers + "; " + _needs(advantage, alpha, unit, size, log), **verdict)
     if p > alpha:
@@ -165,16 +173,15 @@ def comparable_verdict(
     """Whether arms a and b are equivalent within `tolerance` (metric units; a natural-log ratio when
     `log`): the (1 - alpha) signed-rank interval of the shift a - b against +-tolerance. `difference`:
     a - b per replicate (+-inf where one arm failed)."""
-    n = len(difference)
-    if n < 1:
-        return Verdict(NOT_RUN, "no replicate scored in both arms")
-    result = signed_rank(difference.to_numpy(float), alpha)
+    if len(difference) < 1:
+        return NO_REPLICATE
+    n, result, verdict = _tested(difference, alpha)
+    verdict.pop("p_value")  # the test of a zero shift says nothing of equivalence
     what = f"log({names[0]} / {names[1]})" if log else f"{names[0]} - {names[1]}"
     numbers = (
         f"{what} = {result.estimate:+.4g} (Hodges-Lehmann), {_interval(result, False)} over {n} "
         f"{unit}{nesting}, tolerance ±{tolerance:g}"
     )
-    verdict = dict(items=n, estimate=result.estimate, low=result.low, high=result.high)
     if n < min_items(alpha):
         return _cannot_bound(numbers, n, unit, result.level, alpha, verdict)
     if -tolerance <= result.low and result.high <= tolerance:
@@ -196,17 +203,13 @@ def not_worse_verdict(
     """Whether arm a is at worst `tolerance` behind arm b (metric units; a natural-log ratio when `log`):
     the (1 - alpha) signed-rank interval of a's advantage against -tolerance (module docstring).
     `advantage`: per replicate, positive where a is better (+-inf where one arm failed)."""
-    n = len(advantage)
-    if n < 1:
-        return Verdict(NOT_RUN, "no replicate scored in both arms")
-    result = signed_rank(advantage.to_numpy(float), alpha)
+    if len(advantage) < 1:
+        return NO_REPLICATE
+    n, result, verdict = _tested(advantage, alpha)
     numbers = (
         f"{names[0]} ahead of {names[1]} by {effect_text(result.estimate, log)} (Hodges-Lehmann), "
         f"{_interval(result, log)} over {n} {unit}{nesting}; margin: at most "
         f"{effect_text(tolerance, log).lstrip('+')} behind"
-    )
-    verdict = dict(
-        items=n, p_value=result.p_value, estimate=result.estimate, low=result.low, high=result.high
     )
     if n < min_items(alpha):
         return _cannot_bound(numbers, n, unit, result.level, alpha, verdict)
