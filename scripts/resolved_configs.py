@@ -5,9 +5,11 @@ python scripts/resolved_configs.py dump OUT.json
     src.run` would, resolves it with fixed stand-in paths, and writes {combination: resolved config}
     (a combination that fails to compose or resolve is stored as {"error": message}); run it before and
     after a change to conf/;
-python scripts/resolved_configs.py compare BEFORE.json AFTER.json
+python scripts/resolved_configs.py compare BEFORE.json AFTER.json [--renamed]
     every difference between two dumps, one line per changed key with the combinations it changed in;
-    prints "identical: N combinations" and exits 0 when there is none, else 1.
+    prints "identical: N combinations" and exits 0 when there is none, else 1. --renamed reads BEFORE's
+    keys under today's names first (src/report/renamed_keys.py: keys that moved, e.g. the sequences'
+    options from task: to dataset:), so only values that changed are left;
 
 The combinations: each task with each dataset it reads (denoise and filter_search: procedural, volumetric;
 nerf: nerf_procedural, blender with a stand-in root), each profile that has sizes for the task
@@ -157,9 +159,12 @@ def flat(tree: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def differences(before: Mapping[str, Any], after: Mapping[str, Any]) -> dict[str, list[str]]:
+def differences(
+    before: Mapping[str, Any], after: Mapping[str, Any], renamed: bool = False
+) -> dict[str, list[str]]:
     """{"key: before -> after": [combinations]} of every leaf that differs, a combination missing from
-    one side as the key `<combination>`."""
+    one side as the key `<combination>`. `renamed`: BEFORE's keys are read under today's names first
+    (`src/report/renamed_keys.py`), so a moved key with its value kept is no difference."""
     out: dict[str, list[str]] = {}
     for name in sorted(set(before) | set(after)):
         if name not in before or name not in after:
@@ -167,6 +172,10 @@ def differences(before: Mapping[str, Any], after: Mapping[str, Any]) -> dict[str
             out.setdefault(f"<combination> only {side}", []).append(name)
             continue
         old, new = flat(before[name]), flat(after[name])
+        if renamed:
+            from src.report.renamed_keys import renamed_key
+
+            old = {renamed_key(k): v for k, v in old.items()}
         for key in sorted(set(old) | set(new)):
             if old.get(key, "<absent>") != new.get(key, "<absent>") or (key in old) != (key in new):
                 change = f"{key}: {old.get(key, '<absent>')!r} -> {new.get(key, '<absent>')!r}"
@@ -179,9 +188,9 @@ def main(argv: list[str]) -> int:
     if argv[:1] == ["dump"] and len(argv) == 2:
         Path(argv[1]).write_text(json.dumps(dump(), indent=1, sort_keys=True))
         return 0
-    if argv[:1] == ["compare"] and len(argv) == 3:
-        before, after = (json.loads(Path(p).read_text()) for p in argv[1:])
-        diffs = differences(before, after)
+    if argv[:1] == ["compare"] and len(argv) in (3, 4) and argv[3:] in ([], ["--renamed"]):
+        before, after = (json.loads(Path(p).read_text()) for p in argv[1:3])
+        diffs = differences(before, after, renamed=argv[3:] == ["--renamed"])
         for change, names in diffs.items():
             print(f"{change}  [{len(names)}: {', '.join(names)}]")
         if not diffs:

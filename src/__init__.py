@@ -25,5 +25,5 @@ OmegaConf.register_new_resolver("nrbench.scale", _scale, replace=True)
 # `in_channels: ${nrbench.channels:${task.features}}`: a denoiser's input channel count, derived from the
 # configured feature list (src/data/features.py) instead of typed by hand.
 OmegaConf.register_new_resolver("nrbench.channels", _feature_count, replace=True)
-# `${nrbench.volume_channels:${task.volume_features}}`: the same for the volumetric denoiser's inputs.
+# `${nrbench.volume_channels:${dataset.volume_features}}`: the same for the volumetric denoiser's inputs.
 OmegaConf.register_new_resolver("nrbench.volume_channels", _volume_feature_count, replace=True)

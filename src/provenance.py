@@ -68,7 +68,7 @@ IGNORED_PARAMS = frozenset(
         "task.train.resume",
         "task.search.out_dir",  # task=filter_search: per job
         "task.search.resume",
-        "task.feature_selection.dir",  # under paths.dataset; what it holds is the selection's data
+        "dataset.feature_selection.dir",  # under paths.dataset; what it holds is the selection's data
         "task.search.seed",  # = ${seed}, which reports aggregate over
         "stage",
         "seed",

@@ -31,9 +31,15 @@ def single_thread():
 
 
 def compose_config(overrides=()):
-    """The resolved-at-access root config, composed in-process as ``python -m src.run`` would."""
+    """The resolved-at-access root config, composed in-process as ``python -m src.run`` would. Without a
+    Hydra run, `paths.root` (the run's working directory) has no value: a stand-in is set unless the
+    overrides set it, so that what interpolates the paths (`dataset.feature_selection.dir`, which a data
+    kind's options hold) resolves; nothing is written there."""
+    overrides = list(overrides)
+    if not any(o.split("=", 1)[0].lstrip("+") == "paths.root" for o in overrides):
+        overrides.append("paths.root=/nrbench-compose")
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides), return_hydra_config=False)
+        return compose(config_name="config", overrides=overrides, return_hydra_config=False)
 
 
 def data_kind(cfg):

@@ -104,18 +104,21 @@ BAD_VALUES = [
         ["task=nerf", "profile_tasks=[denoise]"],
         ["profile=smoke: has sizes for task ['denoise'], not task=nerf"],
     ),
-    (["task.preprocess.volume_transform=log"], ["task.preprocess.volume_transform='log'", "'log_modulus'"]),
     (
-        ["task.preprocess.sequence_frames=0"],
-        ["task.preprocess.sequence_frames=0: expected a positive integer"],
+        ["dataset=volumetric", "dataset.preprocess.volume_transform=log"],
+        ["dataset.preprocess.volume_transform='log'", "'log_modulus'"],
     ),
     (
-        ["task.preprocess.patches_per_sequence=-1"],
-        ["task.preprocess.patches_per_sequence=-1: expected a positive integer"],
+        ["dataset=volumetric", "dataset.preprocess.sequence_frames=0"],
+        ["dataset.preprocess.sequence_frames=0: expected a positive integer"],
     ),
     (
-        ["task.volume_features=[color,position]"],
-        ["task.volume_features[1]='position'", "optionally with .var"],
+        ["dataset=volumetric", "dataset.preprocess.patches_per_sequence=-1"],
+        ["dataset.preprocess.patches_per_sequence=-1: expected a positive integer"],
+    ),
+    (
+        ["dataset=volumetric", "dataset.volume_features=[color,position]"],
+        ["dataset.volume_features[1]='position'", "optionally with .var"],
     ),
     (
         ["task=filter_search", "task.search.crossover=0.5"],
@@ -155,8 +158,8 @@ BAD_VALUES = [
         ["dataset.width: unknown key", "'downscale'"],
     ),
     (
-        ["dataset=volumetric", "task.feature_selection.subsets=bernoulli"],
-        ["task.feature_selection.subsets='bernoulli'", "'uniform_size'", "'independent'"],
+        ["dataset=volumetric", "dataset.feature_selection.subsets=bernoulli"],
+        ["dataset.feature_selection.subsets='bernoulli'", "'uniform_size'", "'independent'"],
     ),
 ]
 #: Run through the real CLI in the default suite (the rest with `-m slow`).

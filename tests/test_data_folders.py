@@ -36,7 +36,7 @@ def test_every_profile_has_its_own_data_folder(overrides, folder, tmp_path):
             assert cfg.paths.raw == f"{tmp_path}/{folder}/{profile}/raw"
             assert cfg.paths.prepared == f"{tmp_path}/{folder}/{profile}/prepared"
     if folder == "volumetric":  # the feature selection is made from (and for) one profile's data
-        assert cfg.task.feature_selection.dir == f"{tmp_path}/volumetric/paper/feature_selection"
+        assert cfg.dataset.feature_selection.dir == f"{tmp_path}/volumetric/paper/feature_selection"
 
 
 def test_a_users_own_data_stay_where_they_are(tmp_path):

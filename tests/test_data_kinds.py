@@ -163,8 +163,8 @@ def test_a_filter_whose_guides_the_sequences_lack_is_refused_at_job_start_in_one
     ("dataset", "model", "line"),
     [
         ("procedural", "kpcn", None),
-        ("volumetric", "unet_kpcn", "input features (task.volume_features, 62 channels)"),
-        ("volumetric", "kpcn", "input features (task.volume_features, 62 channels)"),
+        ("volumetric", "unet_kpcn", "input features (dataset.volume_features, 62 channels)"),
+        ("volumetric", "kpcn", "input features (dataset.volume_features, 62 channels)"),
     ],
 )
 def test_stage_summary_runs_on_every_denoising_kind(tmp_path, capsys, dataset, model, line):
@@ -205,16 +205,16 @@ def test_the_benchmark_data_of_a_model_is_named_never_guessed(monkeypatch):
     one_line_error(err, "compare.bench.data.unet_kpcn: missing", "radiance", "procedural")
 
 
-def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_kind():
+def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_kind(tmp_path):
     from src.errors import DataError
 
-    sequences = data_kind(compose_config(["dataset=volumetric", "profile=smoke"]))
+    sequences = data_kind(smoke_config(tmp_path, tmp_path / "run", ["dataset=volumetric"]))
     sequences.check_trained_features({"features": ["color", "albedo"]}, ["color", "albedo"], "a.pt")
     sequences.check_trained_features({}, ["color"], "a.pt")  # a checkpoint that records none
     with pytest.raises(DataError) as excinfo:
         sequences.check_trained_features({"features": None}, ["color", "albedo"], "a.pt")
-    one_line_error(excinfo, "a.pt", "task.volume_features=None", "['color', 'albedo']")
-    stills = data_kind(compose_config(["dataset=procedural", "profile=smoke"]))
+    one_line_error(excinfo, "a.pt", "dataset.volume_features=None", "['color', 'albedo']")
+    stills = data_kind(smoke_config(tmp_path, tmp_path / "run", ["dataset=procedural"]))
     stills.check_trained_features({"features": ["color", "normal"]}, ["color", "normal"], "b.pt")
     with pytest.raises(DataError) as excinfo:
         stills.check_trained_features({"features": ["color", "normal"]}, ["color", "depth"], "b.pt")

@@ -49,10 +49,10 @@ def test_neutral_values_default_zero_and_overrides():
 
 
 def test_neutral_values_unknown_key_is_one_line_config_error():
-    with pytest.raises(ConfigError, match=r"task\.feature_selection\.neutral") as err:
+    with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.neutral") as err:
         neutral_values(FEATURES, {"transmitance": 1.0})
     assert "\n" not in str(err.value)
-    with pytest.raises(ConfigError, match=r"task\.feature_selection\.neutral"):
+    with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.neutral"):
         neutral_values(FEATURES, {"motion.var": 0.0})
 
 
@@ -101,7 +101,7 @@ def test_random_keep_mask_rate_and_always_keep():
     assert torch.allclose(drop_rate, torch.full((4,), 0.3), atol=0.015)
     assert keep[:, 1:4].any(dim=1).float().mean() < 1  # independent: some rows drop all of them
     assert random_keep_mask(10, 3, 0.0).all() and not random_keep_mask(10, 3, 1.0).any()
-    with pytest.raises(ConfigError, match=r"task\.feature_selection\.dropout"):
+    with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.dropout"):
         random_keep_mask(10, 3, 1.5)
 
 
@@ -187,7 +187,7 @@ def test_selected_features_sizes_and_errors():
     assert selected_features(rows, 2) == ["color", "a", "b"]
     assert selected_features(rows, 3) == ["color", "a", "b", "c"]
     for bad in (4, -1):
-        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size") as err:
+        with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.size") as err:
             selected_features(rows, bad)
         assert "\n" not in str(err.value)
 
@@ -203,7 +203,7 @@ def test_random_features_sizes_seed_and_errors():
     assert len(draws) > 3  # actually random over seeds
     assert random_features(candidates, ["color"], 0, seed=0) == ["color"]
     for bad in (6, -1):
-        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
+        with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.size"):
             random_features(candidates, ["color"], bad, seed=0)
 
 
@@ -355,14 +355,14 @@ def test_neutral_values_of_no_features_and_the_unknown_keys_named():
 def test_a_size_must_be_a_true_integer():
     rows = greedy_forward_selection(lambda s: -len(s), ["a", "b"], ["color"], progress=False)
     for bad in (True, 1.0, "1"):
-        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
+        with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.size"):
             selected_features(rows, bad)
-        with pytest.raises(ConfigError, match=r"task\.feature_selection\.size"):
+        with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.size"):
             random_features(["a", "b"], ["color"], bad, seed=0)
     assert selected_features(rows, 1) == ["color", "a"]
 
 
-# --- The probe's subset schemes (`task.feature_selection.subsets`) ---------------------------------------
+# --- The probe's subset schemes (`dataset.feature_selection.subsets`) ---------------------------------------
 
 
 def _kept_counts(keep, free):
@@ -437,18 +437,20 @@ def test_uniform_size_always_keeps_the_start_set_and_follows_the_generator():
 def test_an_unknown_subset_scheme_is_one_line():
     with pytest.raises(ConfigError) as excinfo:
         keep_mask("bernoulli", 4, 3, 0.5)
-    one_line_error(excinfo, "task.feature_selection.subsets='bernoulli'", "'uniform_size'", "'independent'")
+    one_line_error(
+        excinfo, "dataset.feature_selection.subsets='bernoulli'", "'uniform_size'", "'independent'"
+    )
 
 
 @pytest.mark.parametrize("subsets", ["uniform_size", "independent"])
 def test_the_probe_trainer_draws_its_masks_from_the_configured_scheme(subsets):
     """`_FeatureDropout` (the trainer's probe dropout) keeps, per sample and for its k frames alike, the
-    features of `keep_mask(task.feature_selection.subsets, ...)` seeded by (seed, step)."""
+    features of `keep_mask(dataset.feature_selection.subsets, ...)` seeded by (seed, step)."""
     from src.train.trainer import _FeatureDropout
 
     features = list(VOLUME_CANDIDATE_FEATURES[:12])
     sel = {"start": ["color"], "neutral": {}, "dropout": 0.5, "subsets": subsets}
-    cfg = OmegaConf.create({"seed": 3, "task": {"feature_selection": sel}})
+    cfg = OmegaConf.create({"seed": 3, "dataset": {"feature_selection": sel}})
     dropout = _FeatureDropout(cfg, features, "radiance_in")
     slices = dropout.slices
     n, k, step = 300, 2, 7

@@ -130,8 +130,8 @@ def probe_store(tmp_path_factory):
             ("greedy", '["normal", "depth"]', 0.5),
             ("random", f'["f{seed}", "g"]', 0.0),
         ):
-            arm = {"task.feature_selection.order": order, "task.volume_features": features}
-            arm["task.feature_selection.random_seed"] = seed if order == "random" else 0
+            arm = {"dataset.feature_selection.order": order, "dataset.volume_features": features}
+            arm["dataset.feature_selection.random_seed"] = seed if order == "random" else 0
             study("selection", "unet_kpcn", seed, _images(base + gain + shift), **arm)
     yield {"tmp": tmp, "uri": uri}
     mlflow.set_tracking_uri(previous)
@@ -312,7 +312,7 @@ def test_a_models_own_recipe_belongs_to_its_arm_and_its_budget_keys_are_shown(pr
 
 def test_keys_derived_from_the_arm_are_the_arms_own(probe_store, tmp_path, monkeypatch):
     claim = _claim(
-        "selection", "{task.feature_selection.order: greedy}", "{task.feature_selection.order: random}"
+        "selection", "{dataset.feature_selection.order: greedy}", "{dataset.feature_selection.order: random}"
     )
     row = evaluate_claim(claim, _settings(tmp_path))
     assert row.verdict.status == REPRODUCED, row.verdict.numbers
@@ -321,19 +321,21 @@ def test_keys_derived_from_the_arm_are_the_arms_own(probe_store, tmp_path, monke
 
     monkeypatch.setattr(matched_arms, "DERIVED_FROM", {})
     bare = evaluate_claim(claim, _settings(tmp_path))
-    assert bare.verdict.status == CONFOUNDED and "task.feature_selection.random_seed" in bare.verdict.numbers
+    assert (
+        bare.verdict.status == CONFOUNDED and "dataset.feature_selection.random_seed" in bare.verdict.numbers
+    )
 
 
 def test_a_random_baseline_must_hold_the_draws_the_claim_asks_for(probe_store, tmp_path):
     """The random arm drew its subset per seed (6 draws): enough for b_distinct 5 or 6, not for 7; the
     greedy arm's single subset would be one draw."""
-    a, b = "{task.feature_selection.order: greedy}", "{task.feature_selection.order: random}"
+    a, b = "{dataset.feature_selection.order: greedy}", "{dataset.feature_selection.order: random}"
     for needed, status in ((5, REPRODUCED), (6, REPRODUCED), (7, UNDERPOWERED)):
-        claim = _claim("selection", a, b, extra=f", b_distinct: {{task.volume_features: {needed}}}")
+        claim = _claim("selection", a, b, extra=f", b_distinct: {{dataset.volume_features: {needed}}}")
         row = evaluate_claim(claim, _settings(tmp_path))
         assert row.verdict.status == status, (needed, row.verdict.numbers)
-    assert "holds 6 distinct task.volume_features over 6 run(s); the claim needs 7" in row.verdict.numbers
-    one_draw = _claim("selection", b, a, extra=", b_distinct: {task.volume_features: 2}")
+    assert "holds 6 distinct dataset.volume_features over 6 run(s); the claim needs 7" in row.verdict.numbers
+    one_draw = _claim("selection", b, a, extra=", b_distinct: {dataset.volume_features: 2}")
     row = evaluate_claim(one_draw, _settings(tmp_path))
     assert row.verdict.status == UNDERPOWERED and "holds 1 distinct" in row.verdict.numbers
 

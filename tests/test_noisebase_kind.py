@@ -164,7 +164,7 @@ def test_the_sequence_and_per_frame_models_train_and_evaluate_on_a_noisebase_set
         tmp_path,
         f"model={model}",
         "stage=all",
-        "task.volume_features=[color,color.var,albedo,albedo.var,normal,normal.var,depth,depth.var,motion]",
+        "dataset.volume_features=[color,color.var,albedo,albedo.var,normal,normal.var,depth,depth.var,motion]",
     )
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
     assert "render: 18 files from 3 Noisebase sequences" in result.stdout

@@ -347,7 +347,9 @@ def test_the_smoke_pipeline_with_the_protocol_writes_the_noisebase_table(tmp_pat
     command += ["dataset.rendering_width=96", "dataset.crop=null", f"hydra.run.dir={tmp_path}/run"]
     command += [f"tracking.artifact_root={tmp_path}/art", f"report.name={tmp_path}/report", "stage=all"]
     command += ["model=cross_bilateral", "metrics.protocol=noisebase", "metrics.noisebase.warmup=0"]
-    command += ["task.volume_features=[color,color.var,albedo,albedo.var,normal,normal.var,depth,depth.var]"]
+    command += [
+        "dataset.volume_features=[color,color.var,albedo,albedo.var,normal,normal.var,depth,depth.var]"
+    ]
     result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
     rows = pd.read_csv(tmp_path / "run" / "eval" / "per_image.csv")

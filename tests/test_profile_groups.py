@@ -36,13 +36,19 @@ def package(path):
 
 def group_keys(group):
     """Every top-level key a config of conf/<group>/ (or a toy one) has: a global one's `<group>:` block
-    (task=nerf and task=filter_search are global) and the packages its defaults fill
-    (`/encoding@position_encoding`) included."""
+    (task=nerf and task=filter_search are global), the packages its defaults fill
+    (`/encoding@position_encoding`) and the keys of a file its defaults merge into it
+    (`sequences/options@_here_`, the sequence kinds' options) included."""
     keys = set()
     for path in [*(CONF / group).glob("*.yaml"), *(TEST_CONF / group).glob("*.yaml")]:
         data = yaml.safe_load(path.read_text()) or {}
         for entry in data.get("defaults", []):
             name = next(iter(entry)) if isinstance(entry, dict) else entry
+            if name.endswith("@_here_"):
+                keys |= set(
+                    yaml.safe_load((path.parent / f"{name.removesuffix('@_here_')}.yaml").read_text())
+                )
+                continue
             keys |= {name.split("@", 1)[1]} if "@" in name and not name.startswith("override") else set()
         keys |= set(data[group] if package(path) == "_global_" else data)
     return keys - {"defaults", group}  # filter_search's `/task/denoise@task` fills the group itself

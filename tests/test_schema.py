@@ -79,9 +79,9 @@ BOUNDED: dict[Bound, str] = {
     POSITIVE_INT: """
         run.Ssim.win_size run.Export.spp run.Export.frames denoise.PatchCounts.train denoise.PatchCounts.val
         denoise.Preprocess.patch_size
-        denoise.Preprocess.patches_per_image denoise.Preprocess.sequence_frames
-        denoise.Preprocess.patches_per_sequence denoise.FeatureSelection.max_size
-        denoise.FeatureSelection.val_batches denoise.Train.batch_size denoise.Train.epochs
+        denoise.Preprocess.patches_per_image dataset.SequencePreprocess.sequence_frames
+        dataset.SequencePreprocess.patches_per_sequence dataset.FeatureSelection.max_size
+        dataset.FeatureSelection.val_batches denoise.Train.batch_size denoise.Train.epochs
         denoise.Train.max_steps denoise.Train.log_every denoise.Eval.crop_size denoise.Eval.crop_zoom
         nerf.Train.max_steps nerf.Train.batch_size nerf.Train.micro_batch_rays
         nerf.Train.cpu_micro_batch_rays nerf.Train.max_train_images nerf.Train.max_val_images
@@ -134,7 +134,7 @@ BOUNDED: dict[Bound, str] = {
         run.Lpips.seed run.Metrics.relmse_crop run.NoisebaseProtocol.warmup run.Report.images
         run.VolumetricCompare.selected_size
         run.RunSchema.seed run.RunSchema.data_seed denoise.Preprocess.split_seed
-        denoise.Preprocess.sample_seed denoise.FeatureSelection.size denoise.FeatureSelection.random_seed
+        denoise.Preprocess.sample_seed dataset.FeatureSelection.size dataset.FeatureSelection.random_seed
         denoise.Train.num_workers denoise.Eval.tile nerf.Train.precrop_iters filter_search.Search.radius
         filter_search.Search.generations filter_search.Search.seed filter_search.Search.max_constants
         filter_search.Search.hall_of_fame dataset.Integrator.rr_depth
@@ -144,7 +144,7 @@ BOUNDED: dict[Bound, str] = {
     """,
     PROBABILITY: """
         denoise.Split.train denoise.Split.val denoise.Split.test denoise.Preprocess.min_keep_prob
-        denoise.FeatureSelection.dropout filter_search.Search.replication filter_search.Search.crossover
+        dataset.FeatureSelection.dropout filter_search.Search.replication filter_search.Search.crossover
         filter_search.Search.mutation filter_search.Search.crossover_mutation
         filter_search.Search.seed_copies dataset.Randomize.textured_probability
         dataset.Randomize.checker_probability dataset.Randomize.sphere_probability
@@ -156,7 +156,7 @@ BOUNDED: dict[Bound, str] = {
         denoise.Preprocess.candidates_factor
     """,
     NON_NEGATIVE: """
-        denoise.Preprocess.min_distance denoise.VolumetricTrain.temporal_weight
+        denoise.Preprocess.min_distance dataset.SequenceTrain.temporal_weight
         dataset.OrbitCamera.target_jitter dataset.AreaLight.radiance dataset.Tabletop.sky_scale
         dataset.PlumeMedium.source_jitter dataset.PlumeMedium.spread dataset.PlumeMedium.sway
         dataset.Cloud.sky_scale dataset.Godrays.sky_scale dataset.Stripes.intensity
@@ -588,7 +588,7 @@ def test_within_checks_every_value_against_both_ends():
 def test_a_union_field_is_named_by_its_key_alone():
     camera, _ = _one_field("dataset.CornellCamera.origin_x")  # Jitter: float | Range
     assert _line(camera, {"origin_x": [2.0, 1.0]}, "x").startswith("x.origin_x=[2.0, 1.0]: ")
-    loss, _ = _one_field("denoise.VolumetricTrain.loss")  # str | Target
+    loss, _ = _one_field("dataset.SequenceTrain.loss")  # str | Target
     assert _line(loss, {"loss": 3}, "x").startswith("x.loss=3: ")
     kinds, _ = _one_field("filter_search.Search.mutation_kinds")  # dict[Literal[...], float]
     assert _line(kinds, {"mutation_kinds": {"grow": 1.0}}, "x").startswith("x.mutation_kinds.grow=")
@@ -602,7 +602,7 @@ def test_a_union_reports_its_matching_members_expectation_or_all_of_them():
         _line(camera, {"origin_x": [2.0, 1.0]}, "x")
         == "x.origin_x=[2.0, 1.0]: expected [lo, hi] with lo <= hi"
     )
-    loss, _ = _one_field("denoise.VolumetricTrain.loss")
+    loss, _ = _one_field("dataset.SequenceTrain.loss")
     assert _line(loss, {"loss": 3}, "x") == "x.loss=3: expected a string or a mapping"
 
 

@@ -118,8 +118,8 @@ def test_extracted_sequences_equal_direct_slicing():
 @pytest.mark.parametrize(
     "patch, k, needles",
     [
-        (8, 5, ("task.preprocess.sequence_frames=5", "4 frames")),
-        (8, 0, ("task.preprocess.sequence_frames=0", ">= 1")),
+        (8, 5, ("dataset.preprocess.sequence_frames=5", "4 frames")),
+        (8, 0, ("dataset.preprocess.sequence_frames=0", ">= 1")),
         (30, 2, ("task.preprocess.patch_size=30", "20x25")),
         (0, 2, ("task.preprocess.patch_size=0", ">= 1")),
     ],

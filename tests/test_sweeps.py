@@ -475,8 +475,8 @@ def test_the_volumetric_studies_sweep_what_they_name():
     selection, temporal = compose_sweep("feature_selection"), compose_sweep("temporal_loss")
     arms = swept(selection)["+selection_arm"]
     assert list(arms.sweep_string_iterator()) == ["all", "selected", "color_only", "random"]
-    weights = list(swept(temporal)["task.train.volumetric.temporal_weight"].sweep_string_iterator())
-    assert weights[0] == "0.0" and float(weights[1]) == temporal.task.train.volumetric.temporal_weight > 0
+    weights = list(swept(temporal)["dataset.train.temporal_weight"].sweep_string_iterator())
+    assert weights[0] == "0.0" and float(weights[1]) == temporal.dataset.train.temporal_weight > 0
     assert list(temporal.report.metrics)[:3] == ["Flicker vs truth", "Flicker", "tPSNR"]  # the claim's
     for cfg in (selection, temporal):
         assert cfg.dataset.name == "volumetric" and cfg.model.name == "unet_kpcn"
@@ -488,7 +488,10 @@ def test_the_volumetric_studies_sweep_what_they_name():
         "random": (k, "random"),
     }.items():
         arm_cfg = compose_config(["+sweep=feature_selection", f"+selection_arm={arm}"])
-        assert (arm_cfg.task.feature_selection.size, arm_cfg.task.feature_selection.order) == (size, order)
+        assert (arm_cfg.dataset.feature_selection.size, arm_cfg.dataset.feature_selection.order) == (
+            size,
+            order,
+        )
 
 
 @pytest.mark.slow

@@ -167,7 +167,7 @@ def test_the_kpcn_dpcn_and_resnet_configs_build_one_radiance_branch_on_the_seque
 def test_stage_summary_names_flops_per_pixel_and_the_volume_features():
     from src.tasks.denoise import DenoiseTask
 
-    cfg = compose_config(["dataset=volumetric", "model=unet_kpcn", "task.volume_features=[color,albedo]"])
+    cfg = compose_config(["dataset=volumetric", "model=unet_kpcn", "dataset.volume_features=[color,albedo]"])
     model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
     model = build_method(model_cfg)
     text = model_summary(model, model_cfg)

@@ -6,14 +6,12 @@ a run's recorded features and the channel positions in prepared data. Fast, no d
 from __future__ import annotations
 
 import pytest
-from omegaconf import OmegaConf
 
 from src.data.volume_features import (
     VOLUME_CANDIDATE_CHANNELS,
     VOLUME_CANDIDATE_FEATURES,
     VOLUME_FEATURE_BUFFERS,
     _suffixes,
-    run_volume_features,
     volume_channel_indices,
     volume_feature_channels,
     volume_feature_count,
@@ -86,14 +84,9 @@ EXAMPLE = "e.g. [color, color.var, albedo, normal, depth, transmittance, motion]
 def test_a_selection_that_is_not_a_list_is_one_line_with_an_example(features, shown):
     with pytest.raises(ConfigError) as err:
         volume_feature_channels(features)
-    assert str(err.value) == f"task.volume_features={shown}: expected a non-empty list of features, {EXAMPLE}"
-
-
-def test_run_volume_features_is_plain_data_or_none():
-    cfg = OmegaConf.create({"task": {"volume_features": ["color", "depth.var"]}})
-    got = run_volume_features(cfg)
-    assert got == ["color", "depth.var"] and type(got) is list and all(type(f) is str for f in got)
-    assert run_volume_features(OmegaConf.create({"task": {"volume_features": None}})) is None
+    assert (
+        str(err.value) == f"dataset.volume_features={shown}: expected a non-empty list of features, {EXAMPLE}"
+    )
 
 
 def test_channel_positions_in_the_prepared_data_and_the_missing_one_named():
@@ -102,7 +95,7 @@ def test_channel_positions_in_the_prepared_data_and_the_missing_one_named():
     with pytest.raises(DataError) as err:
         volume_channel_indices(["depth", "motion_y", "normal_x"], stored, "shards/train")
     assert str(err.value) == (
-        "shards/train: no channel 'motion_y' for task.volume_features (2 missing); run stage=preprocess "
+        "shards/train: no channel 'motion_y' for dataset.volume_features (2 missing); run stage=preprocess "
         "dataset=volumetric again to store every candidate"
     )
 
@@ -121,12 +114,12 @@ def test_an_unknown_feature_is_one_line_naming_its_index(features, index, bad):
     with pytest.raises(ConfigError) as err:
         volume_feature_channels(features)
     assert str(err.value) == (
-        f"task.volume_features[{index}]={bad!r}: expected a buffer of {list(BUFFERS)}, optionally with .var "
-        "(not motion)"
+        f"dataset.volume_features[{index}]={bad!r}: expected a buffer of {list(BUFFERS)}, optionally with "
+        ".var (not motion)"
     )
 
 
 def test_a_repeated_feature_is_one_line():
     with pytest.raises(ConfigError) as err:
         volume_feature_channels(["depth", "color", "depth", "motion", "color"])
-    assert str(err.value) == "task.volume_features: ['color', 'depth'] listed more than once"
+    assert str(err.value) == "dataset.volume_features: ['color', 'depth'] listed more than once"

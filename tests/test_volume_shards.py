@@ -27,7 +27,7 @@ from src.data.volume_features import (
 )
 from src.data.volume_shards import SEQUENCE_CHANNELS, preprocess_volume_dataset, sequence_arrays
 from src.errors import ConfigError, DataError
-from tests.conftest import ROOT, cli_job, one_line_error, smoke_config
+from tests.conftest import ROOT, cli_job, data_kind, one_line_error, smoke_config
 
 SCENES = ("a-0000", "b-0000", "c-0000", "d-0000")
 FRAMES, SPPS, H, W = 4, (2, 8, 64), 12, 16
@@ -92,12 +92,12 @@ def test_the_candidate_channels_are_named_per_buffer_without_world_points():
 @pytest.mark.parametrize(
     ("features", "needles"),
     [
-        (["color", "colour"], ["task.volume_features[1]='colour'", "optionally with .var"]),
-        (["motion.var"], ["task.volume_features[0]='motion.var'"]),
-        (["color.grad"], ["task.volume_features[0]='color.grad'"]),
-        (["position"], ["task.volume_features[0]='position'"]),
-        (["depth", "depth"], ["task.volume_features: ['depth'] listed more than once"]),
-        ([], ["task.volume_features=[]: expected a non-empty list"]),
+        (["color", "colour"], ["dataset.volume_features[1]='colour'", "optionally with .var"]),
+        (["motion.var"], ["dataset.volume_features[0]='motion.var'"]),
+        (["color.grad"], ["dataset.volume_features[0]='color.grad'"]),
+        (["position"], ["dataset.volume_features[0]='position'"]),
+        (["depth", "depth"], ["dataset.volume_features: ['depth'] listed more than once"]),
+        ([], ["dataset.volume_features=[]: expected a non-empty list"]),
     ],
 )
 def test_bad_volume_features_are_one_line(features, needles):
@@ -214,7 +214,7 @@ def test_features_are_selected_by_name_and_whitened(prepared):
     )
     with pytest.raises(ConfigError) as err:
         SequenceDataset(out, "test", features=["colour"])
-    one_line_error(err, "task.volume_features[0]='colour'")
+    one_line_error(err, "dataset.volume_features[0]='colour'")
 
 
 def test_the_same_seeds_give_the_same_files_and_a_new_seed_other_samples(prepared, tmp_path):
@@ -234,10 +234,10 @@ def test_bad_settings_and_data_are_one_line(tmp_path):
     raw = _raw(tmp_path / "raw", frames=2)
     with pytest.raises(ConfigError) as err:
         _preprocess(raw, tmp_path / "out")
-    one_line_error(err, "task.preprocess.sequence_frames=3", "2 frame(s) of scene 'a-0000'")
+    one_line_error(err, "dataset.preprocess.sequence_frames=3", "2 frame(s) of scene 'a-0000'")
     with pytest.raises(ConfigError) as err:
         _preprocess(raw, tmp_path / "out", sequence_frames=2, volume_transform="log")
-    one_line_error(err, "task.preprocess.volume_transform='log'", "'log_modulus'")
+    one_line_error(err, "dataset.preprocess.volume_transform='log'", "'log_modulus'")
     with pytest.raises(ConfigError) as err:
         _preprocess(raw, tmp_path / "out", sequence_frames=2, patch_size=20)
     one_line_error(err, "task.preprocess.patch_size=20", "12x16")
@@ -303,7 +303,6 @@ def _write_raw(cfg):
 
 
 def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes(tmp_path, capsys):
-    from src.kinds.stills import preprocess_key
     from src.stages import preprocess
 
     cfg = _stage_config(tmp_path)
@@ -316,13 +315,8 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     assert next(iter(SequencePatchDataset(prepared, "train")))["radiance_in"].shape == (2, 62, 8, 8)
     preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
     assert "up to date" in capsys.readouterr().out
-    summary = preprocess(_stage_config(tmp_path, "task.preprocess.sequence_frames=1"))
+    summary = preprocess(_stage_config(tmp_path, "dataset.preprocess.sequence_frames=1"))
     assert "up to date" not in capsys.readouterr().out and summary["settings"]["sequence_frames"] == 1
-    # the still images' cache key ignores the volumetric-only settings (their prepared folders stay valid)
-    still = [
-        _stage_config(tmp_path, *o, dataset="procedural") for o in ([], ["task.preprocess.sequence_frames=5"])
-    ]
-    assert preprocess_key(still[0], prepared) == preprocess_key(still[1], prepared)
 
 
 def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_path):
@@ -341,7 +335,7 @@ def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_pat
     task_of(cfg).check_stages(
         ["train"], _stage_config(tmp_path, "task.preprocess.eps_albedo=0.5")
     )  # still-only
-    other = _stage_config(tmp_path, "task.preprocess.sequence_frames=1")
+    other = _stage_config(tmp_path, "dataset.preprocess.sequence_frames=1")
     with pytest.raises(ConfigError) as excinfo:
         task_of(other).check_stages(["train"], other)
     one_line_error(
@@ -378,10 +372,10 @@ def test_every_stage_of_the_volumetric_dataset_passes_the_job_start_checks(stage
 def test_a_window_longer_than_the_sequences_is_refused_at_job_start(tmp_path):
     from src.stages import task_of
 
-    cfg = _stage_config(tmp_path, "task.preprocess.sequence_frames=3")
+    cfg = _stage_config(tmp_path, "dataset.preprocess.sequence_frames=3")
     with pytest.raises(ConfigError) as err:
         task_of(cfg).check_stages(["preprocess"], cfg)
-    one_line_error(err, "task.preprocess.sequence_frames=3", "dataset.frames=2")
+    one_line_error(err, "dataset.preprocess.sequence_frames=3", "dataset.frames=2")
 
 
 def test_the_volume_channel_resolver_counts_the_selected_channels():
@@ -390,3 +384,27 @@ def test_the_volume_channel_resolver_counts_the_selected_channels():
     cfg = OmegaConf.create({"f": ["color", "depth.var", "motion"], "n": "${nrbench.volume_channels:${f}}"})
     assert cfg.n == 6
     assert OmegaConf.create({"f": None, "n": "${nrbench.volume_channels:${f}}"}).n == 62
+
+
+@pytest.mark.parametrize(
+    "dataset,profile,key",
+    [
+        ("procedural", "smoke", "70d9a00aba7f65a5"),
+        ("procedural", "cpu", "b9cf4fe505996156"),
+        ("volumetric", "smoke", "1b28f01a07c2a346"),
+        ("volumetric", "cpu", "2c310287714f99b4"),
+    ],
+)
+def test_the_prepared_datas_cache_key_survived_the_move_of_the_sequences_options(
+    tmp_path, dataset, profile, key
+):
+    """The keys as the code computed them before the sequences' options moved from `task:` to `dataset:`
+    (issue 44, at 876253f), on a fixed raw folder (its fingerprint is names and sizes): folders prepared
+    before the move are still current, for either kind, and a still image's key never held the
+    sequences' settings."""
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    (raw / "a-00004spp.exr").write_bytes(b"x" * 10)
+    (raw / "b-00016spp.exr").write_bytes(b"y" * 7)
+    cfg = smoke_config(tmp_path / "data", tmp_path / "run", [f"dataset={dataset}", f"profile={profile}"])
+    assert data_kind(cfg).preprocess_key(cfg, raw) == key

@@ -106,7 +106,7 @@ def test_volume_transform_is_the_signed_log_modulus_or_the_identity():
     for f in (volume_transform, inverse_volume_transform):
         with pytest.raises(ConfigError) as err:
             f(x, "log")
-        one_line_error(err, "task.preprocess.volume_transform='log'", "'log_modulus'", "'none'")
+        one_line_error(err, "dataset.preprocess.volume_transform='log'", "'log_modulus'", "'none'")
 
 
 def test_transform_pair_by_kind_with_negative_values_and_a_zero_distance_scale():
@@ -193,7 +193,7 @@ def test_malformed_sequences_are_one_line_data_errors():
     one_line_error(err, "sequence: 2 noisy frames, 1 reference frames")  # the default `what`
     with pytest.raises(ConfigError) as err:
         sequence_arrays(noisy, ref, "log")
-    one_line_error(err, "task.preprocess.volume_transform='log'")
+    one_line_error(err, "dataset.preprocess.volume_transform='log'")
 
 
 def test_a_frames_importance_is_the_thesis_map_or_the_monte_carlo_variance_map():
@@ -352,10 +352,10 @@ def test_bad_preprocess_settings_are_one_line_config_errors(tmp_path):
     cases = [
         (
             dict(sequence_frames=4),
-            ["task.preprocess.sequence_frames=4 is more than the 3 frame(s)", "'a-0000'"],
+            ["dataset.preprocess.sequence_frames=4 is more than the 3 frame(s)", "'a-0000'"],
         ),
         (dict(importance="random"), ["task.preprocess.importance='random'", "'thesis'", "'mc_variance'"]),
-        (dict(volume_transform="log"), ["task.preprocess.volume_transform='log'"]),
+        (dict(volume_transform="log"), ["dataset.preprocess.volume_transform='log'"]),
     ]
     for kw, needles in cases:
         with pytest.raises(ConfigError) as err:

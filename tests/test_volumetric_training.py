@@ -1,6 +1,6 @@
 """Training, evaluation and feature selection on the volumetric sequences (issue 17), end to end on a
 tiny synthetic prepared dataset (`tests/test_volume_shards.py`'s frames): the sequence trainer's losses,
-the evaluation's flicker column, `stage=select_features` and `task.feature_selection.size`, and their
+the evaluation's flicker column, `stage=select_features` and `dataset.feature_selection.size`, and their
 one-line errors from the command line."""
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def _cfg(data, run_dir, *overrides):
 
 
 def test_sequence_training_fits_smape_plus_weighted_temporal_loss_and_logs_each_term(vol_data, tmp_path):
-    cfg = _cfg(vol_data, tmp_path, "task.train.volumetric.temporal_weight=0.5")
+    cfg = _cfg(vol_data, tmp_path, "dataset.train.temporal_weight=0.5")
     with job_run(cfg, run_name="unet-test", tags={}) as tracker:
         summary = train(cfg, tracker)
         evaluate(cfg, tracker)
@@ -155,7 +155,7 @@ def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the
 ):
     """By value, from a known output: SMAPE against the linear reference, the temporal loss of the
     log-modulus output against the stored (log-modulus) target, per pair in numpy, weighted 0.7."""
-    trainer = _trainer(vol_data, tmp_path, 0.7, False, f"task.train.volumetric.temporal_mode={mode}")
+    trainer = _trainer(vol_data, tmp_path, 0.7, False, f"dataset.train.temporal_mode={mode}")
     batch = next(iter(torch.utils.data.DataLoader(trainer.train_data, batch_size=2)))
     n, k, _, h, w = batch["reference"].shape
     color = torch.randn((n * k, 3, h, w), generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 3
@@ -177,18 +177,18 @@ def test_the_sequence_objective_is_smape_on_linear_plus_the_temporal_loss_of_the
 
 
 def _trainer(data, run_dir, weight, probe=False, *overrides):
-    cfg = _cfg(data, run_dir, f"task.train.volumetric.temporal_weight={weight}", *overrides)
+    cfg = _cfg(data, run_dir, f"dataset.train.temporal_weight={weight}", *overrides)
     return DenoiserTrainer(cfg, Tracker(), probe=probe, kind=data_kind(cfg))
 
 
 def test_the_sequences_train_on_their_own_schedule_else_the_tasks(vol_data, tmp_path):
-    """`task.train.volumetric.schedule` (the talk's decay) replaces `task.train.schedule` on the sequences;
+    """`dataset.train.schedule` (the talk's decay) replaces `task.train.schedule` on the sequences;
     null falls back to it (`RenderedSequences.schedule`)."""
     from src.train.schedules import log_linear_lr
 
     own = "{_target_: src.train.schedules.log_linear_lr, _partial_: true, lr_final: 1.0e-6}"
     task = "{_target_: src.train.schedules.log_linear_lr, _partial_: true, lr_final: 0.5}"
-    schedules = {"task.train.volumetric.schedule": own, "task.train.schedule": task}
+    schedules = {"dataset.train.schedule": own, "task.train.schedule": task}
     trainer = _trainer(vol_data, tmp_path / "own", 0.5, False, *(f"{k}={v}" for k, v in schedules.items()))
     assert trainer.schedule(5, lr_init=1.0, max_steps=10) == pytest.approx(log_linear_lr(5, 1.0, 1e-6, 10))
     fallback = _trainer(
@@ -196,14 +196,14 @@ def test_the_sequences_train_on_their_own_schedule_else_the_tasks(vol_data, tmp_
         tmp_path / "task",
         0.5,
         False,
-        "task.train.volumetric.schedule=null",
+        "dataset.train.schedule=null",
         f"task.train.schedule={task}",
     )
     assert fallback.schedule(5, lr_init=1.0, max_steps=10) == pytest.approx(log_linear_lr(5, 1.0, 0.5, 10))
 
 
 def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(vol_data, tmp_path):
-    overrides = ("task.feature_selection.subsets=independent", "task.feature_selection.dropout=1.0")
+    overrides = ("dataset.feature_selection.subsets=independent", "dataset.feature_selection.dropout=1.0")
     trainer = _trainer(vol_data, tmp_path, 0.5, True, *overrides)
     inputs = torch.rand((6, 62, 8, 8)) + 2.0  # no stored value is a neutral value
     dropped = trainer.dropout(inputs, 2, 3, step=0)
@@ -219,7 +219,7 @@ def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(v
 
 def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_data, tmp_path):
     overrides = [
-        "task.feature_selection.candidates=[albedo,depth,transmittance,motion]",
+        "dataset.feature_selection.candidates=[albedo,depth,transmittance,motion]",
         "task.train.epochs=1",
     ]
     cfg = _cfg(vol_data, tmp_path, *overrides)
@@ -233,18 +233,18 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     assert (out / "probe" / "checkpoints" / "final.pt").is_file()
     # A run with size=2 trains on the colour plus the first two, its model sized to match: settled when the
     # job starts (composing the config reads no stage's output).
-    sized = _cfg(vol_data, tmp_path, "task.feature_selection.size=2")
-    assert sized.task.volume_features is None
+    sized = _cfg(vol_data, tmp_path, "dataset.feature_selection.size=2")
+    assert sized.dataset.volume_features is None
     task_of(sized).resolve_at_job_start(sized)
-    assert list(sized.task.volume_features) == rows[2]["features"]
+    assert list(sized.dataset.volume_features) == rows[2]["features"]
     assert sized.model.in_channels == 4 + sum(
         {"albedo": 3, "depth": 1, "transmittance": 1, "motion": 2}[f] for f in rows[2]["features"][2:]
     )
     random_arm = _cfg(
-        vol_data, tmp_path, "task.feature_selection.size=2", "task.feature_selection.order=random"
+        vol_data, tmp_path, "dataset.feature_selection.size=2", "dataset.feature_selection.order=random"
     )
     task_of(random_arm).resolve_at_job_start(random_arm)
-    assert len(random_arm.task.volume_features) == 4 and list(random_arm.task.volume_features)[:2] == [
+    assert len(random_arm.dataset.volume_features) == 4 and list(random_arm.dataset.volume_features)[:2] == [
         "color",
         "color.var",
     ]
@@ -268,9 +268,9 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
             "seed": 3,
             "model": {"name": "fixed_probe"},
             "paths": {"raw": str(tmp_path / "raw")},
-            "task": {
+            "task": {"train": {"resume": None, "batch_size": 2, "checkpoint_dir": "x", "curves_file": "x"}},
+            "dataset": {
                 "volume_features": None,
-                "train": {"resume": None, "batch_size": 2, "checkpoint_dir": "x", "curves_file": "x"},
                 "feature_selection": {
                     "size": None,
                     "order": "greedy",
@@ -316,7 +316,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
 
         def __init__(self, probe_cfg, tracker, probe=False, kind=None):
             made.append((probe_cfg, probe))
-            self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.task.volume_features), "radiance_in")
+            self.dropout = _FeatureDropout(probe_cfg, list(probe_cfg.dataset.volume_features), "radiance_in")
 
         def fit(self):
             return {"steps": 0, "train_time_s": 0.0, "param_count": 0}
@@ -343,7 +343,7 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
     tracker = Recorder()
     rows = stage.select_features(cfg, tracker, kind=None)["rows"]
     probe_cfg, probe = made[0]
-    assert probe and list(probe_cfg.task.volume_features) == ["color", *candidates]  # all, start first
+    assert probe and list(probe_cfg.dataset.volume_features) == ["color", *candidates]  # all, start first
     order = ["transmittance", "sigma_t", "depth", "albedo.var"]  # by marginal gain, ties to the earlier
     assert [r["added"] for r in rows] == [None, *order]
     losses = [(3 * 9 / 16 + 4 * 9 / 16) / 4, (3 * 3 / 16 + 4 * 3 / 16) / 4, 0.0, 0.0, 0.0]
@@ -363,20 +363,20 @@ def test_select_features_ranks_by_the_probes_loss_on_the_spread_validation_batch
     assert record["start"] == ["color"] and record["candidates"] == candidates and record["rows"] == rows
     assert {a for _, a in tracker.artifacts} == {"feature_selection"} and len(tracker.artifacts) == 3
     # `size` = k: the start set plus the first k of that order; the random arm k of the candidates
-    sized = OmegaConf.merge(cfg.task.feature_selection, {"size": 2})
+    sized = OmegaConf.merge(cfg.dataset.feature_selection, {"size": 2})
     assert features_for_size(sized) == ["color", "transmittance", "sigma_t"]
     arm = features_for_size(OmegaConf.merge(sized, {"order": "random", "random_seed": 4}))
     assert arm[0] == "color" and len(set(arm[1:])) == 2 and set(arm[1:]) <= set(candidates)
-    with pytest.raises(ConfigError, match=r"task\.feature_selection\.start"):
+    with pytest.raises(ConfigError, match=r"dataset\.feature_selection\.start"):
         features_for_size(OmegaConf.merge(sized, {"start": ["color", "color.var"]}))
 
 
 def test_a_selected_size_without_a_selection_is_one_line_from_the_command_line(tmp_path):
     """The resolver's error reaches the user as one line (exit 2), though OmegaConf wraps it."""
-    args = ["dataset=volumetric", "stage=train", "task.feature_selection.size=3", "profile=smoke"]
+    args = ["dataset=volumetric", "stage=train", "dataset.feature_selection.size=3", "profile=smoke"]
     command, env = cli_job(args, tmp_path)
     result = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    one_line_cli_error(result, "task.feature_selection.size=3", "stage=select_features")
+    one_line_cli_error(result, "dataset.feature_selection.size=3", "stage=select_features")
 
 
 def test_feature_selection_needs_the_volumetric_candidates(tmp_path):
@@ -413,20 +413,24 @@ def test_an_interrupted_probe_resumes_to_the_weights_of_an_uninterrupted_one(vol
 
 def test_a_selection_file_naming_an_unknown_feature_is_one_line_at_job_start(tmp_path):
     """The features a selection file names are checked when the job settles them, as the schema checks
-    configured ones: a hand-edited `selection.json` is one line naming task.volume_features."""
+    configured ones: a hand-edited `selection.json` is one line naming dataset.volume_features."""
     rows = [{"features": ["color", "color.var"]}, {"features": ["color", "color.var", "fog_density"]}]
     (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
     cfg = compose_config(
-        ["dataset=volumetric", f"task.feature_selection.dir={tmp_path}", "task.feature_selection.size=1"]
+        [
+            "dataset=volumetric",
+            f"dataset.feature_selection.dir={tmp_path}",
+            "dataset.feature_selection.size=1",
+        ]
     )
     with pytest.raises(ConfigError) as err:
         DenoiseTask.for_run(cfg).resolve_at_job_start(cfg)
-    one_line_error(err, "task.volume_features[2]='fog_density'", "expected a buffer of")
-    assert cfg.task.volume_features is None  # nothing settled
+    one_line_error(err, "dataset.volume_features[2]='fog_density'", "expected a buffer of")
+    assert cfg.dataset.volume_features is None  # nothing settled
     rows[1]["features"][2] = "sigma_t"
     (tmp_path / "selection.json").write_text(json.dumps({"rows": rows}))
     DenoiseTask.for_run(cfg).resolve_at_job_start(cfg)
-    assert list(cfg.task.volume_features) == ["color", "color.var", "sigma_t"]
+    assert list(cfg.dataset.volume_features) == ["color", "color.var", "sigma_t"]
 
 
 @pytest.mark.parametrize("model", ["kpcn", "dpcn"])

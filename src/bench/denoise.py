@@ -11,7 +11,7 @@ seeded; random inputs: speed does not depend on the values) and prints, in one r
   faster than KPCN, within 2x of OIDN) as per-round time ratios against both KPCN forms (`kpcn`, Bako et
   al.'s two-branch still-image KPCN, and `kpcn_frame`, the one-branch KPCN on the sequences' radiance
   that the `unet_vs_kpcn` study trains per frame) and OIDN; each model reads a random frame of its own
-  branches and `in_channels` (`task.volume_features` of the profile for the sequences' models);
+  branches and `in_channels` (`dataset.volume_features` of the profile for the sequences' models);
 - a plain `F.conv2d` (100 -> 100 channels, 5x5, the DPCN hidden layer) on the same frame, as the
   achievable conv throughput of this device.
 

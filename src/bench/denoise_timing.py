@@ -22,7 +22,7 @@ from src.models.parameters import count_parameters
 
 #: Bench names that are no `conf/model` name: (the conf/model name, the conf/dataset it is composed
 #: with). `kpcn_frame` is the KPCN that the `unet_vs_kpcn` study trains per frame on the sequences
-#: (dataset=volumetric: one `radiance` branch with the sequences' `task.volume_features` inputs), where
+#: (dataset=volumetric: one `radiance` branch with the sequences' `dataset.volume_features` inputs), where
 #: `kpcn` is Bako et al. 2017's two-branch (diffuse + specular) KPCN of the still images.
 VARIANTS = {"kpcn_frame": ("kpcn", "volumetric")}
 
@@ -82,7 +82,7 @@ def bench_config(name: str, profile: str) -> dict[str, Any]:
 
 def model_batch(model: Denoiser, batches: Batches, height: int, width: int, seed: int, device):
     """A random frame of the branches `model` reads with its `in_channels` (the still images' two
-    branches, or the sequences' radiance: `task.volume_features` of the profile), made once per
+    branches, or the sequences' radiance: `dataset.volume_features` of the profile), made once per
     (branches, in_channels) and shared by the models that read the same."""
     branches = tuple(model.branches or BRANCHES)
     key = (branches, int(model.in_channels))

@@ -35,7 +35,8 @@ class KpcnSplit:
 
 
 class RadianceTransform:
-    """The one `radiance` branch of the sequences under `transform` (`task.preprocess.volume_transform`)."""
+    """The one `radiance` branch of the sequences under `transform`
+    (`dataset.preprocess.volume_transform`)."""
 
     branches = ("radiance",)
 

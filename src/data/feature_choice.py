@@ -1,7 +1,8 @@
-"""Which volumetric features a run reads when `task.feature_selection.size` = k: the start set plus the first
-k of a finished selection (`<dir>/selection.json`, written by `stage=select_features`) or k candidates drawn
-at random (the study's baseline arm). Plain lists and one JSON file: the data kind settles a run's features
-from it when a job starts, and the selection stage (src/train/select_features.py) writes what it reads."""
+"""Which volumetric features a run reads when `dataset.feature_selection.size` = k: the start set plus the
+first k of a finished selection (`<dir>/selection.json`, written by `stage=select_features`) or k
+candidates drawn at random (the study's baseline arm). Plain lists and one JSON file: the data kind
+settles a run's features from it when a job starts, and the selection stage
+(src/train/select_features.py) writes what it reads."""
 
 from __future__ import annotations
 
@@ -15,9 +16,9 @@ from src.data.volume_features import VOLUME_CANDIDATE_FEATURES
 from src.errors import ConfigError
 
 #: Where the settings live, for error messages.
-FEATURE_SELECTION_KEY = "task.feature_selection"
+FEATURE_SELECTION_KEY = "dataset.feature_selection"
 SIZE_KEY = f"{FEATURE_SELECTION_KEY}.size"
-#: The selection stage's ordered result, in `task.feature_selection.dir`.
+#: The selection stage's ordered result, in `dataset.feature_selection.dir`.
 SELECTION_FILE = "selection.json"
 
 
@@ -33,7 +34,7 @@ def selection_candidates(start: list[str], candidates: list[str] | None) -> list
 
 
 def check_size(size: int, available: int) -> None:
-    """A one-line ConfigError naming `task.feature_selection.size` unless 0 <= size <= available."""
+    """A one-line ConfigError naming `dataset.feature_selection.size` unless 0 <= size <= available."""
     if isinstance(size, bool) or not isinstance(size, int) or not 0 <= size <= available:
         raise ConfigError(f"{SIZE_KEY}={size!r}: expected an integer in [0, {available}] (features to add)")
 
@@ -56,8 +57,8 @@ def random_features(candidates: Sequence[str], start: Sequence[str], size: int, 
 
 
 def features_for_size(selection: Any) -> list[str]:
-    """What `task.volume_features` becomes with `size` = k (`selection` is `task.feature_selection`): the
-    start set plus the selection's first k (`order: greedy`, read from `<dir>/selection.json`) or k
+    """What `dataset.volume_features` becomes with `size` = k (`selection` is `dataset.feature_selection`):
+    the start set plus the selection's first k (`order: greedy`, read from `<dir>/selection.json`) or k
     candidates drawn at random (`order: random`)."""
     start, size = [str(f) for f in selection.start], int(selection.size)
     if selection.order == "random":

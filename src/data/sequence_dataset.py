@@ -8,7 +8,7 @@
 Items are dicts of float32 tensors, frames first then channels: (k, C, P, P) for samples, (F, C, H, W)
 for sequences, in the batch contract of `src.models.denoise.base`: the sequences have one branch,
 `radiance` (`RADIANCE_BRANCH`), whose input group `radiance_in` holds only the channels of `features`
-(`task.volume_features`; None: all 62 candidates), selected by name; `radiance_t` is the transformed noisy
+(`dataset.volume_features`; None: all 62 candidates), selected by name; `radiance_t` is the transformed noisy
 colour (what a KPCN's kernels filter) and `radiance_target` the transformed reference. Besides:
 `surface_t` / `volume_t` / `target_surface` / `target_volume` (the colour's parts), `color` and
 `reference` (linear), and the guides `albedo`, `normal`, `depth` and `motion` (flow in pixels to the next

@@ -40,9 +40,9 @@ from src.data.patch_sampling import (
 from src.errors import ConfigError, DataError
 
 #: Config keys the arguments come from (named in errors).
-FRAMES_KEY = "task.preprocess.sequence_frames"
+FRAMES_KEY = "dataset.preprocess.sequence_frames"
 PATCH_KEY = "task.preprocess.patch_size"
-COUNT_KEY = "task.preprocess.patches_per_sequence"
+COUNT_KEY = "dataset.preprocess.patches_per_sequence"
 
 
 def _check_window(n_frames: int, k: int) -> None:

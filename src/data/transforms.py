@@ -4,7 +4,7 @@
   Sec. 4.3): the diffuse colour over the albedo, log(1 + s) of the specular, their variances to first
   order, and `rebuild_color`, which makes linear colour of the two again;
 - the log-modulus sign(x) log(1 + |x|) of the volumetric sequences (Zhu et al. 2023), and its inverse,
-  chosen by `task.preprocess.volume_transform` (`volume_transform`).
+  chosen by `dataset.preprocess.volume_transform` (`volume_transform`).
 
 Pure functions shared by preprocessing, the networks, the objectives and the colour spaces
 (`src/data/color_spaces.py`): this module imports none of them.
@@ -132,11 +132,11 @@ def log_modulus_variance(var: np.ndarray, x: np.ndarray) -> np.ndarray:
     return var / (1.0 + np.abs(x).mean(axis=-1, keepdims=True)) ** 2
 
 
-#: `task.preprocess.volume_transform` choices: Zhu et al. 2023's sign(x) log(1 + |x|), or linear.
+#: `dataset.preprocess.volume_transform` choices: Zhu et al. 2023's sign(x) log(1 + |x|), or linear.
 VOLUME_TRANSFORMS = ("log_modulus", "none")
 
 
-TRANSFORM_KEY = "task.preprocess.volume_transform"
+TRANSFORM_KEY = "dataset.preprocess.volume_transform"
 
 
 def check_volume_transform(transform: str) -> None:

@@ -1,5 +1,5 @@
 """The volumetric denoiser's candidate input channels and how a run selects some of them by name
-(`task.volume_features`), the volumetric counterpart of `src.data.features` (issue 16).
+(`dataset.volume_features`), the volumetric counterpart of `src.data.features` (issue 16).
 
 Preprocessing (`src.data.volume_shards`) stores every candidate once per frame; a run picks its channels
 by name at load time, so a feature ablation needs no new preprocessing and channel counts are derived
@@ -26,7 +26,7 @@ No image gradients are stored (unlike the KPCN candidates): the volumetric denoi
 first convolution sees neighbouring pixels anyway, and x and y gradients of the 42 value channels
 would add 84 channels per frame (+135 %).
 
-`task.volume_features` is a list (channels in the order written) or null, every candidate in storage
+`dataset.volume_features` is a list (channels in the order written) or null, every candidate in storage
 order (`VOLUME_CANDIDATE_FEATURES`, 62 channels).
 """
 
@@ -40,7 +40,7 @@ from src.data.volume_aovs import CHANNEL_COUNT
 from src.errors import ConfigError
 
 #: Where the setting lives, for error messages.
-VOLUME_FEATURES_KEY = "task.volume_features"
+VOLUME_FEATURES_KEY = "dataset.volume_features"
 #: Raw world-space points: rendered, never network inputs.
 DROPPED_BUFFERS = ("position", "scatter_position")
 #: Buffers whose per-channel names use x/y/z rather than r/g/b.
@@ -118,22 +118,15 @@ def _check(features: Features) -> None:
 
 def volume_feature_channels(features: Features | None) -> tuple[str, ...]:
     """The channel names `features` selects, in order (None: every candidate); a one-line ConfigError
-    naming `task.volume_features` for an unknown buffer, a variance of motion or a repeated feature."""
+    naming `dataset.volume_features` for an unknown buffer, a variance of motion or a repeated feature."""
     if features is None:
         features = VOLUME_CANDIDATE_FEATURES
     _check(features)
     return tuple(name for feature in features for name in _channels(str(feature)))
 
 
-def run_volume_features(cfg) -> list[str] | None:
-    """`task.volume_features` of a run config as plain data (None: every candidate); what its checkpoint
-    records (a `feature_selection.size` has already chosen them when the job started)."""
-    features = cfg.task.volume_features
-    return None if features is None else [str(f) for f in features]
-
-
 def volume_feature_count(features: Features | None) -> int:
-    """Number of input channels per frame (the `${nrbench.volume_channels:${task.volume_features}}`
+    """Number of input channels per frame (the `${nrbench.volume_channels:${dataset.volume_features}}`
     resolver)."""
     return len(volume_feature_channels(features))
 

@@ -7,7 +7,7 @@ lower one a noisy *sequence* of the scene's F frames. For each noisy sequence, p
 
 * `inputs`: every candidate input channel (`VOLUME_CANDIDATE_CHANNELS`, 62: each buffer's value and its
   variance, transformed as `src.data.volume_features` says; radiance under `volume_transform`), from
-  which a run selects `task.volume_features` by name at load time;
+  which a run selects `dataset.volume_features` by name at load time;
 * `target`, `target_surface`, `target_volume`: the reference's colour, surface and volume radiance under
   the same `volume_transform` (`inverse_volume_transform` gives back the linear reference);
 * `color`, `reference`: the noisy and the reference colour, linear (baselines, metrics);
@@ -67,7 +67,7 @@ from src.io.atomic import atomic_write_json
 _RGB = ("r", "g", "b")
 #: Tensors of every sample / sequence, with their channel names.
 SEQUENCE_CHANNELS: dict[str, tuple[str, ...]] = {
-    "inputs": VOLUME_CANDIDATE_CHANNELS,  # every candidate; a run selects `task.volume_features` at load
+    "inputs": VOLUME_CANDIDATE_CHANNELS,  # every candidate; a run selects `dataset.volume_features` at load
     "target": _RGB,  # reference colour, under volume_transform
     "target_surface": _RGB,  # reference surface radiance, under volume_transform
     "target_volume": _RGB,  # reference volume radiance, under volume_transform

@@ -2,7 +2,13 @@
 frame, spp) with the volumetric path tracer's buffers, prepared into k-frame training samples and whole
 held-out sequences; trained with the temporal loss and scored per frame and for flicker (after Zhu et
 al.'s 2023 Pixar/Disney talk "Denoising Production Volumetric Rendering"). Its inputs are chosen by name
-from a catalogue of candidates (`task.volume_features`), possibly by the feature-selection stage."""
+from a catalogue of candidates (`dataset.volume_features`), possibly by the feature-selection stage.
+
+Its own options (conf/dataset/sequences/options.yaml, part of `dataset:` and so of its constructor's
+arguments, `self.dataset`): the input features and their selection, the sequences' preprocessing
+(`dataset.preprocess`: transform, frames per sample, samples per sequence) and what a model is fitted to
+(`dataset.train`: reconstruction loss, temporal term, schedule). What every denoising kind shares (patch
+size, sampling, split, seeds, repair policy; the training budget and optimiser) is read from `task:`."""
 
 from __future__ import annotations
 
@@ -16,7 +22,6 @@ from omegaconf import DictConfig, OmegaConf
 from src.data.color_spaces import RadianceTransform
 from src.data.sequence_dataset import RADIANCE_BRANCH
 from src.data.sequence_patches import FRAMES_KEY
-from src.data.volume_features import run_volume_features
 from src.errors import ConfigError, DataError
 from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
 from src.objectives.losses import get_loss
@@ -31,8 +36,9 @@ class RenderedSequences(DenoisingKind):
     describes = "image sequences"
 
     def preprocess_settings(self, cfg: DictConfig) -> dict[str, Any]:
-        """The keyword arguments of `preprocess_volume_dataset` from `task.preprocess`."""
-        p = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+        """The keyword arguments of `preprocess_volume_dataset`: the shared `task.preprocess` and the
+        sequences' own `dataset.preprocess`."""
+        p = {**OmegaConf.to_container(cfg.task.preprocess, resolve=True), **self.dataset["preprocess"]}
         return {
             **{
                 k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")
@@ -89,7 +95,7 @@ class RenderedSequences(DenoisingKind):
         """Besides the branch check: a preprocessing window longer than the sequences, and input
         whitening (no whitening statistics of the sequences' inputs are passed to a model), are one line."""
         super().check_stage(stage, cfg)
-        k, frames = cfg.task.preprocess.sequence_frames, self.dataset["frames"]
+        k, frames = self.dataset["preprocess"]["sequence_frames"], self.dataset["frames"]
         if stage == "preprocess" and k > frames:
             raise ConfigError(
                 f"{FRAMES_KEY}={k} is more than the dataset.frames={frames} frames of each volumetric "
@@ -102,17 +108,20 @@ class RenderedSequences(DenoisingKind):
             )
 
     def resolve_at_job_start(self, cfg: DictConfig) -> None:
-        """`task.feature_selection.size` = k: `task.volume_features` becomes the start set plus the first k
-        features of the selection stage's output (or k drawn at random), so the model's `in_channels`
+        """`dataset.feature_selection.size` = k: `dataset.volume_features` becomes the start set plus the
+        first k features of the selection stage's output (or k drawn at random), so the model's `in_channels`
         follows; null leaves the configured features. The chosen names get the schema's check (it ran
-        before they were known): a hand-edited selection file is one line, not a failure later."""
-        if cfg.task.feature_selection.size is not None:
+        before they were known): a hand-edited selection file is one line, not a failure later. Both the
+        config (which the model's `in_channels` interpolates) and this kind's options get them."""
+        selection = OmegaConf.create(self.dataset["feature_selection"])
+        if selection.size is not None:
             from src.data.feature_choice import features_for_size
             from src.data.volume_features import volume_feature_channels
 
-            features = features_for_size(cfg.task.feature_selection)
+            features = features_for_size(selection)
             volume_feature_channels(features)
-            cfg.task.volume_features = features
+            cfg.dataset.volume_features = features
+            self.dataset["volume_features"] = features
 
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
         """The settings, the repair policy, the raw data and the stored channels."""
@@ -152,18 +161,19 @@ class RenderedSequences(DenoisingKind):
     probe_key = f"{RADIANCE_BRANCH}_in"
 
     def features(self, cfg: DictConfig) -> list[str] | None:
-        return run_volume_features(cfg)
+        features = self.dataset["volume_features"]
+        return None if features is None else [str(f) for f in features]
 
     def check_trained_features(self, checkpoint: dict[str, Any], features, where: str) -> None:
         trained = checkpoint.get("features", features)
         if trained != features:
             raise DataError(
-                f"{where}: trained with task.volume_features={trained} (null: all), configured "
+                f"{where}: trained with dataset.volume_features={trained} (null: all), configured "
                 f"{features}; evaluate with the features it was trained on"
             )
 
     def color_space(self, cfg: DictConfig) -> RadianceTransform:
-        return RadianceTransform(cfg.task.preprocess.volume_transform)
+        return RadianceTransform(self.dataset["preprocess"]["volume_transform"])
 
     def samples(self, cfg: DictConfig, split: str, features, shuffle: bool):
         """k-frame samples of `split` (`SequencePatchDataset`)."""
@@ -174,19 +184,19 @@ class RenderedSequences(DenoisingKind):
         )
 
     def schedule(self, cfg: DictConfig):
-        """`task.train.volumetric.schedule` (the talk's decay), else `task.train.schedule`."""
-        own = cfg.task.train.volumetric.get("schedule")
+        """`dataset.train.schedule` (the talk's decay), else `task.train.schedule`."""
+        own = self.dataset["train"].get("schedule")
         return own if own is not None else super().schedule(cfg)
 
     def loss_terms(self, cfg: DictConfig, train_data) -> TemporalLosses:
-        """Reconstruction + temporal loss (`task.train.volumetric`), in the prepared data's transform."""
-        v = cfg.task.train.volumetric
+        """Reconstruction + temporal loss (`dataset.train`), in the prepared data's transform."""
+        v = self.dataset["train"]
         return TemporalLosses(
-            get_loss(v.loss),
+            get_loss(v["loss"]),
             self.color_space(cfg),
-            weight=v.temporal_weight,
-            mode=v.temporal_mode,
-            warp=v.temporal_warp,
+            weight=v["temporal_weight"],
+            mode=v["temporal_mode"],
+            warp=v["temporal_warp"],
             transform=train_data.volume_transform,
         )
 
@@ -200,13 +210,13 @@ class RenderedSequences(DenoisingKind):
         return data
 
     def training_summary(self, model, cfg: DictConfig) -> str:
-        """For a model of the radiance branch: the `task.volume_features` it reads (the model config knows
+        """For a model of the radiance branch: the `dataset.volume_features` it reads (the model config knows
         only their channel count)."""
         from src.data.volume_features import VOLUME_CANDIDATE_FEATURES, volume_feature_channels
 
         if RADIANCE_BRANCH not in getattr(model, "branches", ()):
             return ""
-        selected = cfg.task.volume_features
-        features = list(VOLUME_CANDIDATE_FEATURES) if selected is None else [str(f) for f in selected]
+        selected = self.features(cfg)
+        features = list(VOLUME_CANDIDATE_FEATURES) if selected is None else selected
         channels = len(volume_feature_channels(features))
-        return f"input features (task.volume_features, {channels} channels): {', '.join(features)}"
+        return f"input features (dataset.volume_features, {channels} channels): {', '.join(features)}"

@@ -19,17 +19,12 @@ from src.objectives.losses import get_loss
 from src.objectives.terms import BranchLosses
 from src.schema.dataset import ProceduralDataset
 
-#: `task.preprocess` keys only the sequences read (`src.kinds.sequences`): changing them leaves prepared
-#: still images valid.
-SEQUENCE_ONLY_KEYS = ("volume_transform", "sequence_frames", "patches_per_sequence")
-
 
 def preprocess_key(cfg: DictConfig, raw: Path) -> str:
-    """The still images' cache key: every `task.preprocess` setting but the sequences' own, the stored
-    KPCN inputs and the other stored tensors (`SHARD_CHANNEL_NAMES`: folders made before the GP features
-    were added rebuild)."""
+    """The still images' cache key: every `task.preprocess` setting, the stored KPCN inputs and the other
+    stored tensors (`SHARD_CHANNEL_NAMES`: folders made before the GP features were added rebuild). (The
+    sequences' own settings are their `dataset:` options, so changing them leaves still images valid.)"""
     settings = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
-    settings = {k: v for k, v in settings.items() if k not in SEQUENCE_ONLY_KEYS}
     if not settings.get("split_by_base"):  # off: the keys of folders made before the option stay the same
         settings.pop("split_by_base", None)
     from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
@@ -69,7 +64,7 @@ class RenderedStills(DenoisingKind):
         if stage == "select_features":
             raise ConfigError(
                 f"stage=select_features: the feature selection chooses among the volumetric candidates "
-                f"(task.volume_features); dataset={self.name} has a fixed feature list "
+                f"(dataset.volume_features); dataset={self.name} has a fixed feature list "
                 "(task.features); run it with dataset=volumetric"
             )
 

@@ -61,9 +61,7 @@ def temporal_loss(
 ) -> torch.Tensor:
     """The temporal loss of (N, k, C, H, W) output and reference frames, k >= 2 (module docstring)."""
     if mode not in TEMPORAL_MODES:
-        raise ConfigError(
-            f"task.train.volumetric.temporal_mode={mode!r}: expected one of {list(TEMPORAL_MODES)}"
-        )
+        raise ConfigError(f"dataset.train.temporal_mode={mode!r}: expected one of {list(TEMPORAL_MODES)}")
     if output.ndim != 5 or output.shape != reference.shape or output.shape[1] < 2:
         raise ValueError(
             f"temporal_loss: expected (N, k >= 2, C, H, W) output and reference of one shape, got "

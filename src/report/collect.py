@@ -20,6 +20,7 @@ from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
 
 from src.errors import DataError
 from src.provenance import ignored_param
+from src.report.renamed_keys import renamed_params
 
 log = logging.getLogger("nrbench.report")
 
@@ -69,6 +70,7 @@ def _search(experiment_ids: list[str], steps: Iterable[tuple[str, Any]]) -> pd.D
     steps = list(steps)
     where = " and ".join(s for _, s in steps if isinstance(s, str))
     runs = mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
+    runs = renamed_params(runs)  # runs logged before a key moved, under today's names
     if f"tags.{SWEEP_PARENT_TAG}" in runs:
         runs = runs[runs[f"tags.{SWEEP_PARENT_TAG}"] != "true"]
     for _, step in steps:

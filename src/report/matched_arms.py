@@ -21,6 +21,7 @@ import pandas as pd
 from omegaconf import OmegaConf
 
 from src.report.collect import differing_params
+from src.report.renamed_keys import renamed_key
 
 #: The config groups whose files say what a profile means (conf/config.yaml's defaults list).
 PROFILE_GROUPS = (
@@ -42,10 +43,10 @@ HYDRA_JOB_TAG = "tags.nrbench.hydra_job"
 #: and the random
 #: arm draws its subset with the training seed (conf/selection_arm/random.yaml).
 DERIVED_FROM = {
-    "task.volume_features": "task.feature_selection.",
-    "dataset.input_channels": "task.feature_selection.",
-    "model.in_channels": "task.feature_selection.",
-    "task.feature_selection.random_seed": "task.feature_selection.",
+    "dataset.volume_features": "dataset.feature_selection.",
+    "dataset.input_channels": "dataset.feature_selection.",
+    "model.in_channels": "dataset.feature_selection.",
+    "dataset.feature_selection.random_seed": "dataset.feature_selection.",
 }
 
 
@@ -96,12 +97,13 @@ def model_keys(conf_dir: Path) -> dict[str, frozenset[str]]:
 
 
 def _override_keys(hydra_job: str) -> list[str]:
-    """The config keys a job's overrides set (`+key=v`, `++key=v`, `key=v`; a deletion `~key` too)."""
+    """The config keys a job's overrides set (`+key=v`, `++key=v`, `key=v`; a deletion `~key` too), under
+    today's names (`renamed_keys`: a run logged before a key moved overrode its old name)."""
     try:
         words = shlex.split(hydra_job)
     except ValueError:  # an unbalanced quote: the plain words still name the keys
         words = hydra_job.split()
-    return [w.split("=", 1)[0].lstrip("+~") for w in words if "=" in w or w.startswith("~")]
+    return [renamed_key(w.split("=", 1)[0].lstrip("+~")) for w in words if "=" in w or w.startswith("~")]
 
 
 def _covers(key: str, keys: Iterable[str]) -> bool:

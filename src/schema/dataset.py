@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
+from src.data.volume_features import volume_feature_channels
 from src.schema.types import (
     Colour,
     NonNegativeFloat,
@@ -17,7 +18,9 @@ from src.schema.types import (
     Probability,
     Range,
     Schema,
+    Target,
     expected,
+    known_loss,
     own_error,
     passes,
 )
@@ -307,7 +310,61 @@ class VolumetricBaseScenes(Schema):
     godrays: Godrays
 
 
-class VolumetricDataset(DenoisingData):
+class SequencePreprocess(Schema):
+    """`dataset.preprocess` of the sequence kinds (src/data/volume_shards.py; task.preprocess applies too)."""
+
+    volume_transform: Literal["log_modulus", "none"]
+    sequence_frames: PositiveInt
+    patches_per_sequence: PositiveInt
+
+
+class SequenceTrain(Schema):
+    """`dataset.train` of the sequence kinds: what a model is fitted to (src/objectives/terms.py)."""
+
+    loss: str | Target
+    temporal_weight: NonNegativeFloat
+    temporal_mode: Literal["signed", "abs"]
+    temporal_warp: bool
+    schedule: Target | None
+
+    _known_loss = field_validator("loss")(classmethod(lambda cls, value: known_loss(value)))
+
+
+class FeatureSelection(Schema):
+    size: NonNegativeInt | None
+    order: Literal["greedy", "random"]
+    random_seed: NonNegativeInt
+    start: list[str]
+    candidates: list[str] | None
+    subsets: Literal["uniform_size", "independent"]
+    dropout: Probability
+    neutral: dict[str, float]
+    max_size: PositiveInt | None
+    val_batches: PositiveInt | None
+    dir: str
+
+    @field_validator("start", "candidates")
+    @classmethod
+    def _known_features(cls, value: list[str] | None) -> list[str] | None:
+        return value if value is None else passes(volume_feature_channels, value)
+
+
+class SequenceOptions(DenoisingData):
+    """The options every sequence kind has (conf/dataset/sequences/options.yaml): its input features, their
+    automatic selection, its preprocessing and its objective."""
+
+    volume_features: list[str] | None
+    feature_selection: FeatureSelection
+    preprocess: SequencePreprocess
+    train: SequenceTrain
+
+    @field_validator("volume_features")
+    @classmethod
+    def _known_volume_features(cls, value: list[str] | None) -> list[str] | None:
+        return passes(volume_feature_channels, value)
+
+
+class VolumetricDataset(SequenceOptions):
     name: Literal["volumetric"]
     experiment_suffix: str
     bases: list[Literal["cloud", "smoke_tabletop", "fog_objects", "godrays"]] = Field(min_length=1)
@@ -494,7 +551,7 @@ class BlenderDataset(NearFar):
         return root
 
 
-class NoisebaseDataset(DenoisingData):
+class NoisebaseDataset(SequenceOptions):
     """`dataset=noisebase` (docs/noisebase.md): which sequences, frames, window and sample counts of a
     downloaded Noisebase set nrbench reads."""
 

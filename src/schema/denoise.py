@@ -1,4 +1,5 @@
-"""Schema of `task:` for the denoising task (conf/task/denoise.yaml and its profiles)."""
+"""Schema of `task:` for the denoising task (conf/task/denoise.yaml and its profiles): what every denoising
+kind of data shares (a kind's own options are its `dataset:` schema's, src/schema/dataset.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,6 @@ from typing import Any, Literal
 from pydantic import Field, field_validator, model_validator
 
 from src.data.features import feature_channels
-from src.data.volume_features import volume_feature_channels
 from src.schema.types import (
     AtLeastOne,
     NonNegativeFloat,
@@ -18,6 +18,7 @@ from src.schema.types import (
     Probability,
     Schema,
     Target,
+    known_loss,
     own_error,
     passes,
 )
@@ -65,47 +66,6 @@ class Preprocess(Schema):
     sample_seed: NonNegativeInt
     whiten_eps: PositiveFloat
     repair: Repair
-    # dataset=volumetric only (src/data/volume_shards.py)
-    volume_transform: Literal["log_modulus", "none"]
-    sequence_frames: PositiveInt
-    patches_per_sequence: PositiveInt
-
-
-def _known_loss(value: Any) -> Any:
-    """The trainer's own check (`get_loss`): a known name, or an importable `_target_`."""
-    from src.objectives.losses import get_loss
-
-    passes(get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True))
-    return value
-
-
-class VolumetricTrain(Schema):
-    loss: str | Target
-    temporal_weight: NonNegativeFloat
-    temporal_mode: Literal["signed", "abs"]
-    temporal_warp: bool
-    schedule: Target | None
-
-    _known_loss = field_validator("loss")(classmethod(lambda cls, value: _known_loss(value)))
-
-
-class FeatureSelection(Schema):
-    size: NonNegativeInt | None
-    order: Literal["greedy", "random"]
-    random_seed: NonNegativeInt
-    start: list[str]
-    candidates: list[str] | None
-    subsets: Literal["uniform_size", "independent"]
-    dropout: Probability
-    neutral: dict[str, float]
-    max_size: PositiveInt | None
-    val_batches: PositiveInt | None
-    dir: str
-
-    @field_validator("start", "candidates")
-    @classmethod
-    def _known_features(cls, value: list[str] | None) -> list[str] | None:
-        return value if value is None else passes(volume_feature_channels, value)
 
 
 class Train(Schema):
@@ -122,9 +82,8 @@ class Train(Schema):
     resume: str | None
     checkpoint_dir: str
     curves_file: str
-    volumetric: VolumetricTrain
 
-    _known_loss = field_validator("loss")(classmethod(lambda cls, value: _known_loss(value)))
+    _known_loss = field_validator("loss")(classmethod(lambda cls, value: known_loss(value)))
 
 
 class Eval(Schema):
@@ -147,8 +106,6 @@ class DenoiseTaskSchema(Schema):
     stages: list[Literal["render", "preprocess", "train", "eval", "report"]]
     optional_stages: list[Literal["select_features"]]
     features: list[str]
-    volume_features: list[str] | None
-    feature_selection: FeatureSelection
     preprocess: Preprocess
     train: Train
     eval: Eval
@@ -157,8 +114,3 @@ class DenoiseTaskSchema(Schema):
     @classmethod
     def _known_features(cls, value: list[str]) -> list[str]:
         return passes(feature_channels, value)
-
-    @field_validator("volume_features")
-    @classmethod
-    def _known_volume_features(cls, value: list[str] | None) -> list[str] | None:
-        return passes(volume_feature_channels, value)

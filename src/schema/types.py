@@ -68,3 +68,12 @@ def passes(check, value: Any) -> Any:
     except ConfigError as err:
         raise own_error(str(err)) from None
     return value
+
+
+def known_loss(value: Any) -> Any:
+    """A loss setting (`task.train.loss`, `dataset.train.loss`) as the trainer checks it (`get_loss`): a known
+    name, or an importable `_target_` mapping."""
+    from src.objectives.losses import get_loss
+
+    passes(get_loss, value if isinstance(value, str) else value.model_dump(by_alias=True, exclude_unset=True))
+    return value

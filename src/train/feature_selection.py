@@ -3,10 +3,10 @@
 After Zhang, Manzi, Vogels et al. 2022 (feature selection for Monte Carlo denoisers), as used for the
 volumetric denoiser of the Pixar/Disney 2023 talk "Denoising Production Volumetric Rendering":
 
-1. train one *probe* denoiser on every candidate feature (`task.volume_features`), each training sample
+1. train one *probe* denoiser on every candidate feature (`dataset.volume_features`), each training sample
    keeping a random subset of the candidates (`keep_mask`, `drop_features`): a dropped feature's
    channels are set to its neutral value (0 by default, transmittance 1: "no medium"; `neutral_values`),
-   so the probe learns to denoise from any subset. `task.feature_selection.subsets` says how a subset is
+   so the probe learns to denoise from any subset. `dataset.feature_selection.subsets` says how a subset is
    drawn: `uniform_size` (the default) draws the number kept, k, uniformly from 0..n (n candidates
    besides the always-kept colour), then a uniform subset of that size (`uniform_size_keep_mask`);
    `independent` (the ablation, and the scheme of runs before it) drops each candidate independently
@@ -47,9 +47,9 @@ from src.errors import ConfigError
 
 #: Where the settings live, for error messages.
 NEUTRAL_KEY = f"{FEATURE_SELECTION_KEY}.neutral"
-P_DROP_KEY = "task.feature_selection.dropout"
+P_DROP_KEY = "dataset.feature_selection.dropout"
 SUBSETS_KEY = f"{FEATURE_SELECTION_KEY}.subsets"
-#: How the probe draws a training sample's subset (`task.feature_selection.subsets`; `keep_mask`).
+#: How the probe draws a training sample's subset (`dataset.feature_selection.subsets`; `keep_mask`).
 SUBSETS = ("uniform_size", "independent")
 
 #: One row of the greedy selection: round, the feature added (None in round 0), the ordered selection so
@@ -72,7 +72,7 @@ def neutral_values(features: Features, neutral: Mapping[str, float] | None = Non
     """Per-channel neutral value (C,) of the inputs built from `features`: `neutral[feature]` for each
     feature listed there, 0 for the others. A key is a feature name: a buffer name (`transmittance`,
     `visibility`) is that buffer's value, `<buffer>.var` its variance. A key that names no candidate
-    feature: a one-line ConfigError naming `task.feature_selection.neutral`."""
+    feature: a one-line ConfigError naming `dataset.feature_selection.neutral`."""
     neutral = dict(neutral or {})
     unknown = sorted(str(k) for k in neutral if k not in VOLUME_CANDIDATE_FEATURES)
     if unknown:
@@ -134,7 +134,7 @@ def keep_mask(
     generator: torch.Generator | None = None,
     always_keep: Sequence[int] = (),
 ) -> torch.Tensor:
-    """The probe's (n, n_features) keep mask under the scheme `subsets` (`task.feature_selection.subsets`):
+    """The probe's (n, n_features) keep mask under the scheme `subsets` (`dataset.feature_selection.subsets`):
     `uniform_size` (`uniform_size_keep_mask`; `p_drop` unused) or `independent` (`random_keep_mask`);
     another name: a one-line ConfigError."""
     if subsets == "uniform_size":

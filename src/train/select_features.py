@@ -1,6 +1,6 @@
 """`stage=select_features` (dataset=volumetric): automatic auxiliary-feature selection after Zhang et al.
 2022, as the 2023 production volumetric denoising talk (Zhu et al.) adapted it, and the choice of a run's
-features from its result (`task.feature_selection.size`).
+features from its result (`dataset.feature_selection.size`).
 
 1. One probe denoiser (the run's `model`) is trained on the start set plus every candidate with random
    feature dropout (`DenoiserTrainer(probe=True)`): each sample drops each candidate with probability
@@ -9,7 +9,7 @@ features from its result (`task.feature_selection.size`).
    from the start set (the noisy colour), each round adds the candidate whose addition lowers the probe's
    validation loss most, every feature not selected held at its neutral value.
 
-Writes, under `task.feature_selection.dir`: `probe/` (its checkpoints and curves), `selection.json` (the
+Writes, under `dataset.feature_selection.dir`: `probe/` (its checkpoints and curves), `selection.json` (the
 ordered rows, what made them), `selection.csv` (the talk's "Table 1": rank, feature, channels, validation
 loss) and `selection_curve.png` (loss against the number of features); all are also MLflow artifacts of
 the run, with `select_loss` logged per round. A later run with `size=k` trains on the start set plus the
@@ -38,11 +38,11 @@ from src.train.trainer import DenoiserTrainer, flatten_frames
 
 def probe_config(cfg: DictConfig) -> DictConfig:
     """The run's config as the probe trains: every candidate as input, its own checkpoints and curves."""
-    sel = cfg.task.feature_selection
+    sel = cfg.dataset.feature_selection
     start = [str(f) for f in sel.start]
     probe = copy.deepcopy(cfg)
-    probe.task.volume_features = start + selection_candidates(start, sel.candidates)
-    probe.task.feature_selection.size = None
+    probe.dataset.volume_features = start + selection_candidates(start, sel.candidates)
+    probe.dataset.feature_selection.size = None
     probe_dir = Path(sel.dir) / "probe"
     probe.task.train.checkpoint_dir = str(probe_dir / "checkpoints")
     probe.task.train.curves_file = str(probe_dir / "curves.csv")
@@ -85,12 +85,18 @@ def _save_curve(path: Path, rows: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
+def probe_kind(kind: Any, probe: DictConfig) -> Any:
+    """The run's data kind with the probe's options (`probe_config`'s `dataset:`): every candidate read;
+    None stays None (a stand-in probe of the tests reads no data)."""
+    return None if kind is None else type(kind)(**OmegaConf.to_container(probe.dataset, resolve=True))
+
+
 def select_features(cfg: DictConfig, tracker, kind: Any) -> dict[str, Any]:
     """Train the probe on the data kind `kind`'s samples, run the greedy selection, write and log the
     ordered table (module docstring)."""
-    sel = cfg.task.feature_selection
+    sel = cfg.dataset.feature_selection
     probe = probe_config(cfg)
-    trainer = DenoiserTrainer(probe, tracker, probe=True, kind=kind)
+    trainer = DenoiserTrainer(probe, tracker, probe=True, kind=probe_kind(kind, probe))
     if cfg.task.train.resume:
         trainer.restore(cfg.task.train.resume)
     summary = trainer.fit()

@@ -9,9 +9,9 @@ batch for the model (`flatten_frames`). Per step (every `log_every`) and per epo
 validation data, each logged loss is written: `{train,val}_loss_<name>`.
 
 With `probe=True` the run is the feature-selection probe (Zhang et al. 2022, `src.train.feature_selection`):
-every sample keeps a random subset of the candidate features (`task.feature_selection.subsets`:
+every sample keeps a random subset of the candidate features (`dataset.feature_selection.subsets`:
 `uniform_size`, a uniform subset size then a uniform subset of it, or `independent`, each dropped with
-probability `task.feature_selection.dropout`), the others' channels set to their neutral values, so that
+probability `dataset.feature_selection.dropout`), the others' channels set to their neutral values, so that
 one network learns to denoise with any subset.
 
 The loop itself (progress, checkpoints, resume, Ctrl-C) is the shared `src.train.loop.TrainingLoop`; the
@@ -173,11 +173,11 @@ class DenoiserTrainer(TrainingLoop):
 class _FeatureDropout:
     """The probe's random feature dropout on the input group `key`: per sample (all k frames alike), a
     random subset of the candidates kept, the start set always (`fs.keep_mask` under
-    `task.feature_selection.subsets`), seeded by (seed, step), so that a resumed probe sees the same
+    `dataset.feature_selection.subsets`), seeded by (seed, step), so that a resumed probe sees the same
     masks."""
 
     def __init__(self, cfg: DictConfig, features: list[str] | None, key: str) -> None:
-        sel = cfg.task.feature_selection
+        sel = cfg.dataset.feature_selection
         features = list(features or VOLUME_CANDIDATE_FEATURES)
         self.key = key
         self.slices = fs.feature_slices(features)

@@ -6,15 +6,15 @@ of its samples into N; a still image is a sequence of one frame). Its colour is 
 each with named input groups:
 
     <branch>_in               the branch's input features, selected by name from the stored candidates
-                              (`task.features` for still images, `src.data.features`; `task.volume_features`
-                              for sequences, `src.data.volume_features`), NOT whitened: a model that
-                              whitens holds the statistics as buffers and applies them itself, so a
-                              checkpoint is self-contained
+                              (`task.features` for still images, `src.data.features`;
+                              `dataset.volume_features` for sequences, `src.data.volume_features`),
+                              NOT whitened: a model that whitens holds the statistics as
+                              buffers and applies them itself, so a checkpoint is self-contained
     <branch>_t                the branch's noisy colour in its transformed space: what kernels filter
     <branch>_target           the reference in that space (a training target)
 
 The still images have two branches, `diffuse` (d / (albedo + eps)) and `specular` (log(1 + s)); the
-sequences one, `radiance` (under `task.preprocess.volume_transform`); `src.data.color_spaces` maps a
+sequences one, `radiance` (under `dataset.preprocess.volume_transform`); `src.data.color_spaces` maps a
 model's branch outputs back to linear colour for each. Every batch also holds
 
     color, reference          noisy and reference colour, linear HDR (3)

@@ -9,7 +9,7 @@ sequences: radiance; `src.models.denoise.base`), or one shared by all branches.
 
 The branches come from the data (`model.branches: ${dataset.branches}`), so the same YAML and class serve
 the still images (two branches, the papers' models) and the sequences (one branch over
-`task.volume_features`, its output mapped back to linear colour by the sequences' radiance transform).
+`dataset.volume_features`, its output mapped back to linear colour by the sequences' radiance transform).
 
 Input whitening (an ablation) lives inside the model as buffers, so a checkpoint is self-contained and
 batches are never whitened outside.

@@ -149,7 +149,7 @@ class UNetKPCN(Denoiser):
     composition (module docstring). Reads the `radiance` branch; returns {"color": linear (N, 3, H, W)}.
 
     Args (all from `conf/model/unet_kpcn.yaml`):
-        in_channels: channels of batch["radiance_in"] (`task.volume_features`).
+        in_channels: channels of batch["radiance_in"] (`dataset.volume_features`).
         widths: feature channels per scale; S = len(widths) scales (S - 1 2x2 poolings).
         convs_per_level: convolutions per encoder and decoder level.
         conv_kernel: their size (odd).
@@ -157,7 +157,7 @@ class UNetKPCN(Denoiser):
         compositor_width: hidden channels of each `ScaleCompositor`.
         components: "color" (one kernel head per scale) or "surface_volume" (two, results summed).
         filter_space: "linear" (filter the inverse-transformed radiance) or "transformed".
-        transform: the batch's radiance transform (`task.preprocess.volume_transform`).
+        transform: the batch's radiance transform (`dataset.preprocess.volume_transform`).
 
     Any H x W is accepted: the frame is replicate-padded to multiples of 2^(S-1) and cropped back.
     """
