@@ -28,7 +28,10 @@ BAD_VALUES = [
     (["task.train.loss=l3"], ["task.train.loss='l3'", "'smape'"]),
     (["task.preprocess.split.val=0.5"], ["task.preprocess.split: fractions sum to 1.35; expected 1"]),
     (["task.preprocess.min_keep_prob=1.5"], ["task.preprocess.min_keep_prob=1.5: expected a value <= 1"]),
-    (["task.preprocess.specular_variance=exact"], ["task.preprocess.specular_variance='exact'", "'thesis'"]),
+    (
+        ["dataset.preprocess.specular_variance=exact"],
+        ["dataset.preprocess.specular_variance='exact'", "'thesis'"],
+    ),
     (["task.preprocess.importance=bako"], ["task.preprocess.importance='bako'", "'mc_variance'"]),
     (
         ["task.preprocess.importance_window=0"],
@@ -97,7 +100,7 @@ BAD_VALUES = [
     ),
     (["dataset=volumetric", "dataset.bases=[volcano]"], ["dataset.bases[0]='volcano'", "'godrays'"]),
     (
-        ["task.preprocess.patches_per_split={train: 0, val: 3}"],
+        ["dataset.preprocess.patches_per_split={train: 0, val: 3}"],
         ["patches_per_split.train=0: expected a positive"],
     ),
     (

@@ -174,7 +174,7 @@ SMALL_CPU = [
     "dataset.randomize.env_res=16",
     "dataset.randomize.texture_res=32",
     "task.preprocess.patch_size=8",
-    "task.preprocess.patches_per_image=6",
+    "dataset.preprocess.patches_per_image=6",
 ]
 
 

@@ -213,7 +213,7 @@ def test_tiled_inference_equals_a_full_frame_pass(smoke_data, model):
     denoiser = build_method(OmegaConf.to_container(cfg.model, resolve=True)).eval()
     item = FullImageDataset(cfg.paths.prepared, "test")[0]
     batch = {k: v[None] for k, v in item.items() if isinstance(v, torch.Tensor)}
-    space = KpcnSplit(cfg.task.preprocess.eps_albedo)
+    space = KpcnSplit(cfg.dataset.preprocess.eps_albedo)
     full = denoise_tiled(denoiser, batch, tile=10_000, space=space)
     tiled = denoise_tiled(denoiser, batch, tile=7, space=space)  # 48x32 in ragged 7x7 tiles
     torch.testing.assert_close(tiled, full, rtol=1e-5, atol=1e-6)

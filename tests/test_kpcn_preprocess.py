@@ -303,7 +303,7 @@ def test_the_thesis_specular_variance_is_an_option_for_replication():
     )  # diffuse unchanged
     with pytest.raises(ConfigError) as excinfo:
         make_network_inputs(b, EPS, specular_variance="exact")
-    one_line_error(excinfo, "task.preprocess.specular_variance='exact'", "'thesis'")
+    one_line_error(excinfo, "dataset.preprocess.specular_variance='exact'", "'thesis'")
 
 
 def test_log_modulus_is_odd_inverts_and_is_log1p_for_non_negative_values():

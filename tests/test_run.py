@@ -52,7 +52,7 @@ def test_default_profile_is_cpu_and_paper_is_the_thesis_set_up(tmp_path):
     assert compose_config().profile_name == "cpu"
     paper = compose_config(["profile=paper"])
     assert list(paper.dataset.noisy_spp) == [128, 256, 512, 1024]
-    assert dict(paper.task.preprocess.patches_per_split) == {"train": 13494, "val": 3373}
+    assert dict(paper.dataset.preprocess.patches_per_split) == {"train": 13494, "val": 3373}
     assert 13494 + 3373 == 16867 and round(0.8 * 16867) == 13494
     split = paper.task.preprocess.split
     assert split.train / (split.train + split.val) == pytest.approx(0.8)
@@ -64,7 +64,10 @@ def test_default_profile_is_cpu_and_paper_is_the_thesis_set_up(tmp_path):
     assert compose_config(["profile=paper", "model=dpcn"]).task.train.epochs == 80
     bako = compose_config(["profile=bako"])
     assert bako.dataset.scenes_per_base * len(bako.dataset.bases) == 1500
-    assert (bako.task.preprocess.patches_per_image, bako.task.preprocess.patches_per_split) == (400, None)
+    assert (bako.dataset.preprocess.patches_per_image, bako.dataset.preprocess.patches_per_split) == (
+        400,
+        None,
+    )
     assert (bako.dataset.width, bako.task.preprocess.patch_size, bako.task.train.epochs) == (1280, 65, 100)
     with pytest.raises(ConfigError) as excinfo:
         validate_run(smoke_config(tmp_path, tmp_path / "run", ["profile=bako", "task=nerf"]))

@@ -77,9 +77,9 @@ HG_RANGE = Bound(float, lo=-0.99, hi=0.99, shape="range")
 #: is listed under the model that declares it).
 BOUNDED: dict[Bound, str] = {
     POSITIVE_INT: """
-        run.Ssim.win_size run.Export.spp run.Export.frames denoise.PatchCounts.train denoise.PatchCounts.val
+        run.Ssim.win_size run.Export.spp run.Export.frames dataset.PatchCounts.train dataset.PatchCounts.val
         denoise.Preprocess.patch_size
-        denoise.Preprocess.patches_per_image dataset.SequencePreprocess.sequence_frames
+        dataset.StillPreprocess.patches_per_image dataset.SequencePreprocess.sequence_frames
         dataset.SequencePreprocess.patches_per_sequence dataset.FeatureSelection.max_size
         dataset.FeatureSelection.val_batches denoise.Train.batch_size denoise.Train.epochs
         denoise.Train.max_steps denoise.Train.log_every denoise.Eval.crop_size denoise.Eval.crop_zoom
@@ -112,7 +112,7 @@ BOUNDED: dict[Bound, str] = {
     """,
     POSITIVE: """
         run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps run.Cvvdp.fps
-        run.Metrics.smape_eps denoise.Repair.firefly_clamp denoise.Preprocess.eps_albedo
+        run.Metrics.smape_eps denoise.Repair.firefly_clamp dataset.StillPreprocess.eps_albedo
         denoise.Preprocess.importance_window denoise.Preprocess.whiten_eps denoise.Train.lr
         nerf.Train.lr_init nerf.Train.grad_max_norm filter_search.SeedSigmas.spatial
         filter_search.SeedSigmas.color filter_search.SeedSigmas.normal filter_search.SeedSigmas.albedo

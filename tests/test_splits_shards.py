@@ -170,7 +170,7 @@ def test_patch_quota_spreads_a_split_total_evenly():
     assert sum(patch_quota(8, 3373)) == 3373 and max(patch_quota(8, 3373)) - min(patch_quota(8, 3373)) == 1
     with pytest.raises(ConfigError) as excinfo:
         patch_quota(0, 5)
-    one_line_error(excinfo, "task.preprocess.patches_per_split", "no images")
+    one_line_error(excinfo, "dataset.preprocess.patches_per_split", "no images")
 
 
 def _synthetic_raw(tmp_path, scenes, spps=(4, 16, 1024)):
@@ -437,10 +437,14 @@ def test_split_by_base_off_keeps_the_prepared_cache_key_and_on_changes_it(tmp_pa
     equals its key with `false`); the filter search's `true` makes its own."""
     from omegaconf import OmegaConf, open_dict
 
-    from src.kinds.stills import preprocess_key
-    from tests.conftest import compose_config
+    from tests.conftest import compose_config, data_kind
 
     cfg = compose_config([])
+    kind = data_kind(cfg)
+
+    def preprocess_key(config, raw):
+        return kind.preprocess_key(config, raw)
+
     assert cfg.task.preprocess.split_by_base is False
     off = preprocess_key(cfg, tmp_path)
     before = cfg.copy()

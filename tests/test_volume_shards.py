@@ -313,7 +313,7 @@ def test_the_stage_preprocesses_once_and_again_when_a_volumetric_setting_changes
     prepared = tmp_path / "data" / "volumetric" / "smoke" / "prepared"
     assert (prepared / "preprocess_provenance.json").is_file()
     assert next(iter(SequencePatchDataset(prepared, "train")))["radiance_in"].shape == (2, 62, 8, 8)
-    preprocess(_stage_config(tmp_path, "task.preprocess.eps_albedo=0.5"))  # a still-image setting only
+    preprocess(_stage_config(tmp_path, "task.eval.tile=8"))  # no preprocessing setting
     assert "up to date" in capsys.readouterr().out
     summary = preprocess(_stage_config(tmp_path, "dataset.preprocess.sequence_frames=1"))
     assert "up to date" not in capsys.readouterr().out and summary["settings"]["sequence_frames"] == 1
@@ -332,14 +332,13 @@ def test_prepared_data_of_another_configuration_are_refused_at_job_start(tmp_pat
     cfg = _stage_config(tmp_path)
     for stage in ("train", "eval", "select_features"):
         task_of(cfg).check_stages([stage], cfg)  # same settings, the raw data it was made from
-    task_of(cfg).check_stages(
-        ["train"], _stage_config(tmp_path, "task.preprocess.eps_albedo=0.5")
-    )  # still-only
+    evaluation_only = _stage_config(tmp_path, "task.eval.tile=8")  # no preprocessing setting
+    task_of(evaluation_only).check_stages(["train"], evaluation_only)
     other = _stage_config(tmp_path, "dataset.preprocess.sequence_frames=1")
     with pytest.raises(ConfigError) as excinfo:
         task_of(other).check_stages(["train"], other)
     one_line_error(
-        excinfo, f"{made.paths.prepared}:", "task.preprocess", "my_sequences", "run stage=preprocess"
+        excinfo, f"{made.paths.prepared}:", "dataset.preprocess", "my_sequences", "run stage=preprocess"
     )
     task_of(other).check_stages(["preprocess", "train"], other)  # the job makes them again first
     task_of(other).check_stages(["render"], other)  # reads no prepared data

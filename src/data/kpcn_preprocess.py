@@ -150,7 +150,7 @@ def make_network_inputs(
     if specular_variance not in SPECULAR_VARIANCES:
         expected = list(SPECULAR_VARIANCES)
         raise ConfigError(
-            f"task.preprocess.specular_variance={specular_variance!r}: expected one of {expected}"
+            f"dataset.preprocess.specular_variance={specular_variance!r}: expected one of {expected}"
         )
     specular_var = SPECULAR_VARIANCES[specular_variance](b["specularVariance"], b["specular"])
     out = {

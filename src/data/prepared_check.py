@@ -1,7 +1,7 @@
 """Is a prepared folder the one this config would make? A stage that reads `paths.prepared` without
 preprocessing first (`stage=train`, `eval`, `select_features`, `search`) checks, when its job starts, that
 the folder's recorded cache key equals the key `stage=preprocess` would give it now. Otherwise it would
-train or score on data made with other `task.preprocess` settings (a `stage=preprocess
+train or score on data made with other `task.preprocess` or `dataset.preprocess` settings (a `stage=preprocess
 task.preprocess.patch_size=16` before a plain `stage=train`) or from other raw data, while its run
 records this config. Why at job start: before any run is opened or file written (the docs' rule for bad
 input)."""
@@ -46,6 +46,7 @@ def check_prepared_is_current(
     if current_raw is not None and Path(current_raw) != raw and wanted == key_of(Path(current_raw)):
         return
     raise ConfigError(
-        f"{record_file.parent}: made by stage=preprocess with other task.preprocess settings or from "
-        f"other raw data ({raw}) than this config's; run stage=preprocess (or dvc repro) first"
+        f"{record_file.parent}: made by stage=preprocess with other task.preprocess or dataset.preprocess "
+        f"settings or from other raw data ({raw}) than this config's; run stage=preprocess (or dvc repro) "
+        "first"
     )

@@ -120,6 +120,6 @@ def patch_quota(n_images: int, total: int) -> list[int]:
     share, the first `total % n_images` images one more (the seed thesis states a patch count, 16,867
     split 80/20, not a per-image one: Bunjevac 2019, Sec. 6)."""
     if n_images < 1:
-        raise ConfigError(f"task.preprocess.patches_per_split: a split with {total} patches has no images")
+        raise ConfigError(f"dataset.preprocess.patches_per_split: a split with {total} patches has no images")
     share, extra = divmod(int(total), n_images)
     return [share + (i < extra) for i in range(n_images)]

@@ -66,12 +66,12 @@ def transform_specular_variance_thesis(var: np.ndarray, specular: np.ndarray) ->
 
     It divides by the square of the *transformed* value rather than by the derivative's inverse
     (1 + s)^2, so it differs from the first-order variance by up to several hundred times for small or
-    large s; offered only to replicate the thesis exactly (`task.preprocess.specular_variance=thesis`).
+    large s; offered only to replicate the thesis exactly (`dataset.preprocess.specular_variance=thesis`).
     """
     return var / (np.log1p(specular.mean(axis=-1, keepdims=True)) + THESIS_SPECULAR_EPS) ** 2
 
 
-#: `task.preprocess.specular_variance` choices: the first-order (delta-method) propagation, or the seed
+#: `dataset.preprocess.specular_variance` choices: the first-order (delta-method) propagation, or the seed
 #: thesis's formula as its author's code computes it (for exact replication).
 SPECULAR_VARIANCES = {"delta": transform_specular_variance, "thesis": transform_specular_variance_thesis}
 

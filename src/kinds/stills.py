@@ -1,7 +1,12 @@
 """Still images (`dataset=procedural`): Mitsuba renders of surfaces, one EXR per (scene, spp) in the KPCN /
 Tungsten layout, prepared into diffuse/specular network inputs (Bako et al. 2017; the Zagreb thesis,
 Bunjevac 2019, Sec. 4), training patches and whole held-out images. The same files from elsewhere (the
-KPCN data a user already has) are read with `paths.raw=<folder>` and need no render."""
+KPCN data a user already has) are read with `paths.raw=<folder>` and need no render.
+
+Its own options (conf/dataset/procedural.yaml, `self.dataset`): the scenes and their renders, and their
+preprocessing `dataset.preprocess` (the KPCN transform's `eps_albedo` and `specular_variance`, the patch
+counts). Its input features are `task.features`, which the filter search sets to its own terminals on the
+same images."""
 
 from __future__ import annotations
 
@@ -18,18 +23,6 @@ from src.kinds.denoising import DenoisingKind, cache_key, repaired_note
 from src.objectives.losses import get_loss
 from src.objectives.terms import BranchLosses
 from src.schema.dataset import ProceduralDataset
-
-
-def preprocess_key(cfg: DictConfig, raw: Path) -> str:
-    """The still images' cache key: every `task.preprocess` setting, the stored KPCN inputs and the other
-    stored tensors (`SHARD_CHANNEL_NAMES`: folders made before the GP features were added rebuild). (The
-    sequences' own settings are their `dataset:` options, so changing them leaves still images valid.)"""
-    settings = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
-    if not settings.get("split_by_base"):  # off: the keys of folders made before the option stay the same
-        settings.pop("split_by_base", None)
-    from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
-
-    return cache_key(settings, raw, (*CANDIDATE_CHANNELS, *SHARD_CHANNEL_NAMES))
 
 
 class RenderedStills(DenoisingKind):
@@ -56,7 +49,16 @@ class RenderedStills(DenoisingKind):
         return summary, Path(cfg.paths.dataset) / "render_summary.json"
 
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
-        return preprocess_key(cfg, raw)
+        """The still images' cache key: every setting of the shared `task.preprocess` and of their own
+        `dataset.preprocess`, the stored KPCN inputs and the other stored tensors (`SHARD_CHANNEL_NAMES`:
+        folders made before the GP features were added rebuild). The settings form one mapping, as when
+        they all lived in `task.preprocess`, so folders prepared before the move stay current."""
+        settings = {**OmegaConf.to_container(cfg.task.preprocess, resolve=True), **self.dataset["preprocess"]}
+        if not settings.get("split_by_base"):  # off: the keys of folders made before the option stay the same
+            settings.pop("split_by_base", None)
+        from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch
+
+        return cache_key(settings, raw, (*CANDIDATE_CHANNELS, *SHARD_CHANNEL_NAMES))
 
     def check_stage(self, stage: str, cfg: DictConfig) -> None:
         """Besides the shared checks: feature selection chooses among the sequences' candidates."""
@@ -75,17 +77,17 @@ class RenderedStills(DenoisingKind):
         from src.data.kpcn_buffers import load_kpcn_exr
         from src.data.shards import preprocess_dataset
 
-        p = cfg.task.preprocess
+        p, own = cfg.task.preprocess, self.dataset["preprocess"]
         out = Path(cfg.paths.prepared)
 
         def build(raw: Path, tmp: Path, load) -> dict[str, Any]:
             return preprocess_dataset(
                 raw,
                 tmp,
-                eps=p.eps_albedo,
+                eps=own["eps_albedo"],
                 patch_size=p.patch_size,
-                patches_per_image=p.patches_per_image,
-                patches_per_split=OmegaConf.to_container(p, resolve=True)["patches_per_split"],
+                patches_per_image=own["patches_per_image"],
+                patches_per_split=own["patches_per_split"],
                 split_fractions=dict(p.split),
                 split_seed=p.split_seed,
                 split_by_base=bool(p.split_by_base),
@@ -97,7 +99,7 @@ class RenderedStills(DenoisingKind):
                 importance=p.importance,
                 importance_window=p.importance_window,
                 importance_percentile=p.importance_percentile,
-                specular_variance=p.specular_variance,
+                specular_variance=own["specular_variance"],
                 load_fn=load,
             )
 
@@ -119,7 +121,7 @@ class RenderedStills(DenoisingKind):
         check_trained_features(checkpoint.get("features"), features, where)
 
     def color_space(self, cfg: DictConfig) -> KpcnSplit:
-        return KpcnSplit(cfg.task.preprocess.eps_albedo)
+        return KpcnSplit(self.dataset["preprocess"]["eps_albedo"])
 
     def samples(self, cfg: DictConfig, split: str, features, shuffle: bool) -> FramesOfOne:
         """Patches of `split` (`PatchShardDataset`), as samples of one frame."""

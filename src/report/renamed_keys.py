@@ -1,7 +1,7 @@
 """Config keys that moved, so that runs logged before a move are read under today's names.
 
-MLflow keeps each run's params under the key it had when the run was logged. When a key moves (the
-sequences' options moved from `task:` to `dataset:` at issue 44), the study store holds both spellings;
+MLflow keeps each run's params under the key it had when the run was logged. When a key moves (the data
+kinds' own options moved from `task:` to `dataset:` at issue 44), the study store holds both spellings;
 the reports and the ledger read every run through `renamed_params`, and a run's command-line overrides
 (its `nrbench.hydra_job` tag) through `renamed_key`, so a claim or an axis names one key and finds the runs
 of both. A key is renamed by prefix: `task.feature_selection.size` -> `dataset.feature_selection.size`.
@@ -19,6 +19,10 @@ RENAMED: dict[str, str] = {
     "task.preprocess.sequence_frames": "dataset.preprocess.sequence_frames",
     "task.preprocess.patches_per_sequence": "dataset.preprocess.patches_per_sequence",
     "task.train.volumetric": "dataset.train",
+    "task.preprocess.eps_albedo": "dataset.preprocess.eps_albedo",
+    "task.preprocess.specular_variance": "dataset.preprocess.specular_variance",
+    "task.preprocess.patches_per_image": "dataset.preprocess.patches_per_image",
+    "task.preprocess.patches_per_split": "dataset.preprocess.patches_per_split",
 }
 
 

@@ -148,8 +148,23 @@ class DenoisingData(DatasetSchema):
     input_channels: PositiveInt
 
 
+class PatchCounts(Schema):
+    train: PositiveInt
+    val: PositiveInt
+
+
+class StillPreprocess(Schema):
+    """`dataset.preprocess` of the still images (src/data/shards.py; task.preprocess applies too)."""
+
+    eps_albedo: PositiveFloat
+    specular_variance: Literal["delta", "thesis"]
+    patches_per_image: PositiveInt
+    patches_per_split: PatchCounts | None
+
+
 class ProceduralDataset(DenoisingData):
     name: Literal["procedural"]
+    preprocess: StillPreprocess
     # Empty when the user's own scene files are the whole dataset (`dataset.bases=[]`); not both empty.
     bases: list[Literal["cornell", "tabletop", "outdoor"]]
     scenes_per_base: PositiveInt

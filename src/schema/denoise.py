@@ -43,17 +43,8 @@ class Repair(Schema):
     firefly_clamp: PositiveFloat | None
 
 
-class PatchCounts(Schema):
-    train: PositiveInt
-    val: PositiveInt
-
-
 class Preprocess(Schema):
-    eps_albedo: PositiveFloat
-    specular_variance: Literal["delta", "thesis"]
     patch_size: PositiveInt
-    patches_per_image: PositiveInt
-    patches_per_split: PatchCounts | None
     candidates_factor: AtLeastOne
     min_keep_prob: Probability
     min_distance: NonNegativeFloat
