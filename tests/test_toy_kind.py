@@ -119,3 +119,37 @@ def test_a_smoke_multirun_trains_evaluates_and_reports_the_toy_denoiser_and_dpcn
         metrics = json.loads((tmp_path / "sweep" / job / "eval" / "metrics.json").read_text())
         assert metrics["images"] == 4 and metrics["mean"]["temporal"] > 0
         assert set(pd.read_csv(tmp_path / "sweep" / job / "eval" / "per_image.csv")["frames"]) == {4}
+
+
+def test_a_job_builds_its_data_kind_once_and_every_stage_gets_that_one(tmp_path, monkeypatch):
+    """`python -m src.run` in-process (the function under `@hydra.main`), two untracked stages: the kind's
+    constructor runs once for the whole job (schema check, job-start settling and both stages)."""
+    from src.run import main
+    from tests.plugins.toy_kind import ToySequences
+
+    built, used = [], []
+    original_init = ToySequences.__init__
+
+    def counting_init(self, **options):
+        built.append(self)
+        original_init(self, **options)
+
+    def recording(stage):
+        method = getattr(ToySequences, stage)
+
+        def run(self, cfg):
+            used.append((stage, self))
+            return method(self, cfg)
+
+        return run
+
+    monkeypatch.setattr(ToySequences, "__init__", counting_init)
+    for stage in ("render", "preprocess"):
+        monkeypatch.setattr(ToySequences, stage, recording(stage))
+    cfg = _cfg(tmp_path, "task.stages=[render,preprocess]", "stage=all", "tracking.enabled=false")
+    results = main.__wrapped__(cfg)
+    assert set(results) == {"render", "preprocess"} and results["render"] == {"scenes": 8}
+    assert len(built) == 1 and [(s, k is built[0]) for s, k in used] == [
+        ("render", True),
+        ("preprocess", True),
+    ]
