@@ -7,6 +7,7 @@ installs Debian's slurm-wlm and munge where missing): `-m slow`, about two minut
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 
@@ -88,6 +89,9 @@ def test_a_smoke_study_through_slurm_reaches_the_tracking_server_with_the_local_
     ran = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert ran.returncode == 0, (ran.stdout + ran.stderr)[-3000:]
     assert list((tmp_path / "slurm").rglob("*_submission.sh")), "the jobs did not go through submitit"
+    # accounting is off: submitit's sacct warning, once per status poll before, now once per sweep
+    calls = set(re.findall(r"Call #(\d+) - Bypassing sacct error", ran.stdout + ran.stderr))
+    assert calls <= {"1"}, calls
 
     served = _eval_metrics(cluster["MLFLOW_TRACKING_URI"])
     assert set(served) == {(MODELS, "0")}
@@ -101,3 +105,30 @@ def test_a_smoke_study_through_slurm_reaches_the_tracking_server_with_the_local_
     for key, metrics in served.items():
         assert metrics.keys() == measured_here[key].keys() and len(metrics) > 10
         assert metrics == pytest.approx(measured_here[key], rel=1e-6, abs=1e-9), key
+
+
+@pytest.mark.parametrize(
+    "request_,key",
+    [
+        ([], "hydra.launcher.cpus_per_task=8"),  # the launcher's defaults: 8 CPUs, 64 GB, 1 GPU
+        (["hydra.launcher.cpus_per_task=1"], "hydra.launcher.mem_gb=64"),
+        (["hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=2"], "hydra.launcher.gpus_per_node=1"),
+    ],
+)
+def test_a_request_the_node_cannot_satisfy_is_one_line_at_launch(cluster, tmp_path, request_, key):
+    """Before: the array stayed pending for ever (`PartitionConfig`) and the sweep waited without a word.
+    Now the launch stops in one line naming the key, exit 2, with nothing submitted and no parent run."""
+    command, _ = cli_job(
+        ["-m", f"model={MODELS}", *STUDY, "hydra/launcher=slurm", "hydra.launcher.partition=debug", *request_,
+         f"hydra.sweep.dir={tmp_path}/sweep"],
+        tmp_path / "data",
+    )  # fmt: skip
+    env = {**cluster, "NRBENCH_DATA_DIR": str(tmp_path / "data")}
+    ran = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert ran.returncode == 2, (ran.stdout + ran.stderr)[-2000:]
+    lines = [line for line in (ran.stdout + ran.stderr).splitlines() if key in line]
+    assert len(lines) == 1 and "no node of partition debug" in lines[0], ran.stdout + ran.stderr
+    assert "Traceback" not in ran.stderr
+    queue = subprocess.run(["squeue", "-h"], env=env, capture_output=True, text=True, timeout=60)
+    assert queue.stdout.strip() == ""
+    assert not list((tmp_path / "sweep").rglob("*_submission.sh"))

@@ -18,6 +18,7 @@ LAYERS: dict[str, int] = {
     "errors": 0,
     "io": 1,
     "multirun": 1,
+    "launch": 1,
     "provenance": 2,
     "metrics": 2,
     "gp": 2,

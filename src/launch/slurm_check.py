@@ -1,0 +1,183 @@
+"""What is wrong with a SLURM launch, said before anything is submitted.
+
+A request no node of the partition can satisfy (CPUs, memory, GPUs per node, more nodes than it has, a
+time limit above the partition's) is held pending by SLURM for ever, reason `PartitionConfig`, and the
+sweep waits without a word. `SlurmLaunchCheck` (a Hydra callback, `conf/config.yaml`) reads the
+partition's nodes with `sinfo` when a multirun starts through the submitit SLURM launcher and stops it
+with one line naming the `hydra.launcher.` key, what was asked and what the partition has (exit 2).
+
+It also lets submitit's warning that accounting is off (`sacct` fails on small clusters; submitit then
+polls `squeue`) through once per sweep instead of once per poll.
+
+The parsing and the rule are pure functions (`nodes_from_sinfo`, `unsatisfiable`), tested on `sinfo`
+output; the callback runs `sinfo` itself.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
+log = logging.getLogger("nrbench.launch")
+
+#: The `sinfo` format `nodes_from_sinfo` reads: partition (the default one starred), node, CPUs, memory
+#: (MB), generic resources, the partition's time limit.
+SINFO_FORMAT = "%P|%N|%c|%m|%G|%l"
+KEY = "hydra.launcher"
+#: submitit's message when `sacct` fails (accounting off): logged on every status poll.
+SACCT_WARNING = "Bypassing sacct error"
+
+
+@dataclass(frozen=True)
+class Node:
+    """One node of a partition as `sinfo` reports it; `time_limit_min` is the partition's (None: none)."""
+
+    partition: str
+    name: str
+    cpus: int
+    memory_mb: int
+    gpus: int
+    time_limit_min: float | None
+    default: bool = False
+
+
+def gpu_count(gres: str) -> int:
+    """GPUs in a `sinfo` %G field: `(null)` 0, `gpu:4` 4, `gpu:a100:2(S:0-1),gpu:v100:1` 3."""
+    total = 0
+    for entry in gres.split(","):
+        parts = re.sub(r"\(.*?\)", "", entry).split(":")
+        if parts[0] == "gpu" and len(parts) >= 2 and parts[-1].isdigit():
+            total += int(parts[-1])
+    return total
+
+
+def minutes(limit: str) -> float | None:
+    """A SLURM time limit in minutes: `infinite`/`UNLIMITED` None; `D-HH:MM:SS`, `HH:MM:SS`, `MM:SS`, `MM`."""
+    if limit.lower() in ("infinite", "unlimited", "n/a", ""):
+        return None
+    days, _, clock = limit.rpartition("-")
+    fields = [int(f) for f in clock.split(":")]
+    hours, mins, secs = {1: (0, fields[0], 0), 2: (0, *fields), 3: tuple(fields)}[len(fields)]
+    return (int(days or 0) * 24 + hours) * 60 + mins + secs / 60
+
+
+def nodes_from_sinfo(text: str) -> list[Node]:
+    """The nodes of `sinfo -h -N -o "%P|%N|%c|%m|%G|%l"` (one line per node and partition)."""
+    nodes = []
+    for line in text.strip().splitlines():
+        partition, name, cpus, memory, gres, limit = line.split("|")
+        nodes.append(
+            Node(
+                partition=partition.rstrip("*"),
+                name=name,
+                cpus=int(cpus.rstrip("+")),
+                memory_mb=int(memory.rstrip("+")),
+                gpus=gpu_count(gres),
+                time_limit_min=minutes(limit),
+                default=partition.endswith("*"),
+            )
+        )
+    return nodes
+
+
+def unsatisfiable(launcher: dict[str, Any], nodes: list[Node]) -> str | None:
+    """The one-line reason no node of the launcher's partition (its `partition`, else the default one)
+    can run a job of `launcher`'s request, or None when one can. Per node: `cpus_per_task` x
+    `tasks_per_node` CPUs, `mem_gb` GB, `gpus_per_node` GPUs; `nodes` nodes in all; `timeout_min` within
+    the partition's limit. A node must satisfy the CPUs, memory and GPUs together."""
+    wanted = launcher.get("partition")
+    names = sorted({n.partition for n in nodes})
+    pool = [n for n in nodes if (n.partition == wanted if wanted else n.default)]
+    if not pool:
+        where = f"{KEY}.partition={wanted}" if wanted else f"{KEY}.partition=null"
+        return (
+            f"{where}: no such partition{'' if wanted else ' (none is the default)'}; the cluster has {names}"
+        )
+    name = pool[0].partition
+    cpus = int(launcher.get("cpus_per_task") or 1) * int(launcher.get("tasks_per_node") or 1)
+    memory_mb = float(launcher.get("mem_gb") or 0) * 1024
+    gpus = int(launcher.get("gpus_per_node") or 0)
+    # (key, value as set, amount per node, what a node has of it, unit)
+    checks = [
+        ("cpus_per_task", launcher.get("cpus_per_task"), cpus, lambda n: n.cpus, "CPUs"),
+        ("mem_gb", launcher.get("mem_gb"), memory_mb, lambda n: n.memory_mb, "MB"),
+        ("gpus_per_node", gpus, gpus, lambda n: n.gpus, "GPUs"),
+    ]
+    for key, value, amount, has, unit in checks:
+        if not any(has(n) >= amount for n in pool):
+            largest = max(pool, key=has)
+            return (
+                f"{KEY}.{key}={value}: asks {amount:g} {unit} per node; no node of partition {name} has "
+                f"them (largest: {has(largest)} {unit} on {largest.name}; lower it or pick another partition)"
+            )
+    together = [n for n in pool if all(has(n) >= amount for _, _, amount, has, _ in checks)]
+    if not together:
+        return (
+            f"{KEY}: {cpus} CPUs, {memory_mb:g} MB and {gpus} GPUs on one node: no node of partition {name} "
+            "has all three"
+        )
+    wanted_nodes = int(launcher.get("nodes") or 1)
+    if wanted_nodes > len(together):
+        return (
+            f"{KEY}.nodes={wanted_nodes}: partition {name} has {len(together)} node(s) that fit the request"
+        )
+    limit = pool[0].time_limit_min
+    timeout = launcher.get("timeout_min")
+    if limit is not None and timeout is not None and float(timeout) > limit:
+        return f"{KEY}.timeout_min={timeout}: above partition {name}'s time limit of {limit:g} min"
+    return None
+
+
+class _OncePerSweep(logging.Filter):
+    """Lets the first record containing `text` through, drops the later ones."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.text, self.seen = text, False
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if self.text not in record.getMessage():
+            return True
+        if self.seen:
+            return False
+        self.seen = True
+        return True
+
+
+def is_slurm(config: DictConfig) -> bool:
+    """Whether the multirun launches through Hydra's submitit SLURM launcher."""
+    target = str(config.hydra.launcher.get("_target_", ""))
+    return target.endswith("SlurmLauncher")
+
+
+class SlurmLaunchCheck(Callback):
+    """At the start of a SLURM multirun: refuse a request no node can satisfy (one line, exit 2), and
+    show submitit's accounting warning once."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if not is_slurm(config):
+            return
+        logging.getLogger("submitit").addFilter(_OncePerSweep(SACCT_WARNING))
+        if shutil.which("sinfo") is None:
+            log.warning("launch: sinfo not found; the SLURM request is not checked against the partition")
+            return
+        listed = subprocess.run(
+            ["sinfo", "-h", "-N", "-o", SINFO_FORMAT], capture_output=True, text=True, timeout=60
+        )
+        if listed.returncode != 0:
+            log.warning("launch: sinfo failed (%s); the request is not checked", listed.stderr.strip())
+            return
+        from omegaconf import OmegaConf
+
+        launcher = OmegaConf.to_container(config.hydra.launcher, resolve=True)
+        reason = unsatisfiable(launcher, nodes_from_sinfo(listed.stdout))
+        if reason is not None:
+            log.error("%s", reason)
+            raise SystemExit(2)

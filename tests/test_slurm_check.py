@@ -1,0 +1,130 @@
+"""The launch-time check of a SLURM request (src/launch/slurm_check.py) on `sinfo` output: each resource
+on both sides of its limit, the default partition, the time limit, and the accounting warning once. The
+real scheduler refusing the launcher's defaults: tests/test_cluster.py (slow)."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+from src.launch.slurm_check import (
+    SACCT_WARNING,
+    SlurmLaunchCheck,
+    gpu_count,
+    minutes,
+    nodes_from_sinfo,
+    unsatisfiable,
+)
+
+# Two partitions: `cpu*` (the default) with a 2-CPU node and a 16-CPU one, `gpu` with two 4-GPU nodes and a
+# 2-day limit.
+SINFO = """cpu*|small|2|8000|(null)|infinite
+cpu*|big|16|64000|(null)|infinite
+gpu|g1|32|256000|gpu:a100:4(S:0-1)|2-00:00:00
+gpu|g2|32|256000|gpu:4|2-00:00:00
+"""
+NODES = nodes_from_sinfo(SINFO)
+FITS_CPU = {"partition": None, "cpus_per_task": 16, "tasks_per_node": 1, "mem_gb": 62, "gpus_per_node": 0}
+FITS_GPU = {"partition": "gpu", "cpus_per_task": 8, "mem_gb": 64, "gpus_per_node": 4, "timeout_min": 2880}
+
+
+@pytest.mark.parametrize(
+    "gres,count", [("(null)", 0), ("gpu:4", 4), ("gpu:a100:2(S:0-1),gpu:v100:1", 3), ("mps:100", 0)]
+)
+def test_gpus_are_counted_from_the_gres_field(gres, count):
+    assert gpu_count(gres) == count
+
+
+@pytest.mark.parametrize(
+    "limit,mins",
+    [
+        ("infinite", None),
+        ("UNLIMITED", None),
+        ("2-00:00:00", 2880),
+        ("01:30:00", 90),
+        ("45:30", 45.5),
+        ("15", 15),
+    ],
+)
+def test_time_limits_are_read_in_minutes(limit, mins):
+    assert minutes(limit) == mins
+
+
+def test_sinfo_lines_become_nodes_with_the_default_partition_marked():
+    assert [(n.partition, n.name, n.cpus, n.memory_mb, n.gpus, n.default) for n in NODES] == [
+        ("cpu", "small", 2, 8000, 0, True),
+        ("cpu", "big", 16, 64000, 0, True),
+        ("gpu", "g1", 32, 256000, 4, False),
+        ("gpu", "g2", 32, 256000, 4, False),
+    ]
+    assert NODES[2].time_limit_min == 2880 and NODES[0].time_limit_min is None
+
+
+def test_a_request_one_node_fits_passes_at_each_limit():
+    assert unsatisfiable(FITS_CPU, NODES) is None  # 16 CPUs, 62 GB = 63488 MB <= 64000 on `big`
+    assert unsatisfiable(FITS_GPU, NODES) is None  # exactly the partition's 2 days
+    assert unsatisfiable({**FITS_GPU, "nodes": 2}, NODES) is None
+
+
+@pytest.mark.parametrize(
+    "change,needles",
+    [
+        (
+            {"cpus_per_task": 17},
+            ["hydra.launcher.cpus_per_task=17", "17 CPUs", "partition cpu", "16 CPUs on big"],
+        ),
+        ({"cpus_per_task": 9, "tasks_per_node": 2}, ["hydra.launcher.cpus_per_task=9", "18 CPUs"]),
+        ({"mem_gb": 63}, ["hydra.launcher.mem_gb=63", "64512 MB", "64000 MB on big"]),
+        ({"gpus_per_node": 1}, ["hydra.launcher.gpus_per_node=1", "1 GPUs", "0 GPUs on small"]),
+        ({"partition": "gpu", "gpus_per_node": 5}, ["gpus_per_node=5", "partition gpu", "4 GPUs on g1"]),
+        ({"partition": "gpu", "timeout_min": 2881}, ["hydra.launcher.timeout_min=2881", "2880 min"]),
+        ({"partition": "gpu", "nodes": 3}, ["hydra.launcher.nodes=3", "2 node(s)"]),
+        ({"partition": "debug"}, ["hydra.launcher.partition=debug", "no such partition", "['cpu', 'gpu']"]),
+    ],
+)
+def test_a_request_no_node_can_satisfy_is_one_line_naming_its_key(change, needles):
+    reason = unsatisfiable({**FITS_CPU, **change}, NODES)
+    assert reason is not None and "\n" not in reason
+    for needle in needles:
+        assert needle in reason, (needle, reason)
+
+
+def test_each_resource_fitting_some_node_is_not_enough_when_no_node_has_them_all():
+    """16 CPUs fit `big`, 8000 MB... and a 2-CPU node with much memory: each alone fits one node."""
+    nodes = nodes_from_sinfo("p*|many_cpus|16|4000|(null)|infinite\np*|much_memory|2|64000|(null)|infinite\n")
+    reason = unsatisfiable({"cpus_per_task": 16, "mem_gb": 32, "gpus_per_node": 0}, nodes)
+    assert reason is not None and "on one node" in reason and "all three" in reason
+    assert unsatisfiable({"cpus_per_task": 16, "mem_gb": 3, "gpus_per_node": 0}, nodes) is None
+
+
+def test_without_a_default_partition_a_null_partition_is_named():
+    nodes = nodes_from_sinfo("a|n1|4|1000|(null)|infinite\n")
+    reason = unsatisfiable({"partition": None, "cpus_per_task": 1, "mem_gb": 0}, nodes)
+    assert (
+        reason is not None and "hydra.launcher.partition=null" in reason and "none is the default" in reason
+    )
+
+
+def test_the_accounting_warning_passes_once_per_sweep(caplog, monkeypatch):
+    """The callback's filter on submitit's logger: the first sacct warning, never its repeats, and other
+    warnings untouched. Outside a SLURM multirun the callback does nothing."""
+    from omegaconf import OmegaConf
+
+    from src.launch import slurm_check
+
+    logger = logging.getLogger("submitit")
+    slurm = OmegaConf.create({"hydra": {"launcher": {"_target_": "hydra_plugins.x.SlurmLauncher"}}})
+    local = OmegaConf.create({"hydra": {"launcher": {"_target_": "hydra._internal.BasicLauncher"}}})
+    monkeypatch.setattr(slurm_check.shutil, "which", lambda name: None)  # no scheduler to ask here
+    monkeypatch.setattr(logger, "filters", [])
+    SlurmLaunchCheck().on_multirun_start(local)
+    assert logger.filters == []
+    SlurmLaunchCheck().on_multirun_start(slurm)
+    with caplog.at_level(logging.WARNING, logger="submitit"):
+        for call in range(3):
+            logger.warning("Call #%d - %s Command sacct returned 1", call, SACCT_WARNING)
+        logger.warning("something else")
+        logger.warning("something else")
+    messages = [r.getMessage() for r in caplog.records if r.name == "submitit"]
+    assert sum(SACCT_WARNING in m for m in messages) == 1 and messages.count("something else") == 2
