@@ -132,3 +132,38 @@ def test_a_request_the_node_cannot_satisfy_is_one_line_at_launch(cluster, tmp_pa
     queue = subprocess.run(["squeue", "-h"], env=env, capture_output=True, text=True, timeout=60)
     assert queue.stdout.strip() == ""
     assert not list((tmp_path / "sweep").rglob("*_submission.sh"))
+
+
+def test_a_job_stuck_on_a_drained_node_is_reported_while_the_sweep_waits(cluster, tmp_path):
+    """The node drained after the launch check: the job pends (`squeue`: nodes DOWN, DRAINED...) and the
+    sweep says so once, naming the job and its `scancel`; back in service, the job runs and the sweep
+    ends normally."""
+    import time
+
+    drain = ["scontrol", "update", f"NodeName={socket.gethostname().split('.')[0]}"]
+    command, _ = cli_job(
+        ["-m", f"model={MODELS}", *STUDY, *SLURM, f"hydra.sweep.dir={tmp_path}/sweep",
+         "hydra.callbacks.slurm_check.pending_poll_s=1"],
+        tmp_path / "data",
+    )  # fmt: skip
+    env = {**cluster, "NRBENCH_DATA_DIR": str(tmp_path / "data")}
+    subprocess.run([*drain, "State=DRAIN", "Reason=test"], env=env, check=True, timeout=60)
+    log = tmp_path / "sweep.log"
+    try:
+        with log.open("w") as out:
+            job = subprocess.Popen(
+                command, cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT, text=True
+            )
+            deadline = time.monotonic() + 240
+            while "is pending and will stay so" not in log.read_text() and time.monotonic() < deadline:
+                assert job.poll() is None, log.read_text()[-2000:]
+                time.sleep(1)
+        reported = [line for line in log.read_text().splitlines() if "is pending and will stay so" in line]
+        assert len(reported) == 1 and "a node it needs is down or drained" in reported[0], log.read_text()[
+            -2000:
+        ]
+        assert re.search(r"scancel \d+", reported[0])
+    finally:
+        subprocess.run([*drain, "State=RESUME"], env=env, timeout=60)
+    assert job.wait(timeout=600) == 0, log.read_text()[-3000:]
+    assert sum("is pending and will stay so" in line for line in log.read_text().splitlines()) == 1

@@ -128,3 +128,36 @@ def test_the_accounting_warning_passes_once_per_sweep(caplog, monkeypatch):
         logger.warning("something else")
     messages = [r.getMessage() for r in caplog.records if r.name == "submitit"]
     assert sum(SACCT_WARNING in m for m in messages) == 1 and messages.count("something else") == 2
+
+
+def test_a_job_pending_for_a_reason_that_will_not_clear_is_picked_out():
+    from src.launch.slurm_check import stuck_jobs
+
+    squeue = "\n".join(
+        [
+            "12_0|PENDING|Nodes required for job are DOWN, DRAINED or reserved for jobs in higher priority "
+            "partitions",  # squeue's %r of a drained node (SLURM 22.05)
+            "12_1|PENDING|PartitionConfig",
+            "12_2|PENDING|Resources",  # waits for a free node: clears by itself
+            "12_3|PENDING|Priority",
+            "13|RUNNING|None",
+            "14|PENDING|(ReqNodeNotAvail, UnavailableNodes:g1)",
+        ]
+    )
+    stuck = stuck_jobs(squeue)
+    assert [(job, meaning) for job, _, meaning in stuck] == [
+        ("12_0", "a node it needs is down or drained"),
+        ("12_1", "the request exceeds what the partition allows"),
+        ("14", "a node it needs is down or drained"),
+    ]
+    assert stuck_jobs("") == [] and stuck_jobs("15|RUNNING|PartitionConfig") == []
+
+
+def test_the_sweeps_jobs_are_the_folders_submitit_named_after_them(tmp_path):
+    from src.launch.slurm_check import submitted_jobs
+
+    assert submitted_jobs(tmp_path / "absent") == []
+    for name in ("7_0", "7_1", "8", "not_a_job"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "9").write_text("a file, not a job folder")
+    assert submitted_jobs(tmp_path) == ["7_0", "7_1", "8"]

@@ -6,8 +6,11 @@ sweep waits without a word. `SlurmLaunchCheck` (a Hydra callback, `conf/config.y
 partition's nodes with `sinfo` when a multirun starts through the submitit SLURM launcher and stops it
 with one line naming the `hydra.launcher.` key, what was asked and what the partition has (exit 2).
 
-It also lets submitit's warning that accounting is off (`sacct` fails on small clusters; submitit then
-polls `squeue`) through once per sweep instead of once per poll.
+While the sweep waits, `PendingWatch` looks at its jobs (the ids submitit's folders are named after)
+every `pending_poll_s` seconds and reports, once per job, one pending for a reason that waits on a person
+(a drained or down node, a partition limit, a bad constraint, QOS or account), with the `scancel` that
+ends it. It also lets submitit's warning that accounting is off (`sacct` fails on small
+clusters; submitit then polls `squeue`) through once per sweep instead of once per poll.
 
 The parsing and the rule are pure functions (`nodes_from_sinfo`, `unsatisfiable`), tested on `sinfo`
 output; the callback runs `sinfo` itself.
@@ -19,7 +22,9 @@ import logging
 import re
 import shutil
 import subprocess
+import threading
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from hydra.experimental.callback import Callback
@@ -135,6 +140,77 @@ def unsatisfiable(launcher: dict[str, Any], nodes: list[Node]) -> str | None:
     return None
 
 
+#: Pending reasons (as `squeue`'s %r shows them, short or long) that do not clear by waiting, and what
+#: each means.
+STUCK_REASONS = {
+    "PartitionConfig": "the request exceeds what the partition allows",
+    "PartitionNodeLimit": "more nodes than the partition allows",
+    "PartitionTimeLimit": "a time limit above the partition's",
+    "ReqNodeNotAvail": "a node it needs is down or drained",
+    "DOWN, DRAINED": "a node it needs is down or drained",
+    "NodeDown": "a node it needs is down",
+    "BadConstraints": "constraints no node satisfies",
+    "InvalidQOS": "an invalid QOS",
+    "InvalidAccount": "an invalid account",
+}
+
+
+def stuck_jobs(squeue: str) -> list[tuple[str, str, str]]:
+    """(job, reason, what it means) of each PENDING job of `squeue -h -o "%i|%T|%r"` whose reason does not
+    clear by waiting (`STUCK_REASONS`); jobs waiting for resources or priority are left out."""
+    stuck = []
+    for line in squeue.strip().splitlines():
+        job, state, reason = (line.split("|", 2) + ["", ""])[:3]
+        if state != "PENDING":
+            continue
+        meaning = next((m for key, m in STUCK_REASONS.items() if key in reason), None)
+        if meaning is not None:
+            stuck.append((job, reason, meaning))
+    return stuck
+
+
+def submitted_jobs(submitit_folder: Path) -> list[str]:
+    """The SLURM ids of the jobs submitit has submitted for this sweep (its folders are named after them)."""
+    if not submitit_folder.is_dir():
+        return []
+    return sorted(
+        p.name for p in submitit_folder.iterdir() if p.is_dir() and re.fullmatch(r"\d+(_\d+)?", p.name)
+    )
+
+
+class PendingWatch(threading.Thread):
+    """Every `interval` seconds until stopped: this sweep's jobs (`submitted_jobs`) that are stuck pending
+    (`stuck_jobs`), each reported once per job and meaning (a daemon thread: it never holds the launch up)."""
+
+    def __init__(self, submitit_folder: Path, interval: float) -> None:
+        super().__init__(daemon=True, name="nrbench-pending-watch")
+        self.folder, self.interval = submitit_folder, interval
+        self.stopped = threading.Event()
+        self.reported: set[tuple[str, str]] = set()
+
+    def run(self) -> None:
+        while not self.stopped.wait(self.interval):
+            jobs = submitted_jobs(self.folder)
+            if not jobs:
+                continue
+            listed = subprocess.run(
+                ["squeue", "-h", "-j", ",".join(jobs), "-o", "%i|%T|%r"], capture_output=True, text=True
+            )
+            for job, reason, meaning in stuck_jobs(listed.stdout):
+                # by meaning: SLURM words one wait in several ways (`ReqNodeNotAvail, ...`, then `Nodes
+                # required for job are DOWN, DRAINED ...`)
+                if (job, meaning) not in self.reported:
+                    self.reported.add((job, meaning))
+                    log.warning(
+                        "launch: job %s is pending and will stay so until someone acts: %s (%s); scancel %s "
+                        "ends it",
+                        job,
+                        meaning,
+                        reason,
+                        job,
+                    )
+
+
 class _OncePerSweep(logging.Filter):
     """Lets the first record containing `text` through, drops the later ones."""
 
@@ -158,8 +234,21 @@ def is_slurm(config: DictConfig) -> bool:
 
 
 class SlurmLaunchCheck(Callback):
-    """At the start of a SLURM multirun: refuse a request no node can satisfy (one line, exit 2), and
-    show submitit's accounting warning once."""
+    """At the start of a SLURM multirun: refuse a request no node can satisfy (one line, exit 2), show
+    submitit's accounting warning once, and watch for jobs stuck pending (every `pending_poll_s` seconds;
+    0: no watch) until the multirun ends."""
+
+    def __init__(self, pending_poll_s: float = 30.0) -> None:
+        self.pending_poll_s = float(pending_poll_s)
+        self.watch: PendingWatch | None = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Without the watch thread: submitit pickles the callbacks with each job."""
+        return {**self.__dict__, "watch": None}
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        if self.watch is not None:
+            self.watch.stopped.set()
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         if not is_slurm(config):
@@ -181,3 +270,7 @@ class SlurmLaunchCheck(Callback):
         if reason is not None:
             log.error("%s", reason)
             raise SystemExit(2)
+        if self.pending_poll_s > 0:
+            folder = Path(str(launcher["submitit_folder"])).parent  # `<sweep dir>/.submitit/%j`
+            self.watch = PendingWatch(folder, self.pending_poll_s)
+            self.watch.start()
