@@ -29,8 +29,7 @@ def remaining_candidates(candidates: Sequence[str], start: Sequence[str]) -> lis
 
 def selection_candidates(start: list[str], candidates: list[str] | None) -> list[str]:
     """The features tried: `candidates`, or every stored candidate not in the start set."""
-    pool = list(candidates) if candidates is not None else list(VOLUME_CANDIDATE_FEATURES)
-    return [f for f in pool if f not in start]
+    return remaining_candidates(candidates if candidates is not None else VOLUME_CANDIDATE_FEATURES, start)
 
 
 def check_size(size: int, available: int) -> None:

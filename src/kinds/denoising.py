@@ -87,6 +87,13 @@ class DenoisingKind(DataKind):
             record = Path(cfg.paths.prepared) / PREPROCESS_PROVENANCE
             check_prepared_is_current(record, lambda raw: self.preprocess_key(cfg, raw), self.raw_dir(cfg))
 
+    def preprocess_options(self, cfg: DictConfig) -> dict[str, Any]:
+        """The preprocessing settings as one mapping: the shared `task.preprocess` and this kind's own
+        `dataset.preprocess` (none for a kind without it). One mapping, as when they all lived in
+        `task.preprocess`: the prepared folders' cache keys did not change when they moved."""
+        shared = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
+        return {**shared, **self.dataset.get("preprocess", {})}
+
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
         """The cache key `preprocess` gives the prepared folder for this config and the raw data `raw`."""
         raise NotImplementedError

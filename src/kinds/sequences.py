@@ -38,7 +38,7 @@ class RenderedSequences(DenoisingKind):
     def preprocess_settings(self, cfg: DictConfig) -> dict[str, Any]:
         """The keyword arguments of `preprocess_volume_dataset`: the shared `task.preprocess` and the
         sequences' own `dataset.preprocess`."""
-        p = {**OmegaConf.to_container(cfg.task.preprocess, resolve=True), **self.dataset["preprocess"]}
+        p = self.preprocess_options(cfg)
         return {
             **{
                 k: p[k] for k in ("patch_size", "patches_per_sequence", "sequence_frames", "volume_transform")

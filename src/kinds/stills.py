@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from src.data.color_spaces import KpcnSplit
 from src.data.denoise_dataset import FramesOfOne, ImagesAsFrames
@@ -51,9 +51,8 @@ class RenderedStills(DenoisingKind):
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
         """The still images' cache key: every setting of the shared `task.preprocess` and of their own
         `dataset.preprocess`, the stored KPCN inputs and the other stored tensors (`SHARD_CHANNEL_NAMES`:
-        folders made before the GP features were added rebuild). The settings form one mapping, as when
-        they all lived in `task.preprocess`, so folders prepared before the move stay current."""
-        settings = {**OmegaConf.to_container(cfg.task.preprocess, resolve=True), **self.dataset["preprocess"]}
+        folders made before the GP features were added rebuild), over `preprocess_options`."""
+        settings = self.preprocess_options(cfg)
         if not settings.get("split_by_base"):  # off: the keys of folders made before the option stay the same
             settings.pop("split_by_base", None)
         from src.data.shards import SHARD_CHANNEL_NAMES  # lazy: torch

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 log = logging.getLogger("nrbench.launch")
 
@@ -263,8 +263,6 @@ class SlurmLaunchCheck(Callback):
         if listed.returncode != 0:
             log.warning("launch: sinfo failed (%s); the request is not checked", listed.stderr.strip())
             return
-        from omegaconf import OmegaConf
-
         launcher = OmegaConf.to_container(config.hydra.launcher, resolve=True)
         reason = unsatisfiable(launcher, nodes_from_sinfo(listed.stdout))
         if reason is not None:

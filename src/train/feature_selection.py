@@ -47,7 +47,7 @@ from src.errors import ConfigError
 
 #: Where the settings live, for error messages.
 NEUTRAL_KEY = f"{FEATURE_SELECTION_KEY}.neutral"
-P_DROP_KEY = "dataset.feature_selection.dropout"
+P_DROP_KEY = f"{FEATURE_SELECTION_KEY}.dropout"
 SUBSETS_KEY = f"{FEATURE_SELECTION_KEY}.subsets"
 #: How the probe draws a training sample's subset (`dataset.feature_selection.subsets`; `keep_mask`).
 SUBSETS = ("uniform_size", "independent")
