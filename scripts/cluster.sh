@@ -73,6 +73,11 @@ JobAcctGatherType=jobacct_gather/none
 AccountingStorageType=accounting_storage/none
 ReturnToService=2
 MpiDefault=none
+# A requeued or cancelled job gets SIGTERM, then SIGKILL this many seconds later (SLURM's default: 30).
+KillWait=10
+JobRequeue=1
+# A requeued job may start again this many seconds after it ended (SLURM's default: 120).
+AuthInfo=cred_expire=10
 NodeName=$HOST CPUs=$cpus RealMemory=$mem State=UNKNOWN
 PartitionName=debug Nodes=$HOST Default=YES MaxTime=INFINITE State=UP
 EOF

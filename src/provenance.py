@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import hashlib
+import json
+import logging
 import subprocess
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
 from src.io.atomic import atomic_write_json
+
+log = logging.getLogger("nrbench")
 
 
 def git_commit(repo: Path | None = None) -> str:
@@ -72,6 +76,8 @@ IGNORED_PARAMS = frozenset(
         "task.search.seed",  # = ${seed}, which reports aggregate over
         "stage",
         "seed",
+        "auto_resume",  # whether a job continues its checkpoint; the result is the same either way
+        "skip_finished",  # whether a job already done runs again; the same
     }
 )
 
@@ -97,6 +103,27 @@ def result_config(cfg: DictConfig) -> dict:
         return out
 
     return keep("", OmegaConf.to_container(cfg, resolve=True))
+
+
+def config_digest(cfg: DictConfig) -> str:
+    """A short hash of `result_config(cfg)` (seed included): two configs with the same digest compute the
+    same result. A checkpoint carries the digest of the config that wrote it, so that a job starting again
+    in the same folder continues it only when nothing that decides the result has changed."""
+    text = json.dumps(result_config(cfg), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def written_by_this_config(path: Path, written: str | None, cfg: DictConfig) -> bool:
+    """Whether the checkpoint at `path`, written by a config of digest `written` (None: by a version that
+    recorded none), may be continued by a job of `cfg`; says why not in one warning."""
+    if written == config_digest(cfg):
+        return True
+    log.warning(
+        "%s: not continued: written by %s; starting over (task.train.resume=<path> continues it anyway)",
+        path,
+        "another configuration" if written else "a version that recorded no configuration digest",
+    )
+    return False
 
 
 def provenance(cfg: DictConfig, data_dir: Path | None = None) -> dict:

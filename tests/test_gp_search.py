@@ -290,10 +290,11 @@ def test_searching_on_an_unrendered_spp_fails_at_job_start(tmp_path):
     FilterSearchTask.for_run(cfg).check_stages(["render", "search"], cfg)
 
 
-def test_filter_search_task_end_to_end(smoke_data, tmp_path):
+def test_filter_search_task_end_to_end(smoke_data, tmp_path, monkeypatch):
     """render + preprocess (on a copy of the fixture's data: this task's smoke split differs), search 2
-    islands x 4 for 2 generations, eval of the best expression as gp_filter; then a resumed search
-    continues its state."""
+    islands x 4 for 2 generations, eval of the best expression as gp_filter; a search interrupted for a
+    requeue continues its own state in its folder to the same result; a resumed search continues its
+    state."""
     import json
     import shutil
 
@@ -358,6 +359,33 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path):
     island_rows = pd.read_csv(tmp_path / "run" / "eval" / f"island{rows[1]['island']}" / "per_image.csv")
     assert not [c for c in island_rows if c.startswith("baseline_")]
     assert (tmp_path / "run" / "eval" / f"island{rows[1]['island']}" / "metrics.json").exists()
+    # A job starting again in its run folder (a requeue) continues its own state, not another config's.
+    from src.gp.search import GPSearch, saved_job
+    from src.provenance import config_digest
+    from src.tasks.filter_search import resumable_search_state
+
+    assert saved_job(out / "state.json") == {"config_digest": config_digest(cfg), "mlflow_run_id": None}
+    assert resumable_search_state(cfg) == out / "state.json"
+    longer = smoke_config(data, tmp_path / "run", [*overrides, "task.search.generations=4"])
+    assert resumable_search_state(longer) is None
+    off = smoke_config(data, tmp_path / "run", [*overrides, "task.search.generations=2", "auto_resume=false"])
+    assert resumable_search_state(off) is None
+    requeued = smoke_config(data, tmp_path / "requeued", [*overrides, "task.search.generations=2"])
+    step = GPSearch.step
+
+    def exit_in_generation_2(self, state):
+        if state.generation == 1:
+            raise SystemExit(-1)  # submitit's exit after requeueing the job
+        return step(self, state)
+
+    monkeypatch.setattr(GPSearch, "step", exit_in_generation_2)
+    with pytest.raises(SystemExit):
+        stages.search(requeued, Tracker(None))
+    assert json.loads((tmp_path / "requeued" / "search" / "state.json").read_text())["generation"] == 1
+    monkeypatch.undo()
+    again = stages.search(requeued, Tracker(None))  # no resume given: its own state.json, generation 1
+    assert again["best_expression"] == summary["best_expression"] and again["generations"] == 2
+    assert json.loads((tmp_path / "requeued" / "search" / "history.json").read_text()) == history
     # resume: two more generations from the checkpoint
     more = smoke_config(
         smoke_data,

@@ -31,7 +31,13 @@ def test_eval_of_a_trained_checkpoint_continues_its_training_run(smoke_data, tmp
         train(cfg, tracker)
         trained_in = tracker.run_id
     assert _run_to_continue(cfg, ["eval"]) == trained_in
-    assert _run_to_continue(cfg, ["train", "eval"]) is None  # a fresh training starts a new run
+    # A training started again in its folder continues its own checkpoint's run (`auto_resume`); with
+    # auto_resume=false, or from another folder, it starts a new run.
+    assert _run_to_continue(cfg, ["train", "eval"]) == trained_in
+    off = smoke_config(smoke_data, tmp_path, ["model=resnet", "task.train.max_steps=2", "auto_resume=false"])
+    assert _run_to_continue(off, ["train", "eval"]) is None
+    elsewhere = smoke_config(smoke_data, tmp_path / "other", ["model=resnet", "task.train.max_steps=2"])
+    assert _run_to_continue(elsewhere, ["train", "eval"]) is None
     baseline = smoke_config(smoke_data, tmp_path, ["model=oidn"])
     assert _run_to_continue(baseline, ["eval"]) is None
 

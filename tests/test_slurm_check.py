@@ -106,9 +106,10 @@ def test_without_a_default_partition_a_null_partition_is_named():
     )
 
 
-def test_the_accounting_warning_passes_once_per_sweep(caplog, monkeypatch):
-    """The callback's filter on submitit's logger: the first sacct warning, never its repeats, and other
-    warnings untouched. Outside a SLURM multirun the callback does nothing."""
+def test_the_accounting_warning_is_one_line_once_per_sweep(caplog, monkeypatch):
+    """The callback's filter on submitit's logger: one line of ours at the first sacct warning (which
+    submitit writes three times per status poll), none of submitit's own, other warnings untouched.
+    Outside a SLURM multirun the callback does nothing."""
     from omegaconf import OmegaConf
 
     from src.launch import slurm_check
@@ -121,13 +122,15 @@ def test_the_accounting_warning_passes_once_per_sweep(caplog, monkeypatch):
     SlurmLaunchCheck().on_multirun_start(local)
     assert logger.filters == []
     SlurmLaunchCheck().on_multirun_start(slurm)
-    with caplog.at_level(logging.WARNING, logger="submitit"):
+    with caplog.at_level(logging.WARNING):
         for call in range(3):
             logger.warning("Call #%d - %s Command sacct returned 1", call, SACCT_WARNING)
         logger.warning("something else")
         logger.warning("something else")
     messages = [r.getMessage() for r in caplog.records if r.name == "submitit"]
-    assert sum(SACCT_WARNING in m for m in messages) == 1 and messages.count("something else") == 2
+    assert not any(SACCT_WARNING in m for m in messages) and messages.count("something else") == 2
+    ours = [r.getMessage() for r in caplog.records if r.name == "nrbench.launch"]
+    assert ours.count(slurm_check.ACCOUNTING_OFF) == 1
 
 
 def test_a_job_pending_for_a_reason_that_will_not_clear_is_picked_out():
@@ -161,3 +164,43 @@ def test_the_sweeps_jobs_are_the_folders_submitit_named_after_them(tmp_path):
         (tmp_path / name).mkdir()
     (tmp_path / "9").write_text("a file, not a job folder")
     assert submitted_jobs(tmp_path) == ["7_0", "7_1", "8"]
+
+
+def test_a_job_gone_from_the_queue_without_a_result_fails_the_sweep_in_submitits_own_terms(tmp_path):
+    """With accounting off, submitit sees a job end by its result file only: one killed before writing it
+    (here: the time-out signal before submitit's handler was installed, exit 140) kept the sweep waiting
+    for ever. Two polls without it in `squeue` and without a result: the job's result is written as
+    submitit writes a failure, and submitit's own reader raises it."""
+    import submitit
+
+    from src.launch.slurm_check import PendingWatch, vanished
+
+    for job in ("7_0", "7_1", "8"):
+        (tmp_path / job).mkdir()
+    (tmp_path / "7_1" / "7_1_0_result.pkl").write_bytes(b"a result")
+    squeue = "8|PENDING|BeginTime"  # 8 is requeued, waiting to start again: not gone
+    assert vanished(["7_0", "7_1", "8"], squeue, tmp_path) == ["7_0"]
+    assert vanished(["7_0", "7_1", "8"], "7_0|RUNNING|None\n" + squeue, tmp_path) == []
+
+    watch = PendingWatch(tmp_path, interval=1)
+    watch.fail_vanished(["7_0", "7_1", "8"], squeue)  # first poll: maybe still writing its result
+    assert not (tmp_path / "7_0" / "7_0_0_result.pkl").exists()
+    watch.fail_vanished(["7_0", "7_1", "8"], squeue)
+    assert (tmp_path / "7_0" / "7_0_0_result.pkl").exists()
+    assert (tmp_path / "7_1" / "7_1_0_result.pkl").read_bytes() == b"a result"  # its own is kept
+    job = submitit.SlurmJob(folder=tmp_path / "%j", job_id="7_0")
+    with pytest.raises(submitit.core.utils.FailedJobError, match="left the queue without a result"):
+        job.result()
+    watch.fail_vanished(["7_0", "7_1", "8"], squeue)  # written once: nothing vanished any more
+    assert watch.missing == set()
+
+
+def test_a_job_back_in_the_queue_between_two_polls_is_not_failed(tmp_path):
+    from src.launch.slurm_check import PendingWatch
+
+    (tmp_path / "5").mkdir()
+    watch = PendingWatch(tmp_path, interval=1)
+    watch.fail_vanished(["5"], "")
+    watch.fail_vanished(["5"], "5|PENDING|BeginTime")
+    watch.fail_vanished(["5"], "")
+    assert not (tmp_path / "5" / "5_0_result.pkl").exists()

@@ -346,20 +346,22 @@ class GPSearch:
         state: SearchState | None = None,
         checkpoint: str | Path | None = None,
         on_generation: Callable[[SearchState], None] | None = None,
+        job: Mapping[str, Any] | None = None,
     ) -> SearchState:
-        """All `generations` from `state` (or from the start), saving `checkpoint` after each."""
+        """All `generations` from `state` (or from the start), saving `checkpoint` after each (with `job`:
+        what the caller records of the job that wrote it, see `save_state`)."""
         if state is not None:
             self.remember(state)
         if state is None:
             state = self.start()
             if checkpoint is not None:
-                save_state(checkpoint, state, self.params)
+                save_state(checkpoint, state, self.params, job)
             if on_generation is not None:
                 on_generation(state)
         while state.generation < self.params.generations:
             state = self.step(state)
             if checkpoint is not None:
-                save_state(checkpoint, state, self.params)
+                save_state(checkpoint, state, self.params, job)
             if on_generation is not None:
                 on_generation(state)
         return state
@@ -382,14 +384,18 @@ def best_per_island(state: SearchState) -> list[Individual]:
 # -- checkpoints -----------------------------------------------------------------------------------------
 
 
-def save_state(path: str | Path, state: SearchState, params: SearchParams) -> None:
+def save_state(
+    path: str | Path, state: SearchState, params: SearchParams, job: Mapping[str, Any] | None = None
+) -> None:
     """The state as JSON, written atomically: every individual as prefix text with its fitness, the RNG
-    state, the generation, the history and the parameters (checked on load)."""
+    state, the generation, the history, the parameters (checked on load) and `job` (what the caller
+    records of the job that wrote it: its config's digest and MLflow run; read back by `saved_job`)."""
     version, internal, gauss = state.random_state
     atomic_write_json(
         path,
         {
             "format": STATE_FORMAT,
+            "job": dict(job or {}),
             "params": asdict(params),
             "generation": state.generation,
             "random_state": [version, list(internal), gauss],
@@ -414,6 +420,15 @@ PRE_OPTION_RULES = {
     "hall_of_fame": 0,
     "color_variance": False,
 }
+
+
+def saved_job(path: str | Path) -> dict[str, Any]:
+    """The `job` entry `save_state` wrote in the checkpoint at `path` ({} when it has none)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise DataError(f"{path}: not a readable search checkpoint ({err})".replace("\n", " ")) from None
+    return dict(data.get("job") or {}) if isinstance(data, dict) else {}
 
 
 def load_state(path: str | Path, params: SearchParams, pset: gp.PrimitiveSetTyped = PSET) -> SearchState:

@@ -9,8 +9,8 @@ with one line naming the `hydra.launcher.` key, what was asked and what the part
 While the sweep waits, `PendingWatch` looks at its jobs (the ids submitit's folders are named after)
 every `pending_poll_s` seconds and reports, once per job, one pending for a reason that waits on a person
 (a drained or down node, a partition limit, a bad constraint, QOS or account), with the `scancel` that
-ends it. It also lets submitit's warning that accounting is off (`sacct` fails on small
-clusters; submitit then polls `squeue`) through once per sweep instead of once per poll.
+ends it. It also says once per sweep, in one line, what submitit warns three times per status poll
+when accounting is off (`sacct` fails on small clusters).
 
 The parsing and the rule are pure functions (`nodes_from_sinfo`, `unsatisfiable`), tested on `sinfo`
 output; the callback runs `sinfo` itself.
@@ -38,6 +38,11 @@ SINFO_FORMAT = "%P|%N|%c|%m|%G|%l"
 KEY = "hydra.launcher"
 #: submitit's message when `sacct` fails (accounting off): logged on every status poll.
 SACCT_WARNING = "Bypassing sacct error"
+ACCOUNTING_OFF = (
+    "launch: sacct fails here (SLURM accounting is off): submitit sees a job end by its result file only, "
+    "and does not see a job that dies without one; said once per sweep (sacct itself may still print "
+    "'Slurm accounting storage is disabled')"
+)
 
 
 @dataclass(frozen=True)
@@ -178,15 +183,35 @@ def submitted_jobs(submitit_folder: Path) -> list[str]:
     )
 
 
+def vanished(jobs: list[str], squeue: str, folder: Path) -> list[str]:
+    """The jobs of `jobs` that `squeue -h -r -o "%i|..."` no longer lists and that left no result file in
+    their submitit folder (`<folder>/<job>/<job>_0_result.pkl`): killed before they could write one (out of
+    memory, a signal before submitit's handler was installed, a node failure, an administrator's scancel)."""
+    queued = {line.split("|", 1)[0] for line in squeue.strip().splitlines()}
+    return [j for j in jobs if j not in queued and not (folder / j / f"{j}_0_result.pkl").exists()]
+
+
+def fail_for_submitit(folder: Path, job: str, message: str) -> None:
+    """Write job `job`'s result as submitit's own handler writes a failure (`("error", text)`), so that the
+    sweep waiting on it raises `message` as the job's error instead of waiting for ever."""
+    from submitit.core import utils
+
+    with utils.temporary_save_path(folder / job / f"{job}_0_result.pkl") as tmp:
+        utils.cloudpickle_dump(("error", message), tmp)
+
+
 class PendingWatch(threading.Thread):
-    """Every `interval` seconds until stopped: this sweep's jobs (`submitted_jobs`) that are stuck pending
-    (`stuck_jobs`), each reported once per job and meaning (a daemon thread: it never holds the launch up)."""
+    """Every `interval` seconds until stopped, this sweep's jobs (`submitted_jobs`): one stuck pending
+    (`stuck_jobs`) is reported once per job and meaning; one that has left the queue without a result
+    (`vanished`, at two polls in a row) is failed with that reason (`fail_for_submitit`): with accounting
+    off, submitit would wait for it for ever. A daemon thread: it never holds the launch up."""
 
     def __init__(self, submitit_folder: Path, interval: float) -> None:
         super().__init__(daemon=True, name="nrbench-pending-watch")
         self.folder, self.interval = submitit_folder, interval
         self.stopped = threading.Event()
         self.reported: set[tuple[str, str]] = set()
+        self.missing: set[str] = set()  # jobs seen vanished at the last poll
 
     def run(self) -> None:
         while not self.stopped.wait(self.interval):
@@ -194,37 +219,56 @@ class PendingWatch(threading.Thread):
             if not jobs:
                 continue
             listed = subprocess.run(
-                ["squeue", "-h", "-j", ",".join(jobs), "-o", "%i|%T|%r"], capture_output=True, text=True
+                ["squeue", "-h", "-r", "--me", "-o", "%i|%T|%r"], capture_output=True, text=True, timeout=60
             )
-            for job, reason, meaning in stuck_jobs(listed.stdout):
-                # by meaning: SLURM words one wait in several ways (`ReqNodeNotAvail, ...`, then `Nodes
-                # required for job are DOWN, DRAINED ...`)
-                if (job, meaning) not in self.reported:
-                    self.reported.add((job, meaning))
-                    log.warning(
-                        "launch: job %s is pending and will stay so until someone acts: %s (%s); scancel %s "
-                        "ends it",
-                        job,
-                        meaning,
-                        reason,
-                        job,
-                    )
+            if listed.returncode != 0:  # the controller is busy or restarting: look again next time
+                continue
+            self.report_stuck(listed.stdout, set(jobs))
+            self.fail_vanished(jobs, listed.stdout)
+
+    def report_stuck(self, squeue: str, jobs: set[str]) -> None:
+        for job, reason, meaning in stuck_jobs(squeue):
+            # by meaning: SLURM words one wait in several ways (`ReqNodeNotAvail, ...`, then `Nodes
+            # required for job are DOWN, DRAINED ...`)
+            if job in jobs and (job, meaning) not in self.reported:
+                self.reported.add((job, meaning))
+                log.warning(
+                    "launch: job %s is pending and will stay so until someone acts: %s (%s); scancel %s "
+                    "ends it",
+                    job,
+                    meaning,
+                    reason,
+                    job,
+                )
+
+    def fail_vanished(self, jobs: list[str], squeue: str) -> None:
+        gone = set(vanished(jobs, squeue, self.folder))
+        for job in sorted(gone & self.missing):  # twice in a row: not a result still being written
+            log_file = self.folder / job / f"{job}_0_log.err"
+            message = (
+                f"launch: job {job} left the queue without a result (killed before it could write one: out "
+                f"of memory, a signal, a node failure or scancel); its log: {log_file}"
+            )
+            log.error("%s", message)
+            fail_for_submitit(self.folder, job, message)
+        self.missing = gone - self.missing
 
 
 class _OncePerSweep(logging.Filter):
-    """Lets the first record containing `text` through, drops the later ones."""
+    """Drops submitit's records containing `text` (each goes to its two stream handlers and to Hydra's
+    log: three lines per status poll) and says `instead` once, in one line, at the first."""
 
-    def __init__(self, text: str) -> None:
+    def __init__(self, text: str, instead: str) -> None:
         super().__init__()
-        self.text, self.seen = text, False
+        self.text, self.instead, self.seen = text, instead, False
 
     def filter(self, record: logging.LogRecord) -> bool:
         if self.text not in record.getMessage():
             return True
-        if self.seen:
-            return False
-        self.seen = True
-        return True
+        if not self.seen:
+            self.seen = True
+            log.warning("%s", self.instead)
+        return False
 
 
 def is_slurm(config: DictConfig) -> bool:
@@ -253,7 +297,7 @@ class SlurmLaunchCheck(Callback):
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         if not is_slurm(config):
             return
-        logging.getLogger("submitit").addFilter(_OncePerSweep(SACCT_WARNING))
+        logging.getLogger("submitit").addFilter(_OncePerSweep(SACCT_WARNING, ACCOUNTING_OFF))
         if shutil.which("sinfo") is None:
             log.warning("launch: sinfo not found; the SLURM request is not checked against the partition")
             return

@@ -168,6 +168,8 @@ class RunSchema(Schema):
     seed: NonNegativeInt
     data_seed: NonNegativeInt
     device: Literal["auto", "cpu", "cuda"]
+    auto_resume: bool
+    skip_finished: bool
     profile_name: str
     profile_tasks: list[str] = Field(min_length=1)  # the tasks a profile has sizes for
     paths: Paths

@@ -34,6 +34,21 @@ STATE_FILE = "state.json"
 HISTORY_FILE = "history.json"
 
 
+def resumable_search_state(cfg: DictConfig) -> Path | None:
+    """The search checkpoint a job of `cfg` continues: `task.search.resume` when set; else, with
+    `auto_resume`, `state.json` in `task.search.out_dir` when the same configuration wrote it (a requeued
+    job in its own run folder); else None (start over)."""
+    from src.gp.search import saved_job
+    from src.provenance import written_by_this_config
+
+    if cfg.task.search.resume is not None:
+        return Path(cfg.task.search.resume)
+    path = Path(cfg.task.search.out_dir) / STATE_FILE
+    if not cfg.get("auto_resume", False) or not path.is_file():
+        return None
+    return path if written_by_this_config(path, saved_job(path).get("config_digest"), cfg) else None
+
+
 def search_params(cfg: DictConfig):
     """`task.search` as `src.gp.search.SearchParams`."""
     from src.gp.search import SearchParams
@@ -224,6 +239,7 @@ class FilterSearchTask(DenoiseTask):
         from src.gp.run_metrics import best_through, search_run_metrics
         from src.gp.search import load_state
         from src.io.atomic import atomic_write_json, atomic_write_text
+        from src.provenance import config_digest
         from src.train.device import pick_device
 
         search_cfg = cfg.task.search
@@ -233,8 +249,9 @@ class FilterSearchTask(DenoiseTask):
         gp_search, pset = make_search(cfg, fitness, available)
         params = gp_search.params
         state = None
-        if search_cfg.resume is not None:
-            state = load_state(search_cfg.resume, params, pset)
+        resume = resumable_search_state(cfg)
+        if resume is not None:
+            state = load_state(resume, params, pset)
             tracker.skip_logged_after(state.generation)
         h, w = fitness.color.shape[-2:]
         print(
@@ -265,7 +282,8 @@ class FilterSearchTask(DenoiseTask):
                 bar.update(1)
             bar.set_postfix(best=f"{best['best']:.4f}")
 
-        state = gp_search.run(state=state, checkpoint=out / STATE_FILE, on_generation=on_generation)
+        job = {"config_digest": config_digest(cfg), "mlflow_run_id": tracker.run_id}
+        state = gp_search.run(state=state, checkpoint=out / STATE_FILE, on_generation=on_generation, job=job)
         bar.close()
         seconds = time.perf_counter() - start
         rows = best_expressions(state, cfg)

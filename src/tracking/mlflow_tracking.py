@@ -21,6 +21,7 @@ from mlflow.exceptions import MlflowException
 from mlflow.tracking import MlflowClient
 
 from src.errors import ConfigError
+from src.launch.requeue import requeue_pending
 from src.multirun import PARENT_FILE, read_parent
 from src.provenance import git_commit
 from src.tracking.experiment import first_line, setup_tracking
@@ -153,7 +154,8 @@ def job_run(
     New runs get params (the flattened resolved config), provenance tags and a `config.yaml`
     artifact; in a Hydra multirun they become children of the sweep's parent run. `resume_run_id`
     reopens an existing run (after an interrupted training) and appends to it. The run ends
-    FINISHED, FAILED on an exception (re-raised) or KILLED on Ctrl-C.
+    FINISHED, FAILED on an exception (re-raised), KILLED on Ctrl-C or when the job exits to be requeued
+    (then its sweep's parent run is left running).
     """
     if not cfg.tracking.enabled:
         yield Tracker(None)
@@ -181,8 +183,11 @@ def job_run(
     except KeyboardInterrupt:
         _end(run_id, "KILLED", parent_id)
         raise
-    except SystemExit as exc:  # sys.exit(0) inside a job is a clean end, any other code a failure
-        _end(run_id, "FINISHED" if exc.code in (0, None) else "FAILED", parent_id)
+    except SystemExit as exc:
+        if requeue_pending():  # submitit's exit after requeueing: the restarted job reopens this run
+            _end(run_id, "KILLED", None)
+        else:  # sys.exit(0) inside a job is a clean end, any other code a failure
+            _end(run_id, "FINISHED" if exc.code in (0, None) else "FAILED", parent_id)
         raise
     except BaseException:
         _end(run_id, "FAILED", parent_id)

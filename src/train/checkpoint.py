@@ -1,7 +1,8 @@
 """Training checkpoints: one self-contained file per save, written atomically.
 
 A checkpoint holds the model and optimiser state, the position in training (epoch, batch within the epoch,
-global step), the RNG states, the MLflow run id (so a resumed run continues the same MLflow run) and the
+global step), the RNG states, the MLflow run id (so a resumed run continues the same MLflow run), the
+digest of the config that wrote it (so a job starting again in its folder continues only its own) and the
 model config it was built from (so loading it into a different architecture fails with a clear message
 instead of a wall of state_dict key errors).
 """
@@ -14,10 +15,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from omegaconf import DictConfig
 
 from src.errors import DataError
 from src.io.atomic import atomic_path
 from src.models.nerf.builders import upgrade_legacy_encodings
+from src.provenance import config_digest, written_by_this_config
 
 #: Keys every checkpoint carries; a file without them is not one of ours.
 CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
@@ -30,6 +33,20 @@ def checkpoint_run_id(path: str | os.PathLike[str]) -> str | None:
     """The MLflow run that wrote a checkpoint (`mlflow_run_id`; None for one written without tracking),
     without reading its weights: a resumed training or a later evaluation logs into that run."""
     return load_checkpoint(path, mmap=True).get("mlflow_run_id")
+
+
+def resumable_checkpoint(cfg: DictConfig) -> str | None:
+    """The checkpoint a training of `cfg` continues: `task.train.resume` when set; else, with `auto_resume`,
+    `last.pt` in `task.train.checkpoint_dir` when the same configuration wrote it (a requeued job in its
+    own run folder); else None (start over)."""
+    train = cfg.task.train
+    if train.get("resume"):
+        return str(train.resume)
+    path = Path(train.checkpoint_dir) / LAST_NAME
+    if not cfg.get("auto_resume", False) or not path.is_file():
+        return None
+    written = load_checkpoint(path, mmap=True).get("config_digest")
+    return str(path) if written_by_this_config(path, written, cfg) else None
 
 
 def save_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None:
@@ -158,7 +175,7 @@ def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **e
     """What both training loops checkpoint: model config, model, optimiser, position, training time,
     RNG states (the sample jitter draws from them), MLflow run id and the curves so far.
 
-    `trainer` has `model_cfg`, `model`, `optimizer`, `train_seconds`, `tracker` and `curves`."""
+    `trainer` has `cfg`, `model_cfg`, `model`, `optimizer`, `train_seconds`, `tracker` and `curves`."""
     return {
         **extra,
         "model_config": trainer.model_cfg,
@@ -171,6 +188,7 @@ def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **e
         **rng_states(),
         "mlflow_run_id": trainer.tracker.run_id,
         "curves": trainer.curves,
+        "config_digest": config_digest(trainer.cfg),
     }
 
 

@@ -30,6 +30,7 @@ from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,
     restore_training_state,
+    resumable_checkpoint,
     save_checkpoint,
     training_state,
 )
@@ -186,17 +187,23 @@ class TrainingLoop:
         return True
 
     def fit(self) -> dict[str, Any]:
-        """Train until `done`; checkpoint after every epoch (or stop) and on Ctrl-C, then `final.pt`."""
+        """Train until `done`; checkpoint before the first step, after every epoch (or stop), on Ctrl-C and
+        on a requeue's exit, then `final.pt`."""
         total, done = self.progress()
         name = self.model_cfg["name"]
         bar = tqdm(total=total, initial=min(done, total), desc=f"train {name}", unit=self.unit)
         try:
+            if self.pos.step == 0:
+                # The MLflow run id on disk from the start: a job requeued before its first epoch ends
+                # continues this run instead of opening a second one.
+                self.save()
             self.before_training()
             while not self.done():
                 self.run_epoch(bar)
                 self.save()
-        except KeyboardInterrupt:
-            # Keep what was done since the last checkpoint; resume continues from exactly here.
+        except (KeyboardInterrupt, SystemExit):
+            # Ctrl-C, or submitit's exit after it requeued the job (time-out, preemption): keep what was
+            # done since the last checkpoint; the job continues from exactly here.
             self.save()
             raise
         finally:
@@ -242,10 +249,12 @@ def run_training(
     logged: tuple[str, ...],
 ) -> dict[str, Any]:
     """Build a trainer (`trainer_class(cfg, tracker, on_step)`: a class, or one with its other arguments
-    bound), resume from `task.train.resume` when set, fit, log the summary's `logged` keys."""
+    bound), resume from `resumable_checkpoint(cfg)` when there is one, fit, log the summary's `logged`
+    keys."""
     trainer = trainer_class(cfg, tracker, on_step)
-    if cfg.task.train.resume:
-        trainer.restore(cfg.task.train.resume)
+    checkpoint = resumable_checkpoint(cfg)
+    if checkpoint:
+        trainer.restore(checkpoint)
     summary = trainer.fit()
     tracker.log_metrics({k: summary[k] for k in logged}, step=summary["steps"])
     return summary

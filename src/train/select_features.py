@@ -32,6 +32,7 @@ from src.data.volume_features import volume_feature_channels
 from src.io.atomic import atomic_path, atomic_write_csv, atomic_write_json
 from src.provenance import provenance
 from src.train import feature_selection as fs
+from src.train.checkpoint import resumable_checkpoint
 from src.train.loop import Means
 from src.train.trainer import DenoiserTrainer, flatten_frames
 
@@ -97,8 +98,9 @@ def select_features(cfg: DictConfig, tracker, kind: Any) -> dict[str, Any]:
     sel = cfg.dataset.feature_selection
     probe = probe_config(cfg)
     trainer = DenoiserTrainer(probe, tracker, probe=True, kind=probe_kind(kind, probe))
-    if cfg.task.train.resume:
-        trainer.restore(cfg.task.train.resume)
+    checkpoint = resumable_checkpoint(probe)
+    if checkpoint:
+        trainer.restore(checkpoint)
     summary = trainer.fit()
     trainer.model.eval()
     total = math.ceil(len(trainer.val_data) / int(cfg.task.train.batch_size))
