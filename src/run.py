@@ -10,6 +10,7 @@ import hydra
 from omegaconf import DictConfig
 
 from src.errors import NrbenchError
+from src.provenance import config_digest
 from src.schema.run import validate_run
 from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run, task_of
 
@@ -17,13 +18,24 @@ log = logging.getLogger("nrbench")
 
 
 def _run_to_continue(cfg: DictConfig, stages: list[str]) -> str | None:
-    """The MLflow run this job appends to: a resumed training continues its checkpoint's run, and an
+    """The MLflow run this job appends to: a resumed training, probe or search (an explicit resume, or a
+    requeued job finding its own checkpoint: `auto_resume`) continues its checkpoint's run, and an
     evaluation of a trained checkpoint (e.g. DVC's separate eval stage) logs into the run that trained it,
     so one run holds a model's training curves and test metrics."""
-    from src.train.checkpoint import checkpoint_run_id
+    from src.train.checkpoint import checkpoint_run_id, resumable_checkpoint
 
+    if "search" in stages:
+        from src.gp.search import saved_job
+        from src.tasks.filter_search import resumable_search_state
+
+        state = resumable_search_state(cfg)
+        return saved_job(state).get("mlflow_run_id") if state else None
     if "train" in stages:
-        checkpoint = cfg.task.get("train", {}).get("resume")
+        checkpoint = resumable_checkpoint(cfg)
+    elif "select_features" in stages:
+        from src.train.select_features import probe_config
+
+        checkpoint = resumable_checkpoint(probe_config(cfg))
     elif "eval" in stages and cfg.model.get("learned", False):
         checkpoint = cfg.task.get("eval", {}).get("checkpoint")
         checkpoint = checkpoint if checkpoint and Path(checkpoint).is_file() else None
@@ -36,6 +48,7 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
     """One MLflow run for this job when it trains or evaluates (see `_run_to_continue`)."""
     if not any(s in TRACKED for s in stages):
         return contextlib.nullcontext(None)
+    from src.tracking.finished import DIGEST_TAG
     from src.tracking.mlflow_tracking import job_run
     from src.train.device import pick_device, precision
 
@@ -49,12 +62,25 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
     }
     if cfg.tracking.get("group"):
         tags["nrbench.group"] = str(cfg.tracking.group)
+    if cfg.stage == "all":  # what `skip_finished` and `python -m src.studies` count as this config done
+        tags[DIGEST_TAG] = config_digest(cfg)
     return job_run(
         cfg,
         run_name=f"{cfg.model.name}-{cfg.profile_name}",
         tags=tags,
         resume_run_id=_run_to_continue(cfg, stages),
     )
+
+
+def _finished_already(cfg: DictConfig, stages: list[str]) -> str | None:
+    """With `skip_finished`, the FINISHED run of a whole job (`stage=all`) of this same configuration in
+    the tracking store, if there is one (a rerun of a study continues only the jobs not done)."""
+    if not (cfg.get("skip_finished", False) and cfg.stage == "all" and cfg.tracking.enabled):
+        return None
+    from src.tracking.finished import finished_runs
+
+    done = finished_runs(str(cfg.tracking.uri), str(cfg.tracking.experiment)).get(config_digest(cfg))
+    return done.run_id if done else None
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
@@ -68,6 +94,10 @@ def main(cfg: DictConfig) -> dict[str, dict]:
         stages = stages_to_run(cfg)
         task.resolve_at_job_start(cfg)
         task.check_stages(stages, cfg)
+        done = _finished_already(cfg, stages)
+        if done is not None:
+            log.info("skipped: this configuration already has a FINISHED run (%s; skip_finished)", done)
+            return {"skipped": {"run_id": done}}
         # The report reads FINISHED runs, this job's included: it runs after the job's MLflow run ends.
         in_run = [s for s in stages if s not in AFTER_RUN]
         with _tracked_run(cfg, in_run) as tracker:

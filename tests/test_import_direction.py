@@ -37,6 +37,7 @@ LAYERS: dict[str, int] = {
     "tasks": 10,
     "run": 11,
     "bench": 11,
+    "studies": 11,
 }
 #: src/__init__.py registers the config resolvers, which read the feature catalogues (data).
 PACKAGE_INIT_IMPORTS = {"data"}

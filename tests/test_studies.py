@@ -1,0 +1,130 @@
+"""`python -m src.studies`: a study's jobs as Hydra's sweeper makes them, the done ones found in the tracking
+store by the digest the jobs themselves tag their runs with, a dry run listing them, and a launch whose
+rerun runs only the jobs not done."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from mlflow.tracking import MlflowClient
+
+from src.studies.plan import expand, ledger_studies, study_jobs
+from src.tracking.finished import DIGEST_TAG
+from tests.conftest import ROOT
+
+
+def test_a_studys_jobs_are_the_products_hydras_basic_sweeper_makes():
+    """Against Hydra's own expansion (its basic sweeper's `split_arguments`), with a list, a range, a
+    fixed value and a `+` key."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    params = {"model": "kpcn,dpcn", "seed": "range(3)", "profile": "smoke", "+selection_arm": "all,random"}
+    parsed = OverridesParser.create().parse_overrides([f"{k}={v}" for k, v in params.items()])
+    (hydras,) = BasicSweeper.split_arguments(parsed, None)
+    ours = expand(params)
+    assert len(ours) == 12 and sorted(map(sorted, ours)) == sorted(map(sorted, hydras))
+    assert expand({"seed": "0"}) == [("seed=0",)]
+
+
+def test_the_ledgers_studies_are_those_of_the_claims_meaningful_at_the_profile():
+    """Against the claims file read as plain YAML: every `runs.study` of a claim listing the profile."""
+    import yaml
+
+    raw = yaml.safe_load((ROOT / "conf" / "claims.yaml").read_text())["claims"]
+    for profile in ("cpu", "paper", "thesis", "smoke"):
+        expected = [c["runs"]["study"] for c in raw if profile in c["profiles"] and "study" in c["runs"]]
+        studies = ledger_studies(ROOT / "conf" / "claims.yaml", profile)
+        assert studies == list(dict.fromkeys(expected)), profile  # first appearance, once each
+
+
+TINY = """# @package _global_
+hydra:
+  sweep:
+    dir: {sweeps}/tiny/${{now:%H-%M-%S-%f}}
+  sweeper:
+    params:
+      model: cross_bilateral
+      seed: {seeds}
+report:
+  name: sweeps/tiny
+"""
+
+
+def _studies(args, tmp_path, searchpath):
+    env = {
+        **os.environ,
+        "NRBENCH_DATA_DIR": str(tmp_path / "data"),
+        "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db",
+    }
+    command = [
+        sys.executable, "-m", "src.studies", "--profile", "smoke", *args, f"hydra.searchpath=[file://{searchpath}]",
+        "metrics.lpips.enabled=false", "metrics.flip.enabled=false", "report.site=false",
+        f"tracking.artifact_root={tmp_path}/mlartifacts", f"report.out_dir={tmp_path}/reports",
+        f"ledger.out_dir={tmp_path}/reports",
+    ]  # fmt: skip
+    ran = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    return ran.returncode, ran.stdout + ran.stderr
+
+
+def _job_runs(tmp_path):
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    runs = [r for e in client.search_experiments() for r in client.search_runs([e.experiment_id])]
+    return [r for r in runs if r.data.tags.get("nrbench.sweep_parent") != "true"]
+
+
+def test_a_study_launches_its_data_once_then_its_jobs_and_a_rerun_runs_only_those_not_done(tmp_path):
+    searchpath = tmp_path / "conf"
+    (searchpath / "sweep").mkdir(parents=True)
+    for name, seeds in (("tiny", "0,1"), ("tiny3", "0,1,2")):
+        (searchpath / "sweep" / f"{name}.yaml").write_text(
+            TINY.format(sweeps=tmp_path / "sweeps", seeds=seeds)
+        )
+
+    code, out = _studies(["--study", "tiny", "--dry-run"], tmp_path, searchpath)
+    assert code == 0, out[-3000:]
+    assert "study tiny: 2 jobs, 0 done, 2 to run (1 data job first); time left unknown" in out
+    assert not (tmp_path / "data").exists()  # a dry run runs nothing
+
+    code, out = _studies(["--study", "tiny"], tmp_path, searchpath)
+    assert code == 0, out[-3000:]
+    launched = [line for line in out.splitlines() if line.startswith("+ ")]
+    assert len(launched) == 2 and "task.stages=[render,preprocess]" in launched[0]  # the data once, first
+    assert "skip_finished=true" in launched[1]
+    runs = _job_runs(tmp_path)
+    assert len(runs) == 2 and {r.info.status for r in runs} == {"FINISHED"}
+    # The digest each job computed in its own Hydra run is the one the plan computes for it.
+    planned = {
+        job.overrides: job.digest
+        for job in study_jobs("tiny", "smoke", [f"hydra.searchpath=[file://{searchpath}]",
+                                                "metrics.lpips.enabled=false", "metrics.flip.enabled=false",
+                                                "report.site=false"])
+    }  # fmt: skip
+    logged = {
+        ("model=cross_bilateral", f"seed={r.data.params['seed']}"): r.data.tags[DIGEST_TAG] for r in runs
+    }
+    assert logged == planned and len(set(planned.values())) == 2
+
+    code, out = _studies(["--study", "tiny3", "--dry-run"], tmp_path, searchpath)
+    assert code == 0, out[-3000:]
+    assert "study tiny3: 3 jobs, 2 done, 1 to run (1 data job first); time left" in out
+    assert "time left unknown" not in out  # estimated from the two done
+    assert out.count("done    run ") == 2 and "seed=2  ~" in out
+
+    code, out = _studies(["--study", "tiny3"], tmp_path, searchpath)
+    assert code == 0, out[-3000:]
+    launched = [line for line in out.splitlines() if line.startswith("+ ")]
+    assert len(launched) == 2 and "seed=2 task.stages=[render,preprocess]" in launched[0]
+    assert "render: all 9 files up to date" in out  # the data job finds the data there
+    assert out.count("skipped: this configuration already has a FINISHED run") == 2
+    runs = _job_runs(tmp_path)
+    assert sorted(r.data.params["seed"] for r in runs) == ["0", "1", "2"]  # only seed 2 ran
+
+
+def test_an_unknown_study_is_one_line_and_exit_2(tmp_path):
+    code, out = _studies(["--study", "no_such_study", "--dry-run"], tmp_path, tmp_path)
+    assert code == 2 and "Traceback" not in out
+    (line,) = [line for line in out.splitlines() if line.startswith("error:")]
+    assert "no_such_study" in line
