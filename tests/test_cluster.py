@@ -2,7 +2,8 @@
 tracking server (scripts/cluster.sh, started and stopped by the fixture), beside the same study run with
 the local launcher: every job FINISHED in the server, the sweep's parent run there, and the same held-out
 metrics as the local runs (timings aside). Needs root (slurmctld and slurmd run as root; the script
-installs Debian's slurm-wlm and munge where missing): `-m slow`, about two minutes on two cores."""
+installs Debian's slurm-wlm and munge where missing). The smoke study is part of the default suite (CI
+runs it); the launch-time messages and the requeues are `-m slow`."""
 
 from __future__ import annotations
 
@@ -17,10 +18,7 @@ from mlflow.tracking import MlflowClient
 
 from tests.conftest import ROOT, cli_job
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(os.geteuid() != 0, reason="a one-node SLURM runs its daemons as root"),
-]
+pytestmark = pytest.mark.skipif(os.geteuid() != 0, reason="a one-node SLURM runs its daemons as root")
 SCRIPT = ROOT / "scripts" / "cluster.sh"
 MODELS = "cross_bilateral"  # a baseline: nothing to train, render + preprocess + eval per job
 STUDY = ["profile=smoke", "metrics.lpips.enabled=false", "metrics.flip.enabled=false", "report.site=false"]
@@ -107,6 +105,7 @@ def test_a_smoke_study_through_slurm_reaches_the_tracking_server_with_the_local_
         assert metrics == pytest.approx(measured_here[key], rel=1e-6, abs=1e-9), key
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "request_,key",
     [
@@ -134,6 +133,7 @@ def test_a_request_the_node_cannot_satisfy_is_one_line_at_launch(cluster, tmp_pa
     assert not list((tmp_path / "sweep").rglob("*_submission.sh"))
 
 
+@pytest.mark.slow
 def test_a_job_stuck_on_a_drained_node_is_reported_while_the_sweep_waits(cluster, tmp_path):
     """The node drained after the launch check: the job pends (`squeue`: nodes DOWN, DRAINED...) and the
     sweep says so once, naming the job and its `scancel`; back in service, the job runs and the sweep
@@ -200,6 +200,7 @@ def _held_out(run) -> dict[str, float]:
     }
 
 
+@pytest.mark.slow
 def test_a_training_requeued_on_the_scheduler_resumes_to_the_uninterrupted_metrics_in_one_run(
     cluster, tmp_path
 ):

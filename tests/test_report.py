@@ -143,6 +143,41 @@ def store(tmp_path_factory):
     mlflow.set_tracking_uri(previous)
 
 
+def test_searches_cached_answers_a_repeated_search_from_memory_and_only_inside(store, monkeypatch):
+    """The ledger's many identical searches (and experiment lookups) reach the store once each inside
+    `searches_cached`, with the same answers; a caller changing its frame does not change the next answer;
+    outside, every search reaches the store again (a run logged meanwhile is seen)."""
+    from src.report import collect
+    from src.report.collect import searches_cached
+
+    mlflow.set_tracking_uri(store["uri"])
+    calls = {"search": 0, "experiment": 0}
+    search, lookup = mlflow.search_runs, MlflowClient.get_experiment_by_name
+
+    def counted_search(*args, **kwargs):
+        calls["search"] += 1
+        return search(*args, **kwargs)
+
+    def counted_lookup(self, name):
+        calls["experiment"] += 1
+        return lookup(self, name)
+
+    monkeypatch.setattr(collect.mlflow, "search_runs", counted_search)
+    monkeypatch.setattr(collect.MlflowClient, "get_experiment_by_name", counted_lookup)
+    uncached = find_runs({"experiment": EXPERIMENT})
+    assert calls == {"search": 1, "experiment": 1}
+    with searches_cached():
+        first = find_runs({"experiment": EXPERIMENT})
+        first.loc[:, "params.model.name"] = "changed by the caller"
+        again = find_runs({"experiment": EXPERIMENT})
+        kpcn = find_runs({"experiment": EXPERIMENT, "tags": {"nrbench.model": "kpcn"}})
+        assert calls == {"search": 3, "experiment": 2}  # the repeat and the second lookup: from memory
+    pd.testing.assert_frame_equal(again, uncached)
+    assert sorted(kpcn["params.model.name"]) == ["kpcn", "kpcn"]
+    find_runs({"experiment": EXPERIMENT})
+    assert calls == {"search": 4, "experiment": 3}
+
+
 def _cfg(store, out, **report):
     cfg = compose_config(
         [

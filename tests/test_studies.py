@@ -128,3 +128,65 @@ def test_an_unknown_study_is_one_line_and_exit_2(tmp_path):
     assert code == 2 and "Traceback" not in out
     (line,) = [line for line in out.splitlines() if line.startswith("error:")]
     assert "no_such_study" in line
+
+
+def _tagged_run(uri: str, experiment: str, digest: str, status: str) -> str:
+    client = MlflowClient(uri)
+    found = client.get_experiment_by_name(experiment)
+    experiment_id = found.experiment_id if found else client.create_experiment(experiment)
+    run = client.create_run(experiment_id, tags={DIGEST_TAG: digest})
+    client.set_terminated(run.info.run_id, status)
+    return run.info.run_id
+
+
+def test_only_a_finished_run_makes_a_configuration_done(tmp_path):
+    from src.tracking.finished import finished_runs
+
+    uri = f"sqlite:///{tmp_path}/mlflow.db"
+    assert finished_runs(uri, "nrbench-denoise") == {}  # no such experiment yet
+    killed = _tagged_run(uri, "nrbench-denoise", "aaaa", "KILLED")
+    failed = _tagged_run(uri, "nrbench-denoise", "bbbb", "FAILED")
+    done = _tagged_run(uri, "nrbench-denoise", "cccc", "FINISHED")
+    _tagged_run(uri, "other", "dddd", "FINISHED")
+    found = finished_runs(uri, "nrbench-denoise")
+    assert set(found) == {"cccc"} and found["cccc"].run_id == done
+    assert killed not in {r.run_id for r in found.values()} and failed != done
+
+
+def test_a_whole_job_of_a_done_configuration_is_skipped_only_with_skip_finished(tmp_path):
+    from src.provenance import config_digest
+    from src.run import _finished_already
+    from tests.conftest import smoke_config
+
+    def cfg(*extra):
+        return smoke_config(tmp_path, tmp_path / "run", ["model=cross_bilateral", *extra])
+
+    uri, experiment = str(cfg().tracking.uri), str(cfg().tracking.experiment)
+    stages = ["render", "preprocess", "eval"]
+    assert _finished_already(cfg("skip_finished=true"), stages) is None  # nothing done yet
+    _tagged_run(uri, experiment, config_digest(cfg("seed=1")), "FINISHED")
+    assert _finished_already(cfg("skip_finished=true"), stages) is None  # another seed is done
+    done = _tagged_run(uri, experiment, config_digest(cfg()), "FINISHED")
+    assert _finished_already(cfg("skip_finished=true"), stages) == done
+    assert _finished_already(cfg(), stages) is None  # skip_finished=false (the default): run it again
+    assert _finished_already(cfg("skip_finished=true", "stage=eval"), ["eval"]) is None  # not a whole job
+
+
+def test_a_jobs_estimate_is_its_models_median_else_its_studys_else_unknown():
+    from src.studies.plan import StudyJob, estimate_seconds
+    from src.tracking.finished import FinishedRun
+
+    def job(model, seed):
+        return StudyJob("s", (f"model={model}", f"seed={seed}"), f"{model}{seed}", "d", (), model, "u", "e")
+
+    jobs = [job("kpcn", s) for s in range(4)] + [job("dpcn", s) for s in range(2)] + [job("oidn", 0)]
+    done = {
+        "kpcn0": FinishedRun("r0", 100.0, "kpcn"),
+        "kpcn1": FinishedRun("r1", 300.0, "kpcn"),
+        "kpcn2": FinishedRun("r2", 200.0, "kpcn"),
+        "dpcn0": FinishedRun("r3", 1000.0, "dpcn"),
+    }
+    assert estimate_seconds(jobs[3], done, jobs) == 200.0  # kpcn: median of 100, 300, 200
+    assert estimate_seconds(jobs[5], done, jobs) == 1000.0  # dpcn: its one done job
+    assert estimate_seconds(jobs[6], done, jobs) == 250.0  # oidn: none done, the study's median
+    assert estimate_seconds(jobs[6], {}, jobs) is None

@@ -223,13 +223,21 @@ def test_the_gp_search_cost_sweep_halves_the_generations_and_the_image_height(pr
     ("launcher", "target", "values"),
     [
         ("parallel", "JoblibLauncher", {"n_jobs": 2}),
-        ("slurm", "SlurmLauncher", {"gpus_per_node": 1, "max_num_timeout": 0}),
+        (
+            "slurm",
+            "RequeueingSlurmLauncher",
+            {"gpus_per_node": 1, "max_num_timeout": 3, "signal_delay_s": 120},
+        ),
     ],
 )
 def test_launcher_configs_compose_and_name_their_plugin(launcher, target, values):
     cfg = compose_sweep("whitening", [f"hydra/launcher={launcher}"])
     assert get_class(cfg.hydra.launcher._target_).__name__ == target
     assert {k: cfg.hydra.launcher[k] for k in values} == values
+    if launcher == "slurm":  # submitit's SLURM launcher, with the requeue recorded (src/launch/requeue.py)
+        bases = [f"{c.__module__}.{c.__name__}" for c in get_class(cfg.hydra.launcher._target_).__mro__]
+        assert "hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher" in bases
+        assert cfg.hydra.launcher._target_.startswith("hydra_plugins.")  # Hydra instantiates no other
 
 
 def test_tracking_uri_follows_mlflow_tracking_uri(monkeypatch):

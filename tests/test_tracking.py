@@ -226,6 +226,30 @@ def test_multirun_job_becomes_child_and_failure_marks_parent(store, monkeypatch)
     assert mlflow.get_run(parent.info.run_id).info.status == "FAILED"
 
 
+@pytest.mark.parametrize("requeued", [True, False])
+def test_a_job_exiting_to_be_requeued_leaves_its_sweeps_parent_running(store, monkeypatch, requeued):
+    """submitit's exit after a requeue: the child ends KILLED (its restarted job reopens it) and the parent
+    stays RUNNING; any other non-zero exit fails both."""
+    import sys
+    import threading
+
+    from src.launch import requeue
+
+    monkeypatch.setattr(requeue, "REQUEUED", threading.Event())
+    cfg = make_cfg(store)
+    sweep = _fake_sweep(monkeypatch, store)
+    experiment_id = setup_tracking(cfg.tracking)
+    parent = MlflowClient().create_run(experiment_id, run_name="sweep")
+    record = {"run_id": parent.info.run_id, "experiment_id": experiment_id, "tracking_uri": cfg.tracking.uri}
+    (sweep / PARENT_FILE).write_text(json.dumps(record))
+    with pytest.raises(SystemExit), job_run(cfg, run_name="child", tags={}) as tracker:
+        if requeued:
+            requeue.mark_requeued()
+        sys.exit(-1)
+    child, parent_now = (mlflow.get_run(r).info.status for r in (tracker.run_id, parent.info.run_id))
+    assert (child, parent_now) == (("KILLED", "RUNNING") if requeued else ("FAILED", "FAILED"))
+
+
 def test_multirun_without_parent_record_is_top_level(store, monkeypatch, caplog):
     cfg = make_cfg(store)
     _fake_sweep(monkeypatch, store)

@@ -217,7 +217,7 @@ def test_the_probe_drops_features_to_their_neutral_values_but_never_the_colour(v
     assert names == list(VOLUME_CANDIDATE_FEATURES)
 
 
-def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_data, tmp_path):
+def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_data, tmp_path, caplog):
     overrides = [
         "dataset.feature_selection.candidates=[albedo,depth,transmittance,motion]",
         "task.train.epochs=1",
@@ -225,6 +225,11 @@ def test_select_features_orders_the_candidates_and_size_picks_the_first_k(vol_da
     cfg = _cfg(vol_data, tmp_path, *overrides)
     summary = select_features(cfg, Tracker())
     rows = summary["rows"]
+    # Again (a requeued job): the probe continues its own checkpoint, trained to the end: the same rows.
+    caplog.set_level("INFO")
+    again = select_features(cfg, Tracker())["rows"]
+    probe_last = vol_data / "volumetric" / "smoke" / "feature_selection" / "probe" / "checkpoints" / "last.pt"
+    assert f"resumed from {probe_last}" in caplog.text and again == rows
     assert [r["round"] for r in rows] == [0, 1, 2, 3, 4] and rows[0]["features"] == ["color", "color.var"]
     assert sorted(r["added"] for r in rows[1:]) == ["albedo", "depth", "motion", "transmittance"]
     out = vol_data / "volumetric" / "smoke" / "feature_selection"

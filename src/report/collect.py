@@ -8,8 +8,9 @@ parent runs (tag `nrbench.sweep_parent=true`) are never compared.
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -65,11 +66,51 @@ def param_column(axis: str) -> str:
     return axis if axis.startswith(("params.", "metrics.", "tags.")) else f"params.{axis}"
 
 
+#: The answers of the store while `searches_cached` is active: {(uri, experiments, filter): runs} and
+#: {(uri, "experiment", name): the experiment}.
+_CACHE: dict[tuple, Any] | None = None
+
+
+@contextlib.contextmanager
+def searches_cached() -> Iterator[None]:
+    """Within: a search already made (same store, experiments and filter) and an experiment already looked
+    up by name are answered from memory. The
+    ledger searches once per claim, source, profile and status, mostly the same few queries, and names
+    the filter that left no run by searching again: against a tracking server over HTTP that was a minute
+    per ledger. The store is read, not written, meanwhile."""
+    global _CACHE
+    outer, _CACHE = _CACHE, {} if _CACHE is None else _CACHE
+    try:
+        yield
+    finally:
+        _CACHE = outer
+
+
+def _search_runs(experiment_ids: list[str], where: str) -> pd.DataFrame:
+    key = (mlflow.get_tracking_uri(), tuple(experiment_ids), where)
+    if _CACHE is not None and key in _CACHE:
+        return _CACHE[key].copy()
+    runs = mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
+    if _CACHE is not None:
+        _CACHE[key] = runs.copy()
+    return runs
+
+
+def _experiment_named(name: str, uri: str):
+    key = (uri, "experiment", name)
+    if _CACHE is not None and key in _CACHE:
+        return _CACHE[key]
+    experiment = MlflowClient().get_experiment_by_name(name)
+    if _CACHE is not None:
+        _CACHE[key] = experiment
+    return experiment
+
+
 def _search(experiment_ids: list[str], steps: Iterable[tuple[str, Any]]) -> pd.DataFrame:
     """Runs matching every step: an MLflow filter clause (str) or a predicate on the frame's rows."""
     steps = list(steps)
     where = " and ".join(s for _, s in steps if isinstance(s, str))
-    runs = mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
+    runs = _search_runs(experiment_ids, where)
     runs = renamed_params(runs)  # runs logged before a key moved, under today's names
     if f"tags.{SWEEP_PARENT_TAG}" in runs:
         runs = runs[runs[f"tags.{SWEEP_PARENT_TAG}"] != "true"]
@@ -128,10 +169,9 @@ def _experiment_ids(names: list[str], uri: str) -> list[str]:
     """Ids of the experiments `report.experiment` names; an empty list or a missing name is a `DataError`."""
     if not names:
         raise DataError("report.experiment is empty: name the MLflow experiment(s) to report on")
-    client = MlflowClient()
     experiment_ids = []
     for name in names:
-        experiment = client.get_experiment_by_name(name)
+        experiment = _experiment_named(name, uri)
         if experiment is None or experiment.lifecycle_stage == "deleted":
             raise DataError(f"report.experiment={name!r}: no such MLflow experiment in {uri}")
         experiment_ids.append(experiment.experiment_id)

@@ -29,7 +29,14 @@ from omegaconf import OmegaConf
 
 from src.errors import DataError
 from src.report.claims import Claim
-from src.report.collect import artifact_csv, find_runs, keep_latest, param_column, per_image_rows
+from src.report.collect import (
+    artifact_csv,
+    find_runs,
+    keep_latest,
+    param_column,
+    per_image_rows,
+    searches_cached,
+)
 from src.report.matched_arms import (
     HYDRA_JOB_TAG,
     canonical_value,
@@ -569,7 +576,8 @@ def build_ledger(cfg: Any) -> dict[str, Any]:
     claims = load_claims(claims_path)
     settings = settings_from(cfg, claims_path)
     mlflow.set_tracking_uri(str(cfg.tracking.uri))
-    rows = adjust_families([evaluate_claim(claim, settings) for claim in claims], settings.alpha)
+    with searches_cached():  # the store does not change while the claims read it
+        rows = adjust_families([evaluate_claim(claim, settings) for claim in claims], settings.alpha)
     frame = ledger_frame(rows)
     subtitle = (
         f"Each status is computed from the FINISHED runs in the tracking store by nrbench at commit "
