@@ -271,3 +271,40 @@ def test_a_training_requeued_on_the_scheduler_resumes_to_the_uninterrupted_metri
     print(f"requeued job: training resumed {resumed_after.total_seconds():.0f} s after scontrol requeue")
     print(f"timed-out job: {timeouts} time-outs, each followed by a requeue and a resume")
     assert timeouts >= 1 and requeued_log.count("resumed from") == 1
+
+
+@pytest.mark.slow
+def test_the_ledger_command_launches_a_study_through_slurm_and_then_finds_it_done(cluster, tmp_path):
+    """`python -m src.studies` with the SLURM launcher: the data job and the study's two jobs go through
+    the scheduler into the tracking server; the dry run then counts both done by their digests."""
+    import sys
+
+    from tests.test_studies import TINY
+
+    searchpath = tmp_path / "conf"
+    (searchpath / "sweep").mkdir(parents=True)
+    (searchpath / "sweep" / "tiny.yaml").write_text(TINY.format(sweeps=tmp_path / "sweeps", seeds="0,1"))
+    command = [
+        sys.executable, "-m", "src.studies", "--profile", "smoke", "--study", "tiny",
+        f"hydra.searchpath=[file://{searchpath}]", "tracking.experiment=tiny-through-slurm",
+        *STUDY[1:], f"report.out_dir={tmp_path}/reports", f"ledger.out_dir={tmp_path}/reports", *SLURM,
+    ]  # fmt: skip
+    env = {**cluster, "NRBENCH_DATA_DIR": str(tmp_path / "data")}
+    ran = subprocess.run(command, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert ran.returncode == 0, (ran.stdout + ran.stderr)[-3000:]
+    launched = [line for line in ran.stdout.splitlines() if line.startswith("+ ")]
+    assert len(launched) == 2 and "hydra/launcher=slurm" in launched[0] and "task.stages=" in launched[0]
+    assert len(list((tmp_path / "sweeps" / "tiny").rglob("*_submission.sh"))) == 2  # data job, then the study
+    client = MlflowClient(cluster["MLFLOW_TRACKING_URI"])
+    experiment = client.get_experiment_by_name("tiny-through-slurm")
+    runs = [
+        r
+        for r in client.search_runs([experiment.experiment_id])
+        if r.data.tags.get("nrbench.sweep_parent") != "true"
+    ]
+    assert sorted(r.data.params["seed"] for r in runs) == ["0", "1"]
+    assert {r.info.status for r in runs} == {"FINISHED"}
+    again = subprocess.run(
+        [*command, "--dry-run"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
+    assert again.returncode == 0 and "study tiny: 2 jobs, 2 done, 0 to run" in again.stdout, again.stdout

@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 
+import pytest
 from mlflow.tracking import MlflowClient
 
 from src.studies.plan import expand, ledger_studies, study_jobs
@@ -75,21 +76,22 @@ def _job_runs(tmp_path):
     return [r for r in runs if r.data.tags.get("nrbench.sweep_parent") != "true"]
 
 
-def test_a_study_launches_its_data_once_then_its_jobs_and_a_rerun_runs_only_those_not_done(tmp_path):
+def _tiny_studies(tmp_path):
+    """`<tmp>/conf/sweep/{tiny,tiny3}.yaml`: cross-bilateral at seeds 0,1 and 0,1,2; the search path."""
     searchpath = tmp_path / "conf"
     (searchpath / "sweep").mkdir(parents=True)
     for name, seeds in (("tiny", "0,1"), ("tiny3", "0,1,2")):
         (searchpath / "sweep" / f"{name}.yaml").write_text(
             TINY.format(sweeps=tmp_path / "sweeps", seeds=seeds)
         )
+    return searchpath
 
-    code, out = _studies(["--study", "tiny", "--dry-run"], tmp_path, searchpath)
-    assert code == 0, out[-3000:]
-    assert "study tiny: 2 jobs, 0 done, 2 to run (1 data job first); time left unknown" in out
-    assert not (tmp_path / "data").exists()  # a dry run runs nothing
 
+def test_a_study_launches_its_data_once_then_its_jobs_tagged_with_the_planned_digests(tmp_path):
+    searchpath = _tiny_studies(tmp_path)
     code, out = _studies(["--study", "tiny"], tmp_path, searchpath)
     assert code == 0, out[-3000:]
+    assert "study tiny: 2 jobs, 0 done, 2 to run (1 data job first); time left unknown" in out
     launched = [line for line in out.splitlines() if line.startswith("+ ")]
     assert len(launched) == 2 and "task.stages=[render,preprocess]" in launched[0]  # the data once, first
     assert "skip_finished=true" in launched[1]
@@ -106,13 +108,20 @@ def test_a_study_launches_its_data_once_then_its_jobs_and_a_rerun_runs_only_thos
         ("model=cross_bilateral", f"seed={r.data.params['seed']}"): r.data.tags[DIGEST_TAG] for r in runs
     }
     assert logged == planned and len(set(planned.values())) == 2
-
+    # The same study with a third seed: the two are done (their durations give the estimate).
     code, out = _studies(["--study", "tiny3", "--dry-run"], tmp_path, searchpath)
     assert code == 0, out[-3000:]
     assert "study tiny3: 3 jobs, 2 done, 1 to run (1 data job first); time left" in out
-    assert "time left unknown" not in out  # estimated from the two done
+    assert "time left unknown" not in out
     assert out.count("done    run ") == 2 and "seed=2  ~" in out
+    assert not (tmp_path / "sweeps" / "tiny3").exists()  # a dry run runs nothing
 
+
+@pytest.mark.slow
+def test_a_rerun_of_a_grown_study_runs_only_the_jobs_not_done(tmp_path):
+    searchpath = _tiny_studies(tmp_path)
+    code, out = _studies(["--study", "tiny"], tmp_path, searchpath)
+    assert code == 0, out[-3000:]
     code, out = _studies(["--study", "tiny3"], tmp_path, searchpath)
     assert code == 0, out[-3000:]
     launched = [line for line in out.splitlines() if line.startswith("+ ")]
