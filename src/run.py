@@ -79,7 +79,8 @@ def _finished_already(cfg: DictConfig, stages: list[str]) -> str | None:
         return None
     from src.tracking.finished import finished_runs
 
-    done = finished_runs(str(cfg.tracking.uri), str(cfg.tracking.experiment)).get(config_digest(cfg))
+    digest = config_digest(cfg)
+    done = finished_runs(str(cfg.tracking.uri), str(cfg.tracking.experiment), digest).get(digest)
     return done.run_id if done else None
 
 

@@ -199,3 +199,22 @@ def test_a_jobs_estimate_is_its_models_median_else_its_studys_else_unknown():
     assert estimate_seconds(jobs[5], done, jobs) == 1000.0  # dpcn: its one done job
     assert estimate_seconds(jobs[6], done, jobs) == 250.0  # oidn: none done, the study's median
     assert estimate_seconds(jobs[6], {}, jobs) is None
+
+
+def test_jobs_share_their_data_unless_a_data_key_differs():
+    """Seeds and models share the data; a data seed, a dataset size or the preprocessing do not."""
+    from src.studies.plan import data_identity
+    from tests.conftest import compose_config
+
+    def identity(*overrides):
+        return data_identity(compose_config(["profile=smoke", "paths.run_dir=/x", *overrides]))
+
+    same = identity("model=kpcn", "seed=0")
+    assert identity("model=dpcn", "seed=3") == same and identity("task.train.lr=0.01") == same
+    for other in (
+        "data_seed=1",
+        "dataset.noisy_spp=[4,8]",
+        "task.preprocess.patch_size=16",
+        "task=filter_search",
+    ):
+        assert identity(other) != same, other

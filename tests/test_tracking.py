@@ -211,13 +211,19 @@ def _fake_sweep(monkeypatch, store):
     return sweep
 
 
-def test_multirun_job_becomes_child_and_failure_marks_parent(store, monkeypatch):
+def _sweep_with_parent(monkeypatch, store):
+    """(config, sweep dir, parent run) of a job of a fake multirun whose parent run exists and is recorded."""
     cfg = make_cfg(store)
     sweep = _fake_sweep(monkeypatch, store)
     experiment_id = setup_tracking(cfg.tracking)
     parent = MlflowClient().create_run(experiment_id, run_name="sweep")
     record = {"run_id": parent.info.run_id, "experiment_id": experiment_id, "tracking_uri": cfg.tracking.uri}
     (sweep / PARENT_FILE).write_text(json.dumps(record))
+    return cfg, sweep, parent
+
+
+def test_multirun_job_becomes_child_and_failure_marks_parent(store, monkeypatch):
+    cfg, sweep, parent = _sweep_with_parent(monkeypatch, store)
     with pytest.raises(ValueError), job_run(cfg, run_name="child", tags={}) as tracker:
         raise ValueError
     tags = mlflow.get_run(tracker.run_id).data.tags
@@ -236,12 +242,7 @@ def test_a_job_exiting_to_be_requeued_leaves_its_sweeps_parent_running(store, mo
     from src.launch import requeue
 
     monkeypatch.setattr(requeue, "REQUEUED", threading.Event())
-    cfg = make_cfg(store)
-    sweep = _fake_sweep(monkeypatch, store)
-    experiment_id = setup_tracking(cfg.tracking)
-    parent = MlflowClient().create_run(experiment_id, run_name="sweep")
-    record = {"run_id": parent.info.run_id, "experiment_id": experiment_id, "tracking_uri": cfg.tracking.uri}
-    (sweep / PARENT_FILE).write_text(json.dumps(record))
+    cfg, _, parent = _sweep_with_parent(monkeypatch, store)
     with pytest.raises(SystemExit), job_run(cfg, run_name="child", tags={}) as tracker:
         if requeued:
             requeue.mark_requeued()

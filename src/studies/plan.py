@@ -95,7 +95,9 @@ def sweep_params(study: str, profile: str, overrides: Sequence[str] = ()) -> dic
     return {str(k): str(v) for k, v in params.items()}
 
 
-def _data_identity(cfg: DictConfig) -> str:
+def data_identity(cfg: DictConfig) -> str:
+    """A short hash of what the data stages read (`DATA_KEYS`, the task's name and preprocessing): jobs
+    with the same one share their rendered and prepared data."""
     task = OmegaConf.to_container(cfg.task, resolve=True)
     what = {k: OmegaConf.to_container(cfg, resolve=True).get(k) for k in DATA_KEYS}
     what["task"] = {"name": task.get("name"), "preprocess": task.get("preprocess")}
@@ -119,7 +121,7 @@ def study_jobs(study: str, profile: str, overrides: Sequence[str] = ()) -> list[
                 study=study,
                 overrides=values,
                 digest=config_digest(cfg),
-                data=_data_identity(cfg),
+                data=data_identity(cfg),
                 data_stages=_data_stages(cfg),
                 model=str(cfg.model.name),
                 uri=str(cfg.tracking.uri),

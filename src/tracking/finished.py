@@ -22,16 +22,18 @@ class FinishedRun:
     model: str
 
 
-def finished_runs(uri: str, experiment: str) -> dict[str, FinishedRun]:
+def finished_runs(uri: str, experiment: str, digest: str | None = None) -> dict[str, FinishedRun]:
     """{config digest: its newest FINISHED run} of experiment `experiment` in the store at `uri` ({} when
-    the experiment does not exist yet). Runs logged before runs carried the digest are not among them."""
+    the experiment does not exist yet); with `digest`, that digest's only (one query, however large the
+    store). Runs logged before runs carried the digest are not among them."""
     client = MlflowClient(tracking_uri=uri)
     found = client.get_experiment_by_name(experiment)
     if found is None:
         return {}
+    tagged = f"tags.`{DIGEST_TAG}` = '{digest}'" if digest else f"tags.`{DIGEST_TAG}` != ''"
     runs = client.search_runs(
         [found.experiment_id],
-        filter_string=f"attributes.status = 'FINISHED' and tags.`{DIGEST_TAG}` != ''",
+        filter_string=f"attributes.status = 'FINISHED' and {tagged}",
         order_by=["attributes.start_time ASC"],
         max_results=50_000,
     )

@@ -20,7 +20,7 @@ from omegaconf import DictConfig
 from src.errors import DataError
 from src.io.atomic import atomic_path
 from src.models.nerf.builders import upgrade_legacy_encodings
-from src.provenance import config_digest, written_by_this_config
+from src.provenance import written_by_this_config
 
 #: Keys every checkpoint carries; a file without them is not one of ours.
 CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
@@ -175,7 +175,8 @@ def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **e
     """What both training loops checkpoint: model config, model, optimiser, position, training time,
     RNG states (the sample jitter draws from them), MLflow run id and the curves so far.
 
-    `trainer` has `cfg`, `model_cfg`, `model`, `optimizer`, `train_seconds`, `tracker` and `curves`."""
+    `trainer` has `config_digest` (of its config: `config_digest`), `model_cfg`, `model`, `optimizer`,
+    `train_seconds`, `tracker` and `curves`."""
     return {
         **extra,
         "model_config": trainer.model_cfg,
@@ -188,7 +189,7 @@ def training_state(trainer: Any, epoch: int, batch_in_epoch: int, step: int, **e
         **rng_states(),
         "mlflow_run_id": trainer.tracker.run_id,
         "curves": trainer.curves,
-        "config_digest": config_digest(trainer.cfg),
+        "config_digest": trainer.config_digest,
     }
 
 

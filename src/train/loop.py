@@ -26,6 +26,7 @@ from tqdm import tqdm
 from src.errors import ConfigError, one_line
 from src.models.instantiate import build_method
 from src.models.parameters import count_parameters
+from src.provenance import config_digest
 from src.train.checkpoint import (
     FINAL_NAME,
     LAST_NAME,
@@ -85,6 +86,7 @@ class TrainingLoop:
         self.device = pick_device(cfg.device)
         seed_everything(int(cfg.seed))
         self.model_cfg = OmegaConf.to_container(cfg.model, resolve=True)
+        self.config_digest = config_digest(cfg)  # every checkpoint records it (`resumable_checkpoint`)
         self.model = build_method(self.model_cfg, **build_context).to(self.device)
         self.lr = float(self.t[self.lr_key])
         self.optimizer = build_optimizer(self.t.optimizer, self.model.parameters(), self.lr)
