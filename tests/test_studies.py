@@ -5,6 +5,7 @@ rerun runs only the jobs not done."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 
@@ -92,6 +93,7 @@ def test_a_study_launches_its_data_once_then_its_jobs_tagged_with_the_planned_di
     code, out = _studies(["--study", "tiny"], tmp_path, searchpath)
     assert code == 0, out[-3000:]
     assert "study tiny: 2 jobs, 0 done, 2 to run (1 data job first); time left unknown" in out
+    assert "1 studies at profile smoke: 2 jobs to run, time left unknown (no study has a done job)" in out
     launched = [line for line in out.splitlines() if line.startswith("+ ")]
     assert len(launched) == 2 and "task.stages=[render,preprocess]" in launched[0]  # the data once, first
     assert "skip_finished=true" in launched[1]
@@ -113,6 +115,7 @@ def test_a_study_launches_its_data_once_then_its_jobs_tagged_with_the_planned_di
     assert code == 0, out[-3000:]
     assert "study tiny3: 3 jobs, 2 done, 1 to run (1 data job first); time left" in out
     assert "time left unknown" not in out
+    assert re.search(r"1 studies at profile smoke: 1 jobs to run, time left \d+ s of jobs \(run one", out)
     assert out.count("done    run ") == 2 and "seed=2  ~" in out
     assert not (tmp_path / "sweeps" / "tiny3").exists()  # a dry run runs nothing
 

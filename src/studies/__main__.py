@@ -112,11 +112,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             unknown + missing,
             left + sum(j.digest not in done for j in jobs),
         )
+    if left and unknown == left:
+        time_left = "time left unknown (no study has a done job)"
+    else:
+        time_left = f"time left {_hours(total)} of jobs" + (
+            f" + {unknown} without an estimate" if unknown else ""
+        )
     print(
-        f"{len(plans)} studies at profile {args.profile}: {left} jobs to run, time left {_hours(total)} "
-        "of jobs"
-        + (f" + {unknown} without an estimate" if unknown else "")
-        + " (run one after another; divide by the jobs run at once)"
+        f"{len(plans)} studies at profile {args.profile}: {left} jobs to run, {time_left}"
+        + (" (run one after another; divide by the jobs run at once)" if total else "")
     )
     if args.dry_run:
         return 0
