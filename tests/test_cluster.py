@@ -11,6 +11,7 @@ import os
 import re
 import socket
 import subprocess
+from pathlib import Path
 
 import mlflow
 import pytest
@@ -98,6 +99,11 @@ def test_a_smoke_study_through_slurm_reaches_the_tracking_server_with_the_local_
         search_all_experiments=True, filter_string="tags.`nrbench.sweep_parent` = 'true'"
     )
     assert len(parents) == 1 and set(parents["status"]) == {"FINISHED"}
+    # the sweep's table and report, as the local launcher's: the same files, the same run counted
+    assert "1 runs (parent run" in ran.stdout and "report: 1 runs" in ran.stdout + ran.stderr
+    reports = {p.relative_to(tmp_path / "s" / "reports") for p in (tmp_path / "s" / "reports").rglob("*")}
+    assert reports == {p.relative_to(data / "reports") for p in (data / "reports").rglob("*")}
+    assert Path("denoise/index.html") in reports and Path("ledger.md") in reports
     measured_here = _eval_metrics(f"sqlite:///{data}/mlflow.db")
     assert served.keys() == measured_here.keys()
     for key, metrics in served.items():
