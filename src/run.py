@@ -50,7 +50,7 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
         return contextlib.nullcontext(None)
     from src.tracking.finished import DIGEST_TAG
     from src.tracking.mlflow_tracking import job_run
-    from src.train.device import pick_device, precision
+    from src.train.device import device_card, pick_device, precision
 
     device = pick_device(cfg.device)
     tags = {
@@ -59,6 +59,7 @@ def _tracked_run(cfg: DictConfig, stages: list[str]):
         "nrbench.profile": cfg.profile_name,
         "nrbench.device": str(device),
         "nrbench.precision": precision(bool(cfg.task.train.get("amp", False)), device),
+        **{f"nrbench.{key}": value for key, value in device_card(device).items()},
     }
     if cfg.tracking.get("group"):
         tags["nrbench.group"] = str(cfg.tracking.group)

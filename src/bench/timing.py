@@ -11,6 +11,8 @@ from typing import Any
 
 import torch
 
+from src.train.device import device_card
+
 
 def _sync(device: torch.device) -> None:
     if device.type == "cuda":
@@ -139,7 +141,8 @@ def ratio_spread(numerator: Sequence[float], denominator: Sequence[float]) -> tu
 
 
 def device_name(device: torch.device) -> str:
-    """The GPU's name, or the CPU thread count torch uses."""
+    """The GPU's name, or the CPU's model and the thread count torch uses (`device_card`)."""
+    card = device_card(device)
     if device.type == "cuda":
-        return torch.cuda.get_device_name(device)
-    return f"{torch.get_num_threads()} threads"
+        return card["device_name"]
+    return f"{card['device_name']}, {card['threads']} threads"
