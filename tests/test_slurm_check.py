@@ -121,7 +121,8 @@ def test_the_accounting_warning_is_one_line_once_per_sweep(caplog, monkeypatch):
     monkeypatch.setattr(logger, "filters", [])
     SlurmLaunchCheck().on_multirun_start(local)
     assert logger.filters == []
-    SlurmLaunchCheck().on_multirun_start(slurm)
+    check = SlurmLaunchCheck()
+    check.on_multirun_start(slurm)
     with caplog.at_level(logging.WARNING):
         for call in range(3):
             logger.warning("Call #%d - %s Command sacct returned 1", call, SACCT_WARNING)
@@ -131,6 +132,15 @@ def test_the_accounting_warning_is_one_line_once_per_sweep(caplog, monkeypatch):
     assert not any(SACCT_WARNING in m for m in messages) and messages.count("something else") == 2
     ours = [r.getMessage() for r in caplog.records if r.name == "nrbench.launch"]
     assert ours.count(slurm_check.ACCOUNTING_OFF) == 1
+    # A sweep's end takes its filter away: a second sweep in the same process says it once, not never,
+    # and the filters do not pile up.
+    check.on_multirun_end(slurm)
+    assert logger.filters == []
+    check.on_multirun_start(slurm)
+    with caplog.at_level(logging.WARNING):
+        logger.warning("Call #1 - %s Command sacct returned 1", SACCT_WARNING)
+    ours = [r.getMessage() for r in caplog.records if r.name == "nrbench.launch"]
+    assert ours.count(slurm_check.ACCOUNTING_OFF) == 2 and len(logger.filters) == 1
 
 
 def test_a_job_pending_for_a_reason_that_will_not_clear_is_picked_out():
@@ -204,3 +214,22 @@ def test_a_job_back_in_the_queue_between_two_polls_is_not_failed(tmp_path):
     watch.fail_vanished(["5"], "5|PENDING|BeginTime")
     watch.fail_vanished(["5"], "")
     assert not (tmp_path / "5" / "5_0_result.pkl").exists()
+
+
+def test_the_callback_pickles_without_its_thread_and_filter(monkeypatch, tmp_path):
+    """submitit pickles the Hydra callbacks with every job: the watch thread cannot be pickled, and the
+    launching process's log filter has no business in a job."""
+    import pickle
+
+    from omegaconf import OmegaConf
+
+    from src.launch import slurm_check
+
+    monkeypatch.setattr(slurm_check.shutil, "which", lambda name: None)
+    monkeypatch.setattr(logging.getLogger("submitit"), "filters", [])
+    check = SlurmLaunchCheck(pending_poll_s=5)
+    check.on_multirun_start(OmegaConf.create({"hydra": {"launcher": {"_target_": "x.SlurmLauncher"}}}))
+    check.watch = slurm_check.PendingWatch(tmp_path, 5)
+    copy = pickle.loads(pickle.dumps(check))
+    assert copy.watch is None and copy.accounting_filter is None and copy.pending_poll_s == 5
+    assert check.accounting_filter is not None  # the original keeps its own

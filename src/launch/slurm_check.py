@@ -285,19 +285,25 @@ class SlurmLaunchCheck(Callback):
     def __init__(self, pending_poll_s: float = 30.0) -> None:
         self.pending_poll_s = float(pending_poll_s)
         self.watch: PendingWatch | None = None
+        self.accounting_filter: _OncePerSweep | None = None
 
     def __getstate__(self) -> dict[str, Any]:
-        """Without the watch thread: submitit pickles the callbacks with each job."""
-        return {**self.__dict__, "watch": None}
+        """Without the watch thread and the launching process's log filter: submitit pickles the
+        callbacks with each job."""
+        return {**self.__dict__, "watch": None, "accounting_filter": None}
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         if self.watch is not None:
             self.watch.stopped.set()
+        if self.accounting_filter is not None:  # the next sweep of this process says it once again
+            logging.getLogger("submitit").removeFilter(self.accounting_filter)
+            self.accounting_filter = None
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         if not is_slurm(config):
             return
-        logging.getLogger("submitit").addFilter(_OncePerSweep(SACCT_WARNING, ACCOUNTING_OFF))
+        self.accounting_filter = _OncePerSweep(SACCT_WARNING, ACCOUNTING_OFF)
+        logging.getLogger("submitit").addFilter(self.accounting_filter)
         if shutil.which("sinfo") is None:
             log.warning("launch: sinfo not found; the SLURM request is not checked against the partition")
             return
