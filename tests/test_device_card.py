@@ -65,3 +65,27 @@ def test_a_run_carries_the_device_card(tmp_path, monkeypatch):
         "3",
         "fp32",
     )
+
+
+def test_a_report_says_what_its_timings_were_measured_on():
+    """Each distinct device card with its run count; a run from before the card says what is missing."""
+    import pandas as pd
+
+    from src.report.tables import measured_on
+
+    card = {
+        "tags.nrbench.device_name": "AMD EPYC",
+        "tags.nrbench.threads": "2",
+        "tags.nrbench.precision": "fp32",
+    }
+    gpu = {**card, "tags.nrbench.device_name": "NVIDIA H100", "tags.nrbench.precision": FP32_TF32_CONV}
+    old = {"tags.nrbench.device": "cpu", "tags.nrbench.precision": "fp32"}
+    runs = pd.DataFrame([card, card, gpu, old])
+    assert measured_on(runs) == (
+        "AMD EPYC, 2 threads, fp32 (2 runs); NVIDIA H100, 2 threads, fp32 (TF32 convolutions) (1 run); "
+        "cpu, model and threads not recorded, fp32 (1 run)"
+    )
+    assert measured_on(pd.DataFrame([{"tags.nrbench.profile": "cpu"}])) == (
+        "device, model and threads not recorded (1 run)"
+    )
+    assert measured_on(pd.DataFrame()) == "no runs"

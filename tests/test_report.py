@@ -388,6 +388,8 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     for data in pngs:
         assert Image.open(io.BytesIO(data)).format == "PNG"
     assert "<b>32.00</b>" in page and "abc1234" in page
+    # the store's runs predate the device card: the page says what is missing rather than nothing
+    assert "Timings measured on: device, model and threads not recorded (4 runs)." in page
     for run_id in store["ids"].values():
         assert run_id in page
 

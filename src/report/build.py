@@ -74,6 +74,7 @@ from src.report.tables import (
     cost_table,
     feature_usage_table,
     loss_table,
+    measured_on,
     per_image_table,
     per_value_table,
     select_metrics,
@@ -299,7 +300,8 @@ def _page(
         subtitle=f"{len(runs)} MLflow runs ({', '.join(profiles) or 'no'} profile) from "
         f"{mlflow.get_tracking_uri()}, compared by {compared}; generated {manifest['generated']}. Values: "
         "mean ± std over runs (seeds) per row; best per column in bold; the noisy input's row (italics), "
-        "where logged, is what a denoiser must beat and is never marked best.",
+        f"where logged, is what a denoiser must beat and is never marked best. Timings measured on: "
+        f"{measured_on(runs)}.",
         tables={_heading(k): v for k, v in tables.items()},
         figures=figures,
         runs=runs,

@@ -277,6 +277,31 @@ def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.Data
     return aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
 
 
+#: The run tags of the device card (`src.train.device.device_card`, `precision`), in the order stated.
+DEVICE_TAGS = ("tags.nrbench.device_name", "tags.nrbench.threads", "tags.nrbench.precision")
+
+
+def measured_on(runs: pd.DataFrame) -> str:
+    """What the runs' timings were measured on, each distinct device card with its run count: `AMD EPYC,
+    2 threads, fp32 (4 runs)`; runs logged before runs carried the card read `<device>, model and
+    threads not recorded`."""
+    if runs.empty:
+        return "no runs"
+
+    def card(row: pd.Series) -> str:
+        name, threads, precision = (row.get(t) for t in DEVICE_TAGS)
+        if not isinstance(name, str) or not name:
+            device = row.get("tags.nrbench.device")
+            device = device if isinstance(device, str) and device else "device"
+            return f"{device}, model and threads not recorded" + (
+                f", {precision}" if isinstance(precision, str) and precision else ""
+            )
+        return f"{name}, {threads} threads, {precision}"
+
+    counts = runs.apply(card, axis=1).value_counts(sort=False)
+    return "; ".join(f"{c} ({n} run{'s' if n != 1 else ''})" for c, n in counts.items())
+
+
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training or search time, iterations and inference time (per image and per megapixel)."""
     return aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
