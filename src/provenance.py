@@ -6,6 +6,7 @@ import hashlib
 import json
 import logging
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -113,9 +114,13 @@ def config_digest(cfg: DictConfig) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def written_by_this_config(path: Path, written: str | None, cfg: DictConfig) -> bool:
-    """Whether the checkpoint at `path`, written by a config of digest `written` (None: by a version that
-    recorded none), may be continued by a job of `cfg`; says why not in one warning."""
+def continued_in_place(cfg: DictConfig, path: Path, digest_of: Callable[[Path], str | None]) -> bool:
+    """Whether a job of `cfg` continues the checkpoint at `path` by itself (`auto_resume`): it is there and
+    the same configuration wrote it (`digest_of(path)`: the digest it records, None for a version that
+    recorded none); says why not in one warning."""
+    if not cfg.get("auto_resume", False) or not path.is_file():
+        return False
+    written = digest_of(path)
     if written == config_digest(cfg):
         return True
     log.warning(

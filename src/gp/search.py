@@ -422,22 +422,24 @@ PRE_OPTION_RULES = {
 }
 
 
-def saved_job(path: str | Path) -> dict[str, Any]:
-    """The `job` entry `save_state` wrote in the checkpoint at `path` ({} when it has none)."""
+def _read_state(path: Path) -> Any:
+    """The JSON `save_state` wrote at `path`; a one-line DataError when it cannot be read."""
     try:
-        data = json.loads(Path(path).read_text())
+        return json.loads(path.read_text())
     except (OSError, ValueError) as err:
         raise DataError(f"{path}: not a readable search checkpoint ({err})".replace("\n", " ")) from None
+
+
+def saved_job(path: str | Path) -> dict[str, Any]:
+    """The `job` entry `save_state` wrote in the checkpoint at `path` ({} when it has none)."""
+    data = _read_state(Path(path))
     return dict(data.get("job") or {}) if isinstance(data, dict) else {}
 
 
 def load_state(path: str | Path, params: SearchParams, pset: gp.PrimitiveSetTyped = PSET) -> SearchState:
     """A state `save_state` wrote, for a search with the same `params` (a one-line DataError otherwise)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as err:
-        raise DataError(f"{path}: not a readable search checkpoint ({err})".replace("\n", " ")) from None
+    data = _read_state(path)
     if not isinstance(data, dict) or data.get("format") != STATE_FORMAT:
         raise DataError(f"{path}: not a search checkpoint (format {STATE_FORMAT} expected)")
     # A checkpoint written before a parameter existed searched by that parameter's first default.

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -74,8 +74,8 @@ _CACHE: dict[tuple, Any] | None = None
 @contextlib.contextmanager
 def searches_cached() -> Iterator[None]:
     """Within: a search already made (same store, experiments and filter) and an experiment already looked
-    up by name are answered from memory. The
-    ledger searches once per claim, source, profile and status, mostly the same few queries, and names
+    up by name are answered from memory. The ledger searches once per claim, source, profile and status,
+    mostly the same few queries, and names
     the filter that left no run by searching again: against a tracking server over HTTP that was a minute
     per ledger. The store is read, not written, meanwhile."""
     global _CACHE
@@ -86,24 +86,25 @@ def searches_cached() -> Iterator[None]:
         _CACHE = outer
 
 
+def _cached(key: tuple, ask: Callable[[], Any]) -> Any:
+    """`ask()`, or its answer from memory inside `searches_cached`."""
+    if _CACHE is None:
+        return ask()
+    if key not in _CACHE:
+        _CACHE[key] = ask()
+    return _CACHE[key]
+
+
 def _search_runs(experiment_ids: list[str], where: str) -> pd.DataFrame:
+    def ask() -> pd.DataFrame:
+        return mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
+
     key = (mlflow.get_tracking_uri(), tuple(experiment_ids), where)
-    if _CACHE is not None and key in _CACHE:
-        return _CACHE[key].copy()
-    runs = mlflow.search_runs(experiment_ids=experiment_ids, filter_string=where, output_format="pandas")
-    if _CACHE is not None:
-        _CACHE[key] = runs.copy()
-    return runs
+    return _cached(key, ask).copy()  # a copy: a caller changing its frame leaves the memory as it was
 
 
 def _experiment_named(name: str, uri: str):
-    key = (uri, "experiment", name)
-    if _CACHE is not None and key in _CACHE:
-        return _CACHE[key]
-    experiment = MlflowClient().get_experiment_by_name(name)
-    if _CACHE is not None:
-        _CACHE[key] = experiment
-    return experiment
+    return _cached((uri, "experiment", name), lambda: MlflowClient().get_experiment_by_name(name))
 
 
 def _search(experiment_ids: list[str], steps: Iterable[tuple[str, Any]]) -> pd.DataFrame:

@@ -43,9 +43,9 @@ def plan_lines(
     """The dry run's lines for one study; (lines, estimated seconds of the jobs to run, how many of them
     have no estimate)."""
     to_run = [j for j in jobs if j.digest not in done]
-    estimates = [estimate_seconds(j, done, jobs) for j in to_run]
-    known = sum(e for e in estimates if e is not None)
-    unknown = sum(e is None for e in estimates)
+    estimates = {j.digest: estimate_seconds(j, done, jobs) for j in to_run}
+    known = sum(e for e in estimates.values() if e is not None)
+    unknown = sum(e is None for e in estimates.values())
     data = len({j.data for j in to_run if j.data_stages})
     if to_run and unknown == len(to_run):
         left = "time left unknown (none of the study done yet)"
@@ -59,7 +59,7 @@ def plan_lines(
     for job in jobs:
         run = done.get(job.digest)
         state = f"done    run {run.run_id[:12]} in {_hours(run.seconds)}" if run else "to run"
-        estimate = "" if run else f"  ~{_hours(estimate_seconds(job, done, jobs))}"
+        estimate = "" if run else f"  ~{_hours(estimates[job.digest])}"
         lines.append(f"  {state:<40} {' '.join(job.overrides)}{estimate}")
     return lines, known, unknown
 

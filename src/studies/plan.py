@@ -16,6 +16,7 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -98,9 +99,12 @@ def sweep_params(study: str, profile: str, overrides: Sequence[str] = ()) -> dic
 def data_identity(cfg: DictConfig) -> str:
     """A short hash of what the data stages read (`DATA_KEYS`, the task's name and preprocessing): jobs
     with the same one share their rendered and prepared data."""
-    task = OmegaConf.to_container(cfg.task, resolve=True)
-    what = {k: OmegaConf.to_container(cfg, resolve=True).get(k) for k in DATA_KEYS}
-    what["task"] = {"name": task.get("name"), "preprocess": task.get("preprocess")}
+
+    def resolved(key: str) -> Any:
+        node = OmegaConf.select(cfg, key)
+        return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
+
+    what = {key: resolved(key) for key in (*DATA_KEYS, "task.name", "task.preprocess")}
     return hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 

@@ -39,14 +39,12 @@ def resumable_search_state(cfg: DictConfig) -> Path | None:
     `auto_resume`, `state.json` in `task.search.out_dir` when the same configuration wrote it (a requeued
     job in its own run folder); else None (start over)."""
     from src.gp.search import saved_job
-    from src.provenance import written_by_this_config
+    from src.provenance import continued_in_place
 
     if cfg.task.search.resume is not None:
         return Path(cfg.task.search.resume)
     path = Path(cfg.task.search.out_dir) / STATE_FILE
-    if not cfg.get("auto_resume", False) or not path.is_file():
-        return None
-    return path if written_by_this_config(path, saved_job(path).get("config_digest"), cfg) else None
+    return path if continued_in_place(cfg, path, lambda p: saved_job(p).get("config_digest")) else None
 
 
 def search_params(cfg: DictConfig):

@@ -20,7 +20,7 @@ from omegaconf import DictConfig
 from src.errors import DataError
 from src.io.atomic import atomic_path
 from src.models.nerf.builders import upgrade_legacy_encodings
-from src.provenance import written_by_this_config
+from src.provenance import continued_in_place
 
 #: Keys every checkpoint carries; a file without them is not one of ours.
 CHECKPOINT_KEYS = ("format", "model_config", "model", "optimizer", "epoch", "batch_in_epoch", "step")
@@ -35,6 +35,12 @@ def checkpoint_run_id(path: str | os.PathLike[str]) -> str | None:
     return load_checkpoint(path, mmap=True).get("mlflow_run_id")
 
 
+def written_digest(path: str | os.PathLike[str]) -> str | None:
+    """The digest of the config that wrote checkpoint `path` (None from a version that recorded none),
+    without reading its weights."""
+    return load_checkpoint(path, mmap=True).get("config_digest")
+
+
 def resumable_checkpoint(cfg: DictConfig) -> str | None:
     """The checkpoint a training of `cfg` continues: `task.train.resume` when set; else, with `auto_resume`,
     `last.pt` in `task.train.checkpoint_dir` when the same configuration wrote it (a requeued job in its
@@ -43,10 +49,7 @@ def resumable_checkpoint(cfg: DictConfig) -> str | None:
     if train.get("resume"):
         return str(train.resume)
     path = Path(train.checkpoint_dir) / LAST_NAME
-    if not cfg.get("auto_resume", False) or not path.is_file():
-        return None
-    written = load_checkpoint(path, mmap=True).get("config_digest")
-    return str(path) if written_by_this_config(path, written, cfg) else None
+    return str(path) if continued_in_place(cfg, path, written_digest) else None
 
 
 def save_checkpoint(path: str | os.PathLike[str], state: dict[str, Any]) -> None:
