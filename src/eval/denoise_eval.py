@@ -38,6 +38,7 @@ from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
 from src.metrics import noisebase_protocol
 from src.metrics.image import tonemap
+from src.metrics.spp_equivalent import speedup
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.models.instantiate import build_method
@@ -65,7 +66,32 @@ SCORES = (
     "cvvdp",
     "undefined",
     *(f"nb_{name}" for name in noisebase_protocol.METRICS),
+    "spp_equivalent",
+    "spp_equivalent_at_least",
+    "speedup",
+    "ladder_residual",
+    "render_s_per_spp",
 )
+#: Ratios of sample counts and times, summarised by their geometric mean over the items (NaN ones left out,
+#: as `mean_rows` leaves them out and `undefined` counts them); with any "at least" among an item's values,
+#: its `<key>_at_least` flag (the share of such items) says the mean is a lower bound too.
+GEOMETRIC = {
+    "spp_equivalent": "spp_equivalent_at_least",
+    "noisy_spp_equivalent": "noisy_spp_equivalent_at_least",
+    "speedup": "spp_equivalent_at_least",
+}
+
+
+def geometric_means(rows: list[dict[str, Any]], means: dict[str, float]) -> dict[str, float]:
+    """`means` with the `GEOMETRIC` columns' arithmetic means replaced by geometric ones."""
+    out = dict(means)
+    for key in GEOMETRIC:
+        if key not in out:
+            continue
+        values = np.array([r[key] for r in rows], dtype=np.float64)
+        values = values[~np.isnan(values)]
+        out[key] = float(np.exp(np.mean(np.log(values)))) if values.size else float("nan")
+    return out
 
 
 @torch.no_grad()
@@ -169,6 +195,10 @@ class DenoiseEvaluation(Evaluation):
         undefined = {"undefined": float(frames - sum(defined)) / frames}
         ms_per_frame = seconds * 1e3 / frames
         timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
+        if "spp_equivalent" in scores:  # the render time saved, against the timed denoising of a frame
+            scores["speedup"] = speedup(
+                scores["spp_equivalent"], name["spp"], scores["render_s_per_spp"], seconds / frames
+            )
         return {**name, **scores, **undefined, **timing}
 
     def header(self) -> dict[str, Any]:
@@ -204,10 +234,13 @@ class DenoiseEvaluation(Evaluation):
             )
 
     def summarise(self, rows: list[dict[str, Any]]) -> dict[str, Any]:
-        per_spp = {
-            spp: mean_rows([r for r in rows if r["spp"] == spp]) for spp in sorted({r["spp"] for r in rows})
-        }
-        return {**super().summarise(rows), "per_spp": per_spp}
+        """Means over every item and per noisy spp; the `GEOMETRIC` columns' means are geometric."""
+        per_spp = {}
+        for spp in sorted({r["spp"] for r in rows}):
+            at_spp = [r for r in rows if r["spp"] == spp]
+            per_spp[spp] = geometric_means(at_spp, mean_rows(at_spp))
+        summary = super().summarise(rows)
+        return {**summary, "mean": geometric_means(rows, summary["mean"]), "per_spp": per_spp}
 
     def _log(self, summary: dict[str, Any]) -> None:
         super()._log(summary)

@@ -15,6 +15,10 @@ the packages behind its numbers.
   against the reference (`temporal`), Noisebase's temporal PSNR (`tpsnr`) and, where the item has a
   second reference, the flicker against the truth (`flicker_unbiased`); kinds of sequences only.
 - `ColorVideoVdp`: ColorVideoVDP's JOD of the whole sequence (`cvvdp`; `metrics.cvvdp.enabled`).
+- `SppEquivalentScores`: the samples per pixel a plain render needs to reach the output's (and the noisy
+  input's) error, from the scene's ladder of plain renders (`spp_equivalent`, `noisy_spp_equivalent`, with
+  their "at least" flags, the fit's residual and limit, the render seconds per spp;
+  `metrics.spp_equivalent.enabled` and a rendered ladder).
 - `NoisebaseProtocol`: the Noisebase benchmark's own scoring (`nb_*`; `metrics.protocol=noisebase`).
 
 Another benchmark protocol is one class with these four methods and its name in `PROTOCOLS`, chosen by
@@ -24,6 +28,7 @@ output's scores of its item NaN, never dropped: the ledger counts them as the ar
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -32,11 +37,21 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from src.data.ladder import MANIFEST_DIR, ladder_counts, read_ladder
 from src.io.atomic import atomic_write_json
 from src.metrics import cvvdp_metric, noisebase_protocol
-from src.metrics.image import image_metrics, relmse_spp
+from src.metrics.image import image_metrics, mse, relmse, relmse_spp
+from src.metrics.spp_equivalent import (
+    MonteCarloFit,
+    fit_monte_carlo,
+    measurable_limit,
+    seconds_per_spp,
+    spp_equivalent,
+)
 from src.metrics.temporal import flicker_unbiased, temporal_error, temporal_psnr
+from src.provenance import data_fingerprint
 
+log = logging.getLogger(__name__)
 NAN = float("nan")
 Frames = Mapping[str, np.ndarray]
 
@@ -183,6 +198,85 @@ class NoisebaseProtocol(Scorer):
         return tags | {"nrbench.noisebase.fvvdp": str(self.fvvdp).lower()}
 
 
+class SppEquivalentScores(Scorer):
+    """The samples a denoiser saves (`src.metrics.spp_equivalent`): per item, Eq. (1) fitted to its scene's
+    ladder of plain renders (`src.data.ladder`; every frame of a sequence, errors averaged over the frames)
+    against the item's own reference, then the output's and the noisy input's equivalent counts (Eq. (2);
+    "at least" past what the ladder and the reference's noise can measure), the fit's residual and limit,
+    and the render seconds per sample per frame of the scene. The error is `metrics.spp_equivalent.metric`:
+    relMSE with the relMSE column's eps and crop, or MSE. A fit is made once per scene."""
+
+    def __init__(self, metrics: DictConfig, ladder_dir: Path, counts: list[int], temporal: bool) -> None:
+        options = metrics.spp_equivalent
+        self.metric, self.margin = str(options.metric), float(options.margin)
+        self.eps, self.crop = float(metrics.relmse_eps), int(metrics.relmse_crop)
+        self.ladder_dir, self.counts, self.temporal = ladder_dir, counts, temporal
+        self.fits: dict[str, tuple[MonteCarloFit, float]] = {}
+
+    def error(self, frames: np.ndarray, reference: np.ndarray) -> float:
+        """The metric's mean over the frames (linear in 1 / spp, as Eq. (1) needs)."""
+        if self.metric == "mse":
+            return float(np.mean([mse(f, r) for f, r in zip(frames, reference, strict=True)]))
+        return float(
+            np.mean([relmse(f, r, self.eps, self.crop) for f, r in zip(frames, reference, strict=True)])
+        )
+
+    def fit(self, scene: str, reference: np.ndarray) -> tuple[MonteCarloFit, float]:
+        """Eq. (1) of `scene`'s ladder against `reference`, and its render seconds per spp (cached)."""
+        if scene not in self.fits:
+            frames = reference.shape[0] if self.temporal else None
+            ladder = read_ladder(self.ladder_dir, scene, self.counts, frames)
+            errors = [self.error(ladder.frames[n], reference) for n in self.counts]
+            seconds = seconds_per_spp(self.counts, [ladder.seconds[n] for n in self.counts])
+            self.fits[scene] = (fit_monte_carlo(self.counts, errors), seconds)
+        return self.fits[scene]
+
+    def score(self, item: Mapping[str, Any], images: Frames, defined: list[bool]) -> dict[str, float]:
+        reference = images["reference"]
+        fit, seconds = self.fit(str(item["scene"]), reference)
+        noisy = spp_equivalent(fit, self.error(images["noisy"], reference), self.margin)
+        ours = (
+            spp_equivalent(fit, self.error(images["denoised"], reference), self.margin)
+            if all(defined)
+            else None
+        )
+        return {
+            "spp_equivalent": NAN if ours is None else ours.value,
+            "spp_equivalent_at_least": NAN if ours is None else float(ours.at_least),
+            "noisy_spp_equivalent": noisy.value,
+            "noisy_spp_equivalent_at_least": float(noisy.at_least),
+            "ladder_residual": fit.residual,
+            "ladder_limit": measurable_limit(fit, self.margin),
+            "render_s_per_spp": seconds,
+        }
+
+    def header(self) -> dict[str, Any]:
+        return {
+            "spp_equivalent": {
+                "metric": self.metric,
+                "margin": self.margin,
+                "ladder_spp": self.counts,
+                "ladder_fingerprint": data_fingerprint(self.ladder_dir),
+            }
+        }
+
+
+def spp_equivalent_scorer(cfg: DictConfig, temporal: bool) -> Scorer | None:
+    """The run's `SppEquivalentScores`, or None (logged) when it is off, the dataset has no ladder
+    (`dataset.ladder_spp` empty or absent: a user's EXRs, Noisebase sets) or no ladder was ever rendered in
+    `paths.ladder` (a user's KPCN EXRs read with `paths.raw=`)."""
+    options = cfg.metrics.get("spp_equivalent")
+    if options is None or not options.enabled:
+        return None
+    counts = ladder_counts(cfg.dataset) if "reference_spp" in cfg.dataset else []
+    ladder_dir = Path(cfg.paths.ladder) if cfg.paths.get("ladder") else None
+    if not counts or ladder_dir is None or not (ladder_dir / MANIFEST_DIR).is_dir():
+        where = "dataset.ladder_spp is empty" if not counts else f"no ladder was rendered in {ladder_dir}"
+        log.info("eval: no spp-equivalent (%s; stage=render makes the ladder of a rendered dataset)", where)
+        return None
+    return SppEquivalentScores(cfg.metrics, ladder_dir, counts, temporal)
+
+
 #: `metrics.protocol` -> the benchmark protocol's scorer class (built with the metrics config, the device,
 #: the evaluation's output folder and the model's name).
 PROTOCOLS: dict[str, type[Scorer]] = {"noisebase": NoisebaseProtocol}
@@ -191,7 +285,8 @@ PROTOCOLS: dict[str, type[Scorer]] = {"noisebase": NoisebaseProtocol}
 def scorers_for(cfg: DictConfig, temporal: bool, device: torch.device, out_dir: Path) -> list[Scorer]:
     """The scorers of a run, in the order their columns come in a row: the per-frame metrics always; the
     sequence metrics and ColorVideoVDP (`metrics.cvvdp.enabled`) for kinds of sequences (`temporal`); the
-    benchmark protocol `metrics.protocol` names. A still-image dataset with a video metric is refused at
+    spp-equivalent where there is a ladder (`spp_equivalent_scorer`); the benchmark protocol
+    `metrics.protocol` names. A still-image dataset with a video metric is refused at
     job start (`src.schema.run.validate_run`)."""
     m = cfg.metrics
     scorers: list[Scorer] = [FrameScores(m)]
@@ -200,6 +295,9 @@ def scorers_for(cfg: DictConfig, temporal: bool, device: torch.device, out_dir: 
         cvvdp = m.get("cvvdp")
         if cvvdp is not None and cvvdp.enabled:
             scorers.append(ColorVideoVdp(m, device))
+    equivalent = spp_equivalent_scorer(cfg, temporal)
+    if equivalent is not None:
+        scorers.append(equivalent)
     protocol = m.get("protocol")
     if protocol is not None:
         scorers.append(PROTOCOLS[protocol](m, device, out_dir, str(cfg.model.name)))

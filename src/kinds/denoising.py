@@ -94,6 +94,23 @@ class DenoisingKind(DataKind):
         shared = OmegaConf.to_container(cfg.task.preprocess, resolve=True)
         return {**shared, **self.dataset.get("preprocess", {})}
 
+    def scene_splits(self, cfg: DictConfig) -> dict[str, list[str]]:
+        """The train/val/test scenes preprocessing will make of this config's renders: `split_scenes` of
+        every scene the dataset renders, with the `task.preprocess` split settings preprocessing uses."""
+        from src.data.splits import split_scenes
+        from src.render.render_dataset import scene_sources  # lazy: the render package
+
+        p = self.preprocess_options(cfg)
+        names = [source.name for source in scene_sources(self.dataset)]
+        return split_scenes(names, p["split"], p["split_seed"], bool(p.get("split_by_base", False)))
+
+    def ladder_scenes(self, cfg: DictConfig) -> list[str]:
+        """The scenes whose sample-count ladder the render stage makes (`src.data.ladder`): those of
+        `task.eval.split`, the ones the evaluation scores; none when `dataset.ladder_spp` is empty."""
+        if not self.dataset.get("ladder_spp"):
+            return []
+        return self.scene_splits(cfg)[str(cfg.task.eval.split)]
+
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:
         """The cache key `preprocess` gives the prepared folder for this config and the raw data `raw`."""
         raise NotImplementedError
@@ -137,6 +154,13 @@ class DenoisingKind(DataKind):
             )
         else:
             print(f"render: all {summary['files_cached']} files up to date in {raw}")
+        ladder = summary.get("ladder") or {}
+        if ladder.get("scenes"):
+            print(
+                f"render: ladder of {len(ladder['scenes'])} held-out scenes at {ladder['counts']} spp: "
+                f"{ladder['files_rendered']} files rendered ({ladder['files_cached']} cached) -> "
+                f"{cfg.paths.ladder}"
+            )
         write_summary(summary_path, summary, cfg, raw)
         return summary
 

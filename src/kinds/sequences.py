@@ -54,15 +54,10 @@ class RenderedSequences(DenoisingKind):
         }
 
     def held_out_scenes(self, cfg: DictConfig) -> list[str]:
-        """The val and test scenes preprocessing will make of this config's renders: `split_scenes` of every
-        scene the dataset renders, with the same `task.preprocess` keys (`preprocess_settings`) as
-        `preprocess_volume_dataset`; the scenes whose second reference the render stage makes."""
-        from src.data.splits import split_scenes
-        from src.render.render_dataset import scene_sources
-
-        s = self.preprocess_settings(cfg)
-        names = [source.name for source in scene_sources(self.dataset)]
-        splits = split_scenes(names, s["split_fractions"], s["split_seed"], s.get("split_by_base", False))
+        """The val and test scenes preprocessing will make of this config's renders (`scene_splits`, with
+        the keys `preprocess_volume_dataset` reads); the scenes whose second reference the render stage
+        makes."""
+        splits = self.scene_splits(cfg)
         return sorted(splits["val"] + splits["test"])
 
     def export_noisebase(self, cfg: DictConfig) -> list[Path]:
@@ -76,7 +71,9 @@ class RenderedSequences(DenoisingKind):
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
         """Every sequence, or the `render_scenes` / `render_frames` subset a fanned-out job was given: then
         one summary file per subset, so jobs keep theirs. With `dataset.second_reference`, also the second
-        reference of the held-out scenes (`held_out_scenes`)."""
+        reference of the held-out scenes (`held_out_scenes`); with `dataset.ladder_spp`, the ladder of plain
+        renders of the scenes `task.eval.split` holds out (`ladder_scenes`; `src.data.ladder`)."""
+        from src.render.ladder_render import render_sequence_ladder
         from src.render.volume_dataset import render_volumetric_dataset
 
         ds = self.dataset
@@ -84,6 +81,10 @@ class RenderedSequences(DenoisingKind):
         second = self.held_out_scenes(cfg) if ds.get("second_reference") else []
         summary = render_volumetric_dataset(
             ds, raw, cfg.render.variant, scenes=scenes, frames=frames, second_reference=second
+        )
+        ladder = [s for s in self.ladder_scenes(cfg) if scenes is None or s in scenes]
+        summary["ladder"] = render_sequence_ladder(
+            ds, Path(cfg.paths.ladder), ladder, summary["frames"], cfg.render.variant
         )
         summary_path = Path(cfg.paths.dataset) / "render_summary.json"
         if scenes is not None or frames is not None:

@@ -43,9 +43,15 @@ class RenderedStills(DenoisingKind):
         )
 
     def render_files(self, cfg: DictConfig, raw: Path) -> tuple[dict[str, Any], Path]:
+        """Every scene at every count, and the ladder of plain renders of the scenes `task.eval.split`
+        holds out (`ladder_scenes`; `src.data.ladder`)."""
+        from src.render.ladder_render import render_still_ladder
         from src.render.render_dataset import render_denoise_dataset
 
         summary = render_denoise_dataset(self.dataset, raw, cfg.render.variant)
+        summary["ladder"] = render_still_ladder(
+            self.dataset, Path(cfg.paths.ladder), self.ladder_scenes(cfg), cfg.render.variant
+        )
         return summary, Path(cfg.paths.dataset) / "render_summary.json"
 
     def preprocess_key(self, cfg: DictConfig, raw: Path) -> str:

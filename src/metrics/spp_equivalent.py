@@ -60,7 +60,9 @@ class SppEquivalent:
 def fit_monte_carlo(spp: Sequence[float], errors: Sequence[float]) -> MonteCarloFit:
     """Fit Eq. (1) to mean squared errors `errors` of renders at sample counts `spp` (at least two
     distinct counts, positive errors): non-negative least squares on relative errors (each row divided by
-    its measured error), as scipy's `nnls` solves it."""
+    its measured error), as scipy's `nnls` solves it. One rung's error is one draw of a heavy-tailed
+    quantity (a firefly can raise a single render's error several times); `residual` shows such a rung (a
+    robust soft-L1 refit was tried on the smoke ladder and moved the fit by under 5%: not worth its code)."""
     n, e = np.asarray(spp, dtype=np.float64), np.asarray(errors, dtype=np.float64)
     if n.shape != e.shape or n.ndim != 1 or len(np.unique(n)) < 2:
         raise DataError(
@@ -95,6 +97,21 @@ def spp_equivalent(fit: MonteCarloFit, error: float, margin: float = 1.0) -> Spp
     if own <= 0 or fit.variance / own > limit:
         return SppEquivalent(limit, True)
     return SppEquivalent(fit.variance / own, False)
+
+
+def seconds_per_spp(spp: Sequence[float], seconds: Sequence[float]) -> float:
+    """The render seconds one more sample per pixel costs: the slope of seconds = t0 + k x spp fitted to the
+    ladder's timed rungs (non-negative least squares: a fixed cost per render, such as compiling the
+    kernels, goes to t0 and not to k). Falls back to the largest rung's seconds / spp when the slope comes
+    out 0 (timings too noisy to tell)."""
+    n, t = np.asarray(spp, dtype=np.float64), np.asarray(seconds, dtype=np.float64)
+    if n.shape != t.shape or n.ndim != 1 or len(np.unique(n)) < 2 or not np.all(n > 0):
+        raise DataError(f"render timings at spp {list(spp)}: expected at least two distinct positive counts")
+    (_, slope), _ = nnls(np.stack([np.ones_like(n), n], axis=1), t)
+    if slope > 0:
+        return float(slope)
+    top = int(np.argmax(n))
+    return float(t[top] / n[top])
 
 
 def speedup(equivalent_spp: float, input_spp: float, render_s_per_spp: float, denoise_s: float) -> float:

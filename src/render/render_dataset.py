@@ -30,8 +30,9 @@ from src.render.moments import MomentAccumulator, variance_of_mean
 from src.render.stale_renders import remove_stale_files
 
 #: Each role's part of a pass seed (`pass_seed`): ``reference2`` is the volumetric sequences' second,
-#: independent reference of the held-out scenes (``dataset.second_reference``).
-ROLE_IDS = {"noisy": 1, "reference": 2, "reference2": 3}
+#: independent reference of the held-out scenes (``dataset.second_reference``); ``ladder`` the held-out
+#: scenes' plain renders at ``dataset.ladder_spp`` (`src.data.ladder`).
+ROLE_IDS = {"noisy": 1, "reference": 2, "reference2": 3, "ladder": 4}
 
 
 @dataclass(frozen=True)
@@ -136,7 +137,8 @@ def box_film(ds: Mapping) -> dict:
 
 
 def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes: list[int]) -> dict:
-    """Render ``spp`` samples in ``passes``; returns KPCN buffers (H, W, C) float32 incl. variances."""
+    """Render ``spp`` samples in ``passes``; returns KPCN buffers (H, W, C) float32 incl. variances (left
+    out at 1 spp, which has none: the ladder's 1-spp rung keeps only its colour)."""
     import mitsuba as mi
 
     from src.render.aov_integrator import AOV_BUFFERS, CHANNEL_COUNT, MOMENT_BUFFERS
@@ -154,7 +156,8 @@ def render_buffers(scene, sensor, integrator, spp: int, seeds: list[int], passes
         a, b = offsets[buf]
         second = img[..., start : start + (b - a)]
         start += b - a
-        buffers[f"{buf}Variance"] = variance_of_mean(img[..., a:b], second, spp).astype(np.float32)
+        if spp >= 2:
+            buffers[f"{buf}Variance"] = variance_of_mean(img[..., a:b], second, spp).astype(np.float32)
     return buffers
 
 

@@ -173,6 +173,8 @@ class ProceduralDataset(DenoisingData):
     height: PositiveInt
     noisy_spp: SppList
     reference_spp: PositiveInt
+    # The held-out scenes' plain renders the spp-equivalent reads (src/data/ladder.py); [] or null: none.
+    ladder_spp: list[PositiveInt] | None = None
     seed: NonNegativeInt
     integrator: Integrator
     max_pass_samples: PositiveInt
@@ -195,6 +197,9 @@ class ProceduralDataset(DenoisingData):
         from src.render.render_dataset import spp_counts
 
         passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
+        from src.data.ladder import ladder_counts  # the ladder's own check of its counts
+
+        passes(ladder_counts, {"ladder_spp": self.ladder_spp, "reference_spp": self.reference_spp})
         return self
 
 
@@ -389,6 +394,8 @@ class VolumetricDataset(SequenceOptions):
     height: PositiveInt
     noisy_spp: SppList
     reference_spp: PositiveInt
+    # The held-out scenes' plain renders the spp-equivalent reads (src/data/ladder.py); [] or null: none.
+    ladder_spp: list[PositiveInt] | None = None
     seed: NonNegativeInt
     integrator: VolumeIntegrator
     max_pass_samples: PositiveInt
@@ -406,6 +413,9 @@ class VolumetricDataset(SequenceOptions):
         from src.render.render_dataset import spp_counts
 
         passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
+        from src.data.ladder import ladder_counts  # the ladder's own check of its counts
+
+        passes(ladder_counts, {"ladder_spp": self.ladder_spp, "reference_spp": self.reference_spp})
         return self
 
 

@@ -55,6 +55,15 @@ class Cvvdp(Schema):
     fps: PositiveFloat = 30.0
 
 
+class SppEquivalentOptions(Schema):
+    """`metrics.spp_equivalent`: the samples per pixel a plain render needs to reach each denoised image's
+    error, read from the held-out scenes' ladder (src/metrics/spp_equivalent.py, src/data/ladder.py)."""
+
+    enabled: bool = True
+    metric: Literal["relmse", "mse"] = "relmse"
+    margin: PositiveFloat = 1.0
+
+
 class Metrics(Schema):
     tonemap: Literal["clip_gamma", "reinhard_gamma", "clip"]
     gamma: PositiveFloat
@@ -67,6 +76,7 @@ class Metrics(Schema):
     protocol: Literal["noisebase"] | None = None
     noisebase: NoisebaseProtocol = NoisebaseProtocol()
     cvvdp: Cvvdp = Cvvdp()
+    spp_equivalent: SppEquivalentOptions = SppEquivalentOptions()
 
 
 class Tracking(Schema):
@@ -125,6 +135,7 @@ class Paths(Schema):
     dataset: str
     raw: str
     prepared: str
+    ladder: str
     run_dir: str
     scenes: str | None = None  # the radiance-field task's scene folders
 
