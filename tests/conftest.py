@@ -170,3 +170,13 @@ def browser():
         pytest.fail(f"CI must run the browser check; missing {', '.join(missing)}")
     if missing:
         pytest.skip(f"missing {', '.join(missing)}")
+
+
+def assert_same_curves(resumed, straight):
+    """Two runs' curves.csv hold the same values but the training clock (`train_time_s`, which differs
+    between any two runs); the resumed run's clock continues its checkpoint's (never falls back)."""
+    import pandas as pd
+
+    a, b = pd.read_csv(resumed), pd.read_csv(straight)
+    assert a["train_time_s"].is_monotonic_increasing and b["train_time_s"].is_monotonic_increasing
+    pd.testing.assert_frame_equal(a.drop(columns="train_time_s"), b.drop(columns="train_time_s"))

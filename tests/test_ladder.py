@@ -316,3 +316,55 @@ def test_sequences_score_every_frame_against_the_ladder_and_time_per_frame(tmp_p
         values = [float(r["spp_equivalent"]) for r in rows if int(r["spp"]) == int(spp)]
         assert len(values) == 2 and values[0] != values[1]
         assert means["spp_equivalent"] == pytest.approx(math.exp(np.mean(np.log(values))))
+
+
+def _image_rows():
+    """Per-image rows as `collect.per_image_rows` gives them: two models, two seeds (runs), two images,
+    input counts 4 and 16."""
+    import pandas as pd
+
+    rows = []
+    for model, factor in [("kpcn", 2.0), ("unet_kpcn", 4.0)]:
+        for seed in (0, 1):
+            for scene, scale in [("a", 1.0), ("b", 4.0)]:
+                for spp in (4, 16):
+                    value = spp * factor * scale * (1 + seed)
+                    rows.append(
+                        {
+                            "params.model.name": model,
+                            "run_id": f"{model}-{seed}",
+                            "scene": scene,
+                            "spp": spp,
+                            "metrics.spp_equivalent": value,
+                            "metrics.spp_equivalent_at_least": float(value >= 256),
+                            "metrics.speedup": value / spp / 2,
+                            "metrics.noisy_spp_equivalent": spp * 1.1,
+                            "metrics.ladder_residual": 0.1 * scale,
+                        }
+                    )
+    return pd.DataFrame(rows)
+
+
+def test_the_samples_saved_table_is_geometric_over_images_and_seeds():
+    from src.report.samples_saved import best_per_spp, samples_saved_table
+
+    table = samples_saved_table(_image_rows(), ["model.name"])
+    kpcn4 = table.loc[("kpcn", 4)]
+    values = [4 * 2.0 * s * k for s in (1.0, 4.0) for k in (1, 2)]  # 8, 16, 32, 64
+    assert kpcn4["spp-equivalent"] == pytest.approx(math.exp(np.mean(np.log(values))))
+    assert (kpcn4["min"], kpcn4["max"], kpcn4["images"], kpcn4["runs"]) == (8.0, 64.0, 4.0, 2)
+    assert kpcn4["speed-up"] == pytest.approx(kpcn4["spp-equivalent"] / 8)
+    assert kpcn4["noisy reads"] == pytest.approx(4.4) and kpcn4["ladder residual"] == pytest.approx(0.4)
+    unet16 = table.loc[("unet_kpcn", 16)]
+    assert unet16["lower bounds"] == 0.5  # 64 and 128 read, 256 and 512 "at least"
+    assert list(table.index.get_level_values("spp")) == [4, 4, 16, 16]
+    best = best_per_spp(table)  # within each input count: the U-Net rows, never across counts
+    assert best["spp-equivalent"] == {1, 3} and best["speed-up"] == {1, 3}
+
+
+def test_the_samples_saved_table_is_left_out_without_equivalents():
+    from src.report.samples_saved import samples_saved_table
+
+    rows = _image_rows()
+    assert samples_saved_table(rows.iloc[0:0], ["model.name"]) is None
+    assert samples_saved_table(rows.drop(columns="metrics.spp_equivalent"), ["model.name"]) is None

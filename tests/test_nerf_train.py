@@ -19,7 +19,7 @@ from src.stages import evaluate, render, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint
 from src.train.nerf_trainer import NerfTrainer, train_nerf
-from tests.conftest import ROOT, cli_job, one_line_error, smoke_config, stop_at
+from tests.conftest import ROOT, assert_same_curves, cli_job, one_line_error, smoke_config, stop_at
 
 
 def _cfg(data, run_dir, *overrides):
@@ -134,9 +134,7 @@ def _resume_and_compare(nerf_data, tmp_path, common, reference):
     final = load_checkpoint(summary["checkpoint"])["model"]
     for key, value in reference.model.state_dict().items():
         assert torch.equal(final[key], value), key
-    pd.testing.assert_frame_equal(
-        pd.read_csv(tmp_path / "c" / "curves.csv"), pd.read_csv(tmp_path / "a" / "curves.csv")
-    )
+    assert_same_curves(tmp_path / "c" / "curves.csv", tmp_path / "a" / "curves.csv")
 
 
 def test_resume_after_an_interrupt_matches_an_uninterrupted_run(nerf_data, tmp_path):
@@ -232,9 +230,7 @@ def test_a_run_killed_with_sigkill_resumes_to_the_same_weights_and_metrics(nerf_
     assert a["step"] == b["step"] == 50 and killed_at["step"] < 50
     for key, value in a["model"].items():
         assert torch.equal(b["model"][key], value), key
-    pd.testing.assert_frame_equal(
-        pd.read_csv(tmp_path / "b" / "curves.csv"), pd.read_csv(tmp_path / "a" / "curves.csv")
-    )
+    assert_same_curves(tmp_path / "b" / "curves.csv", tmp_path / "a" / "curves.csv")
 
     def timed(key):  # seconds and rates: they differ between any two runs
         return "time" in key or "per_s" in key or "ms_per" in key

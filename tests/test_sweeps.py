@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import mlflow
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -319,6 +320,11 @@ def read_csv(path):
         return list(csv.DictReader(f))
 
 
+def read_table(path):
+    """A report table's CSV rows as strings, its leading `# ` note lines skipped."""
+    return pd.read_csv(path, comment="#", dtype=str).to_dict("records")
+
+
 def method_rows(path):
     """The rows of a report's quality table but the noisy input's (first column `noisy input`, on top
     where the runs logged the input's scores: docs/report-site.md)."""
@@ -348,6 +354,30 @@ def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp
     losses = read_csv(report / "losses.csv")
     assert len(losses) == 2 and {"val specular", "train specular"} <= set(losses[0])
     assert (report / "learning_curves.png").is_file() and (report / "index.html").is_file()
+    # Quality against time: every epoch's validation loss at the training clock of that step, per arm.
+    client = mlflow.MlflowClient()
+    timed = read_table(report / "quality_vs_time.csv")
+    assert (
+        sorted(r["model.whiten"] for r in timed) == ["False", "True"]
+        and (report / "quality_vs_time.png").is_file()
+    )
+    for r in timed:
+        mine = runs[runs["params.model.whiten"] == r["model.whiten"]]
+        finals = []
+        for run_id in mine["run_id"]:
+            clock = {m.step: m.value for m in client.get_metric_history(run_id, "train_time_s")}
+            loss = sorted((m.step, m.value) for m in client.get_metric_history(run_id, "val_loss_color"))
+            assert [step for step, _ in loss] == sorted(clock)[: len(loss)] and len(loss) >= 2
+            assert list(clock.values()) == sorted(clock.values())  # the clock never falls back
+            finals.append(loss[-1][1])
+        assert float(r["final validation loss (colour)"]) == pytest.approx(np.mean(finals), rel=1e-6)
+        assert 0 <= float(r["reached"]) <= 1
+    # Samples saved: the smoke data's ladder read per arm and input count.
+    saved = read_table(report / "samples_saved.csv")
+    assert {(r["model.whiten"], r["spp"]) for r in saved} == {
+        (w, s) for w in ("False", "True") for s in ("4", "16")
+    }
+    assert all(float(r["spp-equivalent"]) > 0 and r["runs"] == "2" for r in saved)
     # The sweep rewrote the ledger: the whitening claim found this sweep's runs, at a profile (smoke)
     # where it means nothing.
     ledger = {r["claim"]: r for r in read_csv(tmp_path / "reports" / "ledger.csv")}

@@ -8,6 +8,9 @@ selects, written to `<report.out_dir>/<report.name>/`:
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
     per_image.{md,tex,csv}            relMSE, relMSE / noisy, energy, PSNR per row and held-out image
                                       (the runs' eval/per_image.csv; denoising and filter evaluations)
+    samples_saved.{md,tex,csv}        per row and noisy spp: the spp-equivalent (geometric mean, range, share
+                                      of lower bounds) and the speed-up over rendering more samples, from
+                                      the runs' per-image rows (src/report/samples_saved.py)
     paired.{md,tex,csv}               each row against the best row per metric, paired by seed and
                                       held-out image: ratio or difference, Wilcoxon p, shown / not shown
     noisebase.{md,tex,csv}            runs scored with metrics.protocol=noisebase: spp rows x PSNR, SSIM,
@@ -16,6 +19,10 @@ selects, written to `<report.out_dir>/<report.name>/`:
     feature_usage.{md,tex,csv}        task=filter_search: feature terminals of the runs' best expressions
     best_expressions.{md,csv}         task=filter_search: each run's best expression (infix) with its search
                                       fitness and its held-out numbers, best held-out first
+    quality_vs_time.{md,tex,csv,png}  trainings: the validation metric against the training clock per row
+                                      (median and seeds' range), seconds to reach the worst row's final
+                                      value, value at the shortest row's training time
+                                      (src/report/quality_time.py)
     learning_curves.png, image_grid.png, index.html (self-contained)
     search_curves.png                 task=filter_search: best fitness per generation, one curve per run
     report.json                       what the report site (src/report/site.py) lists: title, profiles,
@@ -64,6 +71,12 @@ from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
 from src.report.noisebase_table import STEM as NOISEBASE_STEM
 from src.report.noisebase_table import noisebase_html, noisebase_table, write_noisebase_table
 from src.report.paired import paired_table
+from src.report.quality_time import HEADING as TIME_HEADING
+from src.report.quality_time import STEM as TIME_STEM
+from src.report.quality_time import quality_against_time
+from src.report.samples_saved import HEADING as SAVED_HEADING
+from src.report.samples_saved import STEM as SAVED_STEM
+from src.report.samples_saved import samples_saved_html, samples_saved_table, write_samples_saved
 from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
 from src.report.table_writers import to_csv, to_latex, to_markdown
 from src.report.tables import (
@@ -91,6 +104,7 @@ TABLE_HEADINGS = {
     "per_image": "Quality per held-out image",
     "paired": "Each row against the best, paired by seed and held-out image (Wilcoxon signed-rank)",
     "feature_usage": "Features of the best expressions (occurrences)",
+    "quality_vs_time": "Quality against training time (mean ± std over seeds)",
 }
 SEARCH_HEADING = "Filter search: best fitness per generation"
 EXPRESSIONS_HEADING = "Filter search: best expressions (infix), best held-out relMSE / noisy first"
@@ -170,6 +184,10 @@ def build_report(cfg: Any) -> dict[str, Any]:
         tables["feature_usage"] = usage
         files |= _write_tables({"feature_usage": usage}, out_dir, [])
     sections, section_tables = {}, {}
+    if (saved := samples_saved_table(images, axes)) is not None:  # runs whose evaluation had a ladder
+        files |= write_samples_saved(saved, out_dir, warnings)
+        sections[SAVED_HEADING] = samples_saved_html(saved)
+        section_tables[SAVED_STEM] = SAVED_HEADING
     if (noisebase := noisebase_table(runs, axes)) is not None:  # runs scored with metrics.protocol=noisebase
         files |= write_noisebase_table(noisebase, out_dir, warnings)
         sections[NOISEBASE_HEADING] = noisebase_html(noisebase)
@@ -187,8 +205,18 @@ def build_report(cfg: Any) -> dict[str, Any]:
     for path in (curves, search, grid and grid.path):
         if path is not None:
             files[path.name] = path
+    time_png, time_table = quality_against_time(runs, out_dir / f"{TIME_STEM}.png", axes)
+    if time_table is not None:  # trainings that logged their clock at each validation point
+        tables[TIME_STEM] = time_table
+        files |= _write_tables({TIME_STEM: time_table}, out_dir, [*warnings, *time_table.attrs["notes"]])
+        files[time_png.name] = time_png
     grid_heading = grid.heading if grid is not None else GRID_HEADING
-    figures = {"Learning curves": curves, SEARCH_HEADING: search, grid_heading: grid and grid.path}
+    figures = {
+        "Learning curves": curves,
+        TIME_HEADING: time_png,
+        SEARCH_HEADING: search,
+        grid_heading: grid and grid.path,
+    }
     root = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser()
     manifest = report_manifest(name, runs, axes, tables, config_value(rc, "experiment"), section_tables)
     page = _page(name, runs, axes, tables, figures, warnings, sections, manifest)

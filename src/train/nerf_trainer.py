@@ -257,9 +257,14 @@ class NerfTrainer(TrainingLoop):
         self.tracker.log_metrics(metrics, step=self.pos.step)
         return metrics
 
+    def _validation_point(self) -> dict[str, float]:
+        """The validation metrics and the training clock at this step (`train_time_s`: ray batches and
+        optimiser steps, not validation), logged: a point of the quality-against-time curves."""
+        return self._log(split_metrics("val", self.validate()) | {"train_time_s": self.train_seconds})
+
     def before_training(self) -> None:
         if self.pos.step == 0:  # the curves start at the initialisation
-            self.curves.append({"step": 0, **self._log(split_metrics("val", self.validate()))})
+            self.curves.append({"step": 0, **self._validation_point()})
 
     def after_step(self, values: dict[str, float], size: int, bar: tqdm) -> None:
         """Progress; train metrics every `log_every`, validation every `val_every` and at the end,
@@ -271,7 +276,7 @@ class NerfTrainer(TrainingLoop):
         if step % int(t.log_every) == 0:
             self._log(train_metrics)
         if step % int(t.val_every) == 0 or step == int(t.max_steps):
-            row = self._log(split_metrics("val", self.validate())) | train_metrics
+            row = self._validation_point() | train_metrics
             self.curves.append({"step": step, **row})
             write_curves(t.curves_file, self.curves)
         if step % int(t.checkpoint_every) == 0:

@@ -152,8 +152,11 @@ class DenoiserTrainer(TrainingLoop):
         val_losses = self.validate()
         metrics = {f"train_loss_{k}": v for k, v in train_losses.items()}
         metrics |= {f"val_loss_{k}": v for k, v in val_losses.items()}
-        self.tracker.log_metrics({**metrics, "epoch": self.pos.epoch}, step=self.pos.step)
-        self.curves.append({"step": self.pos.step, "epoch": self.pos.epoch, **metrics})
+        # the training clock at this point (`train_time_s`: batches and optimiser steps, not validation):
+        # the x axis of the reports' quality-against-time curves
+        clock = {"train_time_s": self.train_seconds}
+        self.tracker.log_metrics({**metrics, **clock, "epoch": self.pos.epoch}, step=self.pos.step)
+        self.curves.append({"step": self.pos.step, "epoch": self.pos.epoch, **metrics, **clock})
         write_curves(self.t.curves_file, self.curves)
         log.info(
             "epoch %d: train %s | val %s",

@@ -1,0 +1,65 @@
+"""Quality against time (src/report/quality_time.py): the crossing time and the value at a time of a
+curve, by closed form on both sides of each rule."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from src.report.quality_time import time_to_reach, value_at
+
+SECONDS = np.array([0.0, 10.0, 20.0, 40.0])
+LOSS = np.array([1.0, 0.5, 0.3, 0.2])  # lower is better
+PSNR = np.array([20.0, 25.0, 27.0, 28.0])  # higher is better
+
+
+def test_the_crossing_is_interpolated_between_the_two_points_around_it():
+    assert time_to_reach(SECONDS, LOSS, 0.4, higher=False) == pytest.approx(15.0)  # 0.5 -> 0.3 over 10-20 s
+    assert time_to_reach(SECONDS, PSNR, 27.5, higher=True) == pytest.approx(30.0)
+    assert time_to_reach(SECONDS, LOSS, 0.5, higher=False) == pytest.approx(10.0)  # reached on a point
+
+
+def test_a_target_never_reached_has_no_time_and_one_reached_at_once_the_first():
+    assert math.isnan(time_to_reach(SECONDS, LOSS, 0.1, higher=False))
+    assert math.isnan(time_to_reach(SECONDS, PSNR, 29.0, higher=True))
+    assert time_to_reach(SECONDS + 5, LOSS, 2.0, higher=False) == 5.0
+    # the direction matters: 0.4 is "reached" at once when higher is better
+    assert time_to_reach(SECONDS, LOSS, 0.4, higher=True) == 0.0
+
+
+def test_the_value_at_a_time_is_linear_inside_the_curve_and_undefined_past_it():
+    assert value_at(SECONDS, LOSS, 30.0) == pytest.approx(0.25)
+    assert value_at(SECONDS, LOSS, 40.0) == pytest.approx(0.2)
+    assert math.isnan(value_at(SECONDS, LOSS, 40.1))
+    assert math.isnan(value_at(SECONDS + 1, LOSS, 0.5))
+
+
+def test_the_table_asks_every_arm_for_the_worst_final_value_and_the_shortest_time():
+    import pandas as pd
+
+    from src.report.quality_time import time_table
+
+    runs = pd.DataFrame(
+        {"run_id": ["a0", "a1", "b0", "b1"], "params.model.name": ["fast", "fast", "slow", "slow"]}
+    )
+    curves = {  # lower is better; "fast" ends at 0.2 after 40 s, "slow" at 0.4 (0.3, 0.5) after 100 s
+        "a0": (np.array([0.0, 20.0, 40.0]), np.array([1.0, 0.4, 0.2])),
+        "a1": (np.array([0.0, 20.0, 40.0]), np.array([1.0, 0.6, 0.2])),
+        "b0": (np.array([0.0, 50.0, 100.0]), np.array([1.0, 0.5, 0.3])),
+        "b1": (np.array([0.0, 50.0, 100.0]), np.array([1.0, 0.7, 0.5])),
+    }
+    table = time_table(runs, curves, False, ["model.name"], "loss")
+    target_column = next(c for c in table.columns if c.startswith("s to reach") and not c.endswith("std"))
+    at_column = next(c for c in table.columns if c.startswith("at ") and not c.endswith("std"))
+    assert (
+        target_column == "s to reach 0.4" and at_column == "at 40.0 s"
+    )  # X: slow's mean 0.4; T: fast's 40 s
+    fast, slow = table.loc["fast"], table.loc["slow"]
+    # a0 reaches 0.4 at 20 s, a1 between 20 s (0.6) and 40 s (0.2) at 30 s; b0 at 75 s; b1 never
+    assert fast[target_column] == pytest.approx(25.0) and fast["reached"] == 1.0
+    assert slow[target_column] == pytest.approx(75.0) and slow["reached"] == 0.5
+    assert fast[at_column] == pytest.approx(0.2)
+    assert slow[at_column] == pytest.approx(np.mean([1.0 - 0.5 * 40 / 50, 1.0 - 0.3 * 40 / 50]))
+    assert fast["train s"] == 40.0 and slow["runs"] == 2
