@@ -13,6 +13,7 @@ from src.errors import NrbenchError
 from src.provenance import config_digest
 from src.schema.run import validate_run
 from src.stages import AFTER_RUN, STAGES, TRACKED, stages_to_run, task_of
+from src.tracking.peak_memory import PeakMemory
 
 log = logging.getLogger("nrbench")
 
@@ -105,7 +106,10 @@ def main(cfg: DictConfig) -> dict[str, dict]:
         with _tracked_run(cfg, in_run) as tracker:
             for name in in_run:
                 log.info("stage %s", name)
-                results[name] = STAGES[name](cfg, tracker, task=task)
+                with PeakMemory() as peak:
+                    results[name] = STAGES[name](cfg, tracker, task=task)
+                if tracker is not None:  # the stage's cost card: its peak memory
+                    tracker.log_metrics(peak.metrics(name))
         for name in (s for s in stages if s in AFTER_RUN):
             log.info("stage %s", name)
             results[name] = STAGES[name](cfg, None, task=task)

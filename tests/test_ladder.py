@@ -235,8 +235,15 @@ def test_the_evaluation_scores_the_equivalent_and_the_speedup(smoke_data, tmp_pa
     for spp, means in summary["per_spp"].items():
         values = [float(r["spp_equivalent"]) for r in rows if int(r["spp"]) == int(spp)]
         assert means["spp_equivalent"] == pytest.approx(math.exp(np.mean(np.log(values))))
-    header = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())["spp_equivalent"]
+    metrics = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
+    header = metrics["spp_equivalent"]
     assert header["metric"] == "relmse" and header["ladder_spp"] == list(cfg.dataset.ladder_spp)
+    # the cost card's achieved GFLOP/s: the filter's FLOPs per pixel over the timed seconds of each image
+    pixels = cfg.dataset.width * cfg.dataset.height
+    assert metrics["flops_per_pixel"] > 0
+    for row in rows:
+        seconds = float(row["ms_per_image"]) / 1e3
+        assert float(row["gflops"]) == pytest.approx(metrics["flops_per_pixel"] * pixels / seconds / 1e9)
 
 
 def test_the_scorer_is_left_out_without_a_ladder(smoke_data, tmp_path):

@@ -372,6 +372,13 @@ def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp
             finals.append(loss[-1][1])
         assert float(r["final validation loss (colour)"]) == pytest.approx(np.mean(finals), rel=1e-6)
         assert 0 <= float(r["reached"]) <= 1
+    # The cost card: each stage's peak memory and the evaluation's achieved GFLOP/s.
+    assert (runs["metrics.train_peak_host_mb"] > 100).all() and (
+        runs["metrics.eval_peak_host_mb"] > 100
+    ).all()
+    assert (runs["metrics.eval_flops_per_pixel"] > 0).all() and (runs["metrics.eval_gflops"] > 0).all()
+    cost = read_table(report / "cost.csv")
+    assert all(float(r["GFLOP/s (eval)"]) > 0 and float(r["host MB (train)"]) > 100 for r in cost)
     # Samples saved: the smoke data's ladder read per arm and input count.
     saved = read_table(report / "samples_saved.csv")
     assert {(r["model.whiten"], r["spp"]) for r in saved} == {

@@ -41,6 +41,7 @@ from src.metrics.image import tonemap
 from src.metrics.spp_equivalent import speedup
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
+from src.models.denoise.summary import flops_per_pixel
 from src.models.instantiate import build_method
 
 log = logging.getLogger(__name__)
@@ -134,6 +135,9 @@ class DenoiseEvaluation(Evaluation):
         self.space = self.kind.color_space(cfg)
         self.scorers = scorers_for(cfg, self.kind.temporal, self.device, self.out_dir)
         self.baseline = self._baseline(cfg)
+        # the useful FLOPs of one output pixel (None: unknown, e.g. OIDN): with the timed seconds, the
+        # achieved GFLOP/s of the cost card (work redone in tile halos lowers it, it adds no FLOPs)
+        self.flops_per_pixel = flops_per_pixel(self.model)["total"]
 
     def _baseline(self, cfg: DictConfig) -> Denoiser | None:
         """`task.eval.baseline` (a filter's model config, e.g. the filter search's constant-sigma
@@ -195,6 +199,8 @@ class DenoiseEvaluation(Evaluation):
         undefined = {"undefined": float(frames - sum(defined)) / frames}
         ms_per_frame = seconds * 1e3 / frames
         timing = {"ms_per_image": ms_per_frame, "ms_per_mpixel": ms_per_frame / (height * width / 1e6)}
+        if self.flops_per_pixel is not None:
+            timing["gflops"] = self.flops_per_pixel * height * width * frames / seconds / 1e9
         if "spp_equivalent" in scores:  # the render time saved, against the timed denoising of a frame
             scores["speedup"] = speedup(
                 scores["spp_equivalent"], name["spp"], scores["render_s_per_spp"], seconds / frames
@@ -202,9 +208,10 @@ class DenoiseEvaluation(Evaluation):
         return {**name, **scores, **undefined, **timing}
 
     def header(self) -> dict[str, Any]:
-        """metrics.json names the baseline and what each scorer records (ColorVideoVDP's display, frame
-        rate and version; the Noisebase protocol's settings and package versions), when they ran."""
-        header = super().header()
+        """metrics.json names the baseline, the model's FLOPs per pixel and what each scorer records
+        (ColorVideoVDP's display, frame rate and version; the Noisebase protocol's settings and package
+        versions), when they ran."""
+        header = {**super().header(), "flops_per_pixel": self.flops_per_pixel}
         if self.baseline is not None:
             header["baseline"] = self.cfg.task.eval.baseline.get("name")
         for scorer in self.scorers:
@@ -248,6 +255,8 @@ class DenoiseEvaluation(Evaluation):
 
     def logged_metrics(self, summary: dict[str, Any]) -> dict[str, float]:
         metrics = super().logged_metrics(summary)
+        if self.flops_per_pixel is not None:
+            metrics["eval_flops_per_pixel"] = float(self.flops_per_pixel)
         for spp, means in summary["per_spp"].items():
             keys = (*SCORES, *(f"{prefix}_{s}" for s in SCORES for prefix in ("noisy", "baseline")))
             metrics |= {f"eval_{k}_spp{spp}": means[k] for k in keys if k in means}  # lpips/flip may be off

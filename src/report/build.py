@@ -4,7 +4,9 @@ selects, written to `<report.out_dir>/<report.name>/`:
     comparison.{md,tex,csv}           quality metrics per compared row (mean ± std over seeds)
     comparison_<value>.{md,tex,csv}   the same for one value of `report.tables_by` (e.g. one scene)
     comparison_per_spp.{md,tex,csv}   the same per noisy spp level (when the runs logged them)
-    cost.{md,tex,csv}                 parameters, training time, iterations, inference time
+    cost.{md,tex,csv}                 parameters, training time, iterations, inference time, and the cost
+                                      card: FLOPs per pixel, achieved GFLOP/s and its fraction of the
+                                      device's measured peak, peak host and GPU memory of train and eval
     losses.{md,tex,csv}               final validation and training loss per component (learned models)
     per_image.{md,tex,csv}            relMSE, relMSE / noisy, energy, PSNR per row and held-out image
                                       (the runs' eval/per_image.csv; denoising and filter evaluations)
@@ -58,6 +60,7 @@ from src.report.collect import (
     param_column,
     per_image_rows,
 )
+from src.report.cost_card import with_peak_fraction
 from src.report.figures import (
     DEFAULT_CROP,
     GRID_HEADINGS,
@@ -78,7 +81,7 @@ from src.report.samples_saved import HEADING as SAVED_HEADING
 from src.report.samples_saved import STEM as SAVED_STEM
 from src.report.samples_saved import samples_saved_html, samples_saved_table, write_samples_saved
 from src.report.site import MANIFEST, SMOKE, SMOKE_NOTE, html_table, method_file, refresh_site, relative
-from src.report.table_writers import to_csv, to_latex, to_markdown
+from src.report.table_writers import to_csv, to_latex, to_markdown, write_table_with_notes
 from src.report.tables import (
     BEST_EXPRESSION_TAG,
     axis_label,
@@ -208,7 +211,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
     time_png, time_table = quality_against_time(runs, out_dir / f"{TIME_STEM}.png", axes)
     if time_table is not None:  # trainings that logged their clock at each validation point
         tables[TIME_STEM] = time_table
-        files |= _write_tables({TIME_STEM: time_table}, out_dir, [*warnings, *time_table.attrs["notes"]])
+        files |= write_table_with_notes(TIME_STEM, time_table, out_dir, warnings, time_table.attrs["notes"])
         files[time_png.name] = time_png
     grid_heading = grid.heading if grid is not None else GRID_HEADING
     figures = {
@@ -253,7 +256,7 @@ def _tables(runs, axes: list[str], row_keys: list[str], columns_by, metrics) -> 
     else:
         comparison = comparison_table(runs, axes, metrics)
     per_spp = comparison_table(runs, axes, metrics, group_by="spp")
-    tables = {"comparison": comparison, "cost": cost_table(runs, axes)}
+    tables = {"comparison": comparison, "cost": cost_table(with_peak_fraction(runs), axes)}
     if per_spp.attrs.get("metrics"):
         tables["comparison_per_spp"] = per_spp
     losses = loss_table(runs, row_keys)

@@ -28,10 +28,9 @@ from typing import Any
 
 import pandas as pd
 
-from src.io.atomic import atomic_write_text
 from src.report.collect import DEFAULT_AXES
 from src.report.site import html_table
-from src.report.table_writers import cells, to_csv, to_latex, to_markdown
+from src.report.table_writers import cells, write_table_with_notes
 from src.report.tables import RUNS_COLUMN, MetricSpec, aggregate, axis_label
 
 STEM = "noisebase"
@@ -163,15 +162,7 @@ def best_measured(table: pd.DataFrame) -> dict[str, set[int]]:
 
 def write_noisebase_table(table: pd.DataFrame, out_dir: Path, warnings: Sequence[str]) -> dict[str, Path]:
     """`noisebase.{md,tex,csv}`: the table, the report's warnings above it, its own notes below."""
-    best, notes = best_measured(table), table.attrs["notes"]
-    markdown = to_markdown(table, best, notes=list(warnings)) + "\n" + "".join(f"- {n}\n" for n in notes)
-    latex = to_latex(table, best, notes=list(warnings)) + "".join(f"% {n}\n" for n in notes)
-    csv = "".join(f"# {n}\n" for n in notes) + to_csv(table, notes=list(warnings))
-    return {
-        f"{STEM}.md": atomic_write_text(out_dir / f"{STEM}.md", markdown),
-        f"{STEM}.tex": atomic_write_text(out_dir / f"{STEM}.tex", latex),
-        f"{STEM}.csv": atomic_write_text(out_dir / f"{STEM}.csv", csv),
-    }
+    return write_table_with_notes(STEM, table, out_dir, warnings, table.attrs["notes"], best_measured(table))
 
 
 def noisebase_html(table: pd.DataFrame) -> str:

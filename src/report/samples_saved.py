@@ -27,10 +27,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from src.io.atomic import atomic_write_text
 from src.report.collect import DEFAULT_AXES, param_column
 from src.report.site import html_table
-from src.report.table_writers import cells, to_csv, to_latex, to_markdown
+from src.report.table_writers import cells, write_table_with_notes
 from src.report.tables import MISSING, RUNS_COLUMN, MetricSpec, axis_label
 
 STEM = "samples_saved"
@@ -127,15 +126,7 @@ def best_per_spp(table: pd.DataFrame) -> dict[str, set[int]]:
 
 def write_samples_saved(table: pd.DataFrame, out_dir: Path, warnings: Sequence[str]) -> dict[str, Path]:
     """`samples_saved.{md,tex,csv}`: the table, the report's warnings above it, `NOTES` below."""
-    best = best_per_spp(table)
-    markdown = to_markdown(table, best, notes=list(warnings)) + "\n" + "".join(f"- {n}\n" for n in NOTES)
-    latex = to_latex(table, best, notes=list(warnings)) + "".join(f"% {n}\n" for n in NOTES)
-    csv = "".join(f"# {n}\n" for n in NOTES) + to_csv(table, notes=list(warnings))
-    return {
-        f"{STEM}.md": atomic_write_text(out_dir / f"{STEM}.md", markdown),
-        f"{STEM}.tex": atomic_write_text(out_dir / f"{STEM}.tex", latex),
-        f"{STEM}.csv": atomic_write_text(out_dir / f"{STEM}.csv", csv),
-    }
+    return write_table_with_notes(STEM, table, out_dir, warnings, NOTES, best_per_spp(table))
 
 
 def samples_saved_html(table: pd.DataFrame) -> str:

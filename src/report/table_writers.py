@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 
 import pandas as pd
 
+from src.io.atomic import atomic_write_text
 from src.report.tables import MISSING, NOISY_ROW, RUNS_COLUMN, metric_specs
 
 
@@ -139,3 +141,24 @@ def to_csv(table: pd.DataFrame, notes=None) -> str:
     text = table.reset_index().to_csv(index=False, float_format="%.10g")
     comments = "".join(f"# Warning: {n}\n" for n in _notes(notes))
     return comments + text
+
+
+def write_table_with_notes(
+    stem: str,
+    table: pd.DataFrame,
+    out_dir: Path,
+    warnings: Iterable[str],
+    notes: Iterable[str],
+    best: Mapping[str, set[int]] | None = None,
+) -> dict[str, Path]:
+    """`<stem>.{md,tex,csv}` in `out_dir`: the table, the report's warnings above it, `notes` (what its
+    numbers mean, not warnings) below it; `best` as `to_markdown`'s. Returns {file name: path}."""
+    warnings, notes, out_dir = list(warnings), list(notes), Path(out_dir)
+    markdown = to_markdown(table, best, notes=warnings) + "\n" + "".join(f"- {n}\n" for n in notes)
+    latex = to_latex(table, best, notes=warnings) + "".join(f"% {n}\n" for n in notes)
+    csv = "".join(f"# {n}\n" for n in notes) + to_csv(table, notes=warnings)
+    return {
+        f"{stem}.md": atomic_write_text(out_dir / f"{stem}.md", markdown),
+        f"{stem}.tex": atomic_write_text(out_dir / f"{stem}.tex", latex),
+        f"{stem}.csv": atomic_write_text(out_dir / f"{stem}.csv", csv),
+    }

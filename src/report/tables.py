@@ -70,6 +70,15 @@ COST_METRICS: dict[str, MetricSpec] = {
     "search time (s)": ("search_seconds", False, "{:.1f}"),
     "ms / image": ("eval_ms_per_image", False, "{:.1f}"),
     "ms / MP": ("eval_ms_per_mpixel", False, "{:.1f}"),
+    # the cost card (issue 46): FLOPs of one output pixel, achieved GFLOP/s at eval and its fraction of the
+    # device's measured peak (src/report/cost_card.py), peak memory of the training and eval stages
+    "FLOPs / px": ("eval_flops_per_pixel", None, "{:,.0f}"),
+    "GFLOP/s (eval)": ("eval_gflops", True, "{:.2f}"),
+    "of peak": ("eval_peak_fraction", True, "{:.1%}"),
+    "host MB (train)": ("train_peak_host_mb", False, "{:,.0f}"),
+    "host MB (eval)": ("eval_peak_host_mb", False, "{:,.0f}"),
+    "GPU MB (train)": ("train_peak_device_mb", False, "{:,.0f}"),
+    "GPU MB (eval)": ("eval_peak_device_mb", False, "{:,.0f}"),
 }
 LPIPS_VARIANT_TAG = "tags.nrbench.lpips_variant"
 RUNS_COLUMN = "runs"
