@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from src.report.cost_card import DEVICE_TAG, measured_peaks, with_peak_fraction
+from src.report.cost_card import DEVICE_TAG, PRECISION_TAG, measured_peaks, with_peak_fraction
 from src.tracking.peak_memory import PeakMemory
 
 
@@ -21,19 +21,27 @@ def test_the_peak_is_the_best_reference_convolution_of_each_device():
             "params.width": ["1280", "1280", "64", "1280"],
             "params.height": ["720", "720", "64", "720"],
             DEVICE_TAG: ["EPYC", "EPYC", "H200", "EPYC"],
+            PRECISION_TAG: ["fp32", "fp32", "fp32 (TF32 convolutions)", "fp32"],
         }
     )
     per_pixel = 2.0 * 100 * 100 * 25
     peaks = measured_peaks(bench)
-    assert peaks["EPYC"] == pytest.approx(per_pixel * 1280 * 720 / 1.0 / 1e9)  # the faster of two runs
-    assert peaks["H200"] == pytest.approx(per_pixel * 64 * 64 / 0.5 / 1e9)
+    assert peaks[("EPYC", "fp32")] == pytest.approx(per_pixel * 1280 * 720 / 1.0 / 1e9)  # the faster of two
+    assert peaks[("H200", "fp32 (TF32 convolutions)")] == pytest.approx(per_pixel * 64 * 64 / 0.5 / 1e9)
     assert measured_peaks(bench.drop(columns="params.width")) == {}
+    assert measured_peaks(bench.drop(columns=PRECISION_TAG)) == {}  # untagged bench runs: no peak
 
 
 def test_a_runs_fraction_of_peak_needs_its_devices_peak():
-    runs = pd.DataFrame({"metrics.eval_gflops": [50.0, 50.0], DEVICE_TAG: ["EPYC", "other"]})
-    out = with_peak_fraction(runs, {"EPYC": 200.0})
-    assert out["metrics.eval_peak_fraction"][0] == 0.25 and math.isnan(out["metrics.eval_peak_fraction"][1])
+    runs = pd.DataFrame(
+        {
+            "metrics.eval_gflops": [50.0, 50.0, 50.0],
+            DEVICE_TAG: ["EPYC", "other", "EPYC"],
+            PRECISION_TAG: ["fp32", "fp32", "bf16-autocast"],
+        }
+    )
+    out = with_peak_fraction(runs, {("EPYC", "fp32"): 200.0})["metrics.eval_peak_fraction"]
+    assert out[0] == 0.25 and math.isnan(out[1]) and math.isnan(out[2])  # another device, another precision
     assert "metrics.eval_peak_fraction" not in with_peak_fraction(runs.drop(columns=DEVICE_TAG), {})
 
 

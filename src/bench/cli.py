@@ -115,6 +115,13 @@ def _parser() -> argparse.ArgumentParser:
         "--tile", type=int, default=None, help=f"tile side; 0 = whole frame (default: CPU {CPU_TILE})"
     )
     d.add_argument("--autocast", choices=sorted(AUTOCAST_DTYPES), default="none", help="mixed precision")
+    d.add_argument(
+        "--tf32",
+        choices=("default", "on", "off"),
+        default="default",
+        help="TF32 on a GPU of compute capability >= 8: default = PyTorch's flags (TF32 convolutions), on = "
+        "convolutions and matmuls, off = strict fp32 (the header and the nrbench.precision tag say which)",
+    )
     d.add_argument("--oidn", action=argparse.BooleanOptionalAction, default=True, help="also time OIDN")
     d.add_argument("--seed", type=int, default=0, help="seed of the random weights and inputs")
     d.add_argument(

@@ -34,7 +34,7 @@ metrics `seconds_<model>` and every timing as the artifact `bench/rounds.csv` (r
 from __future__ import annotations
 
 import argparse
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 
 import torch
 
@@ -45,6 +45,8 @@ from src.bench.timing import device_name, time_rounds
 from src.data.features import PAPER_CHANNELS
 from src.models.denoise.models import BRANCHES
 from src.models.denoise.summary import random_batch
+from src.tracking.peak_memory import PeakMemory
+from src.train.device import device_card, precision
 
 #: Tile side on CPU (pixels, before the halo): bounds activation memory at paper width.
 CPU_TILE = 256
@@ -59,12 +61,34 @@ def _device(name: str) -> torch.device:
     return torch.device(name)
 
 
+@contextmanager
+def tf32_mode(mode: str):
+    """PyTorch's TF32 flags for the block (`--tf32`): `default` leaves them, `on` / `off` sets both the
+    convolutions' and the matmuls'; restored after."""
+    saved = (torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32)
+    if mode != "default":
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = mode == "on"
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
+
+
+def bench_precision(args, device: torch.device) -> str:
+    """The arithmetic the bench ran in, as runs state it (`src.train.device.precision`, under `--tf32`)."""
+    if args.autocast != "none":  # the bench autocasts on the CPU too (training does only on CUDA)
+        return f"{args.autocast}-autocast"
+    with tf32_mode(args.tf32):
+        return precision(False, device)
+
+
 def _header(args, device: torch.device, tile: int) -> str:
     tiling = "whole frame" if tile <= 0 else f"{tile}x{tile} tiles + halo"
     return (
         f"denoise benchmark: {args.width}x{args.height} frame, profile {args.profile}, device {device} "
         f"({device_name(device)}), {tiling}, median of {args.rounds} rounds after {args.warmup} warm-up, "
-        f"autocast {args.autocast}, torch {torch.__version__}"
+        f"precision {bench_precision(args, device)}, torch {torch.__version__}; the clock covers each "
+        "model's forward pass over the frame (inputs already on the device, no transfers)"
     )
 
 
@@ -91,7 +115,7 @@ def run_denoise(args: argparse.Namespace) -> str:
     tile = args.tile if args.tile is not None else (0 if device.type == "cuda" else CPU_TILE)
     dtype = AUTOCAST_DTYPES[args.autocast]
     autocast = torch.autocast(device.type, dtype=dtype) if dtype is not None else nullcontext()
-    with torch.inference_mode(), autocast:
+    with PeakMemory() as peak, tf32_mode(args.tf32), torch.inference_mode(), autocast:
         prepared = _prepare(args, device, tile)
         timed = {row.key: run for row, run in prepared if run is not None}
         rounds = time_rounds(timed, device, args.rounds, args.warmup)
@@ -104,6 +128,7 @@ def run_denoise(args: argparse.Namespace) -> str:
             format_spreads(rows, args.rounds, args.warmup),
             *format_ratios(by_key, rounds),
             *format_claims(by_key, rounds),
+            _memory_line(peak),
         ]
     )
     if not args.log:
@@ -115,8 +140,15 @@ def run_denoise(args: argparse.Namespace) -> str:
     return f"logged: MLflow run {run_id} in experiment nrbench-bench (artifact bench/rounds.csv)"
 
 
+def _memory_line(peak: PeakMemory) -> str:
+    """The bench's peak memory, every model together (host: sampled resident set; GPU: PyTorch's
+    allocator, OIDN's own buffers not in it)."""
+    device = "" if peak.device_mb is None else f", GPU {peak.device_mb:,.0f} MB (PyTorch allocator)"
+    return f"peak memory: host {peak.host_mb:,.0f} MB{device}"
+
+
 def _params(args, device: torch.device, tile: int) -> dict[str, object]:
-    keys = ("width", "height", "rounds", "warmup", "profile", "models", "autocast", "seed", "oidn")
+    keys = ("width", "height", "rounds", "warmup", "profile", "models", "autocast", "tf32", "seed", "oidn")
     return {"bench": "denoise", **{k: getattr(args, k) for k in keys}, "device": str(device), "tile": tile}
 
 
@@ -124,6 +156,8 @@ def _tags(args, device: torch.device) -> dict[str, str]:
     return {
         "nrbench.profile": args.profile,
         "nrbench.device": str(device),
-        "nrbench.device_name": device_name(device),
+        # as runs tag it (the report matches a run's device and precision to the peak measured here)
+        **{f"nrbench.{key}": value for key, value in device_card(device).items()},
+        "nrbench.precision": bench_precision(args, device),
         "nrbench.torch": torch.__version__,
     }
