@@ -364,7 +364,12 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path, monkeypatch):
     from src.provenance import config_digest
     from src.tasks.filter_search import resumable_search_state
 
-    assert saved_job(out / "state.json") == {"config_digest": config_digest(cfg), "mlflow_run_id": None}
+    job = saved_job(out / "state.json")
+    assert {k: job[k] for k in ("config_digest", "mlflow_run_id")} == {
+        "config_digest": config_digest(cfg),
+        "mlflow_run_id": None,
+    }
+    assert job["search_time_s"] > 0  # the search's clock at its last generation
     assert resumable_search_state(cfg) == out / "state.json"
     longer = smoke_config(data, tmp_path / "run", [*overrides, "task.search.generations=4"])
     assert resumable_search_state(longer) is None
@@ -383,7 +388,11 @@ def test_filter_search_task_end_to_end(smoke_data, tmp_path, monkeypatch):
         stages.search(requeued, Tracker(None))
     assert json.loads((tmp_path / "requeued" / "search" / "state.json").read_text())["generation"] == 1
     monkeypatch.undo()
+    interrupted_clock = saved_job(tmp_path / "requeued" / "search" / "state.json")["search_time_s"]
     again = stages.search(requeued, Tracker(None))  # no resume given: its own state.json, generation 1
+    # the clock continues the interrupted job's: generation 2 ends after the time generations 0-1 took
+    final_clock = saved_job(tmp_path / "requeued" / "search" / "state.json")["search_time_s"]
+    assert interrupted_clock > 0 and final_clock > interrupted_clock
     assert again["best_expression"] == summary["best_expression"] and again["generations"] == 2
     assert json.loads((tmp_path / "requeued" / "search" / "history.json").read_text()) == history
     # resume: two more generations from the checkpoint

@@ -78,6 +78,11 @@ def test_training_lowers_the_loss_and_renders_finite_test_views(trained, model):
     np.testing.assert_allclose(rows["psnr"], -10 * np.log10(rows["mse"]), rtol=1e-9)
     # The rays/s figure is the view's pixel count over its render time.
     np.testing.assert_allclose(rows["rays_per_s"], 24 * 16 / (rows["ms_per_image"] / 1e3), rtol=1e-9)
+    # The cost card: the MLP FLOPs per ray (src/models/nerf/summary.py, tested there) at those rays/s.
+    assert metrics["flops_per_ray"] > 1000
+    np.testing.assert_allclose(rows["gflops"], metrics["flops_per_ray"] * rows["rays_per_s"] / 1e9, rtol=1e-9)
+    # the training's clock beside each validation point
+    assert curves["train_time_s"].iloc[0] == 0 and curves["train_time_s"].is_monotonic_increasing
     pngs = {p.name for p in (run_dir / "eval" / "png").iterdir()}
     assert {"spheres-r_0-rendered.png", "spheres-r_0-reference.png"} <= pngs
     # Scored on 8-bit images (task.eval.quantize_metrics, as multinerf and the thesis): exactly the PSNR

@@ -583,6 +583,12 @@ def test_the_gp_expansion_sweep_reports_each_setting(smoke_data, tmp_path):
     usage = read_csv(out / "feature_usage.csv")
     assert usage and all(int(u["runs"]) >= 1 and float(u["occurrences"]) >= 1 for u in usage)
     assert (out / "search_curves.png").is_file() and (out / "feature_usage.md").is_file()
+    # quality against time: the search's minimum fitness against its clock, per arm
+    timed = read_table(out / "quality_vs_time.csv")
+    assert len(timed) == len(rows) and all(r["runs"] == "2" for r in timed)
+    for r in rows:
+        mine = [t for t in timed if all(t[f"task.search.{k}"] == r[f"task.search.{k}"] for k in EXPANSION)]
+        assert float(mine[0]["final search fitness (min so far)"]) == pytest.approx(float(r["min fitness"]))
     assert "best fitness per generation" in (out / "index.html").read_text()
 
 

@@ -26,6 +26,7 @@ from src.io.images import write_png
 from src.metrics.image import image_metrics
 from src.models.nerf.inference import render_rays_chunked
 from src.models.nerf.models import NerfModelBase
+from src.models.nerf.summary import nerf_mlp_flops_per_ray
 from src.train.nerf_trainer import render_chunk
 
 
@@ -62,6 +63,9 @@ class NerfEvaluation(Evaluation):
     def __init__(self, cfg: DictConfig, tracker) -> None:
         super().__init__(cfg, tracker)
         self.split = load_split(cfg, str(cfg.task.eval.split), cfg.task.eval.max_images)
+        # the cost card: MLP forward FLOPs per ray at the model's nominal samples per level (samples an
+        # occupancy grid skips are counted: with one, the achieved GFLOP/s is an upper bound)
+        self.flops_per_ray = float(nerf_mlp_flops_per_ray(self.model)["total"])
 
     def items(self) -> Sequence[int]:
         return range(len(self.split.names))
@@ -73,7 +77,14 @@ class NerfEvaluation(Evaluation):
         return scene_dir(self.cfg)
 
     def header(self) -> dict[str, Any]:
-        return {"model": self.cfg.model.name, "scene": self.cfg.task.scene}
+        return {
+            "model": self.cfg.model.name,
+            "scene": self.cfg.task.scene,
+            "flops_per_ray": self.flops_per_ray,
+        }
+
+    def logged_metrics(self, summary: dict[str, Any]) -> dict[str, float]:
+        return super().logged_metrics(summary) | {"eval_flops_per_ray": self.flops_per_ray}
 
     def _name(self, i: int) -> str:
         return f"{self.cfg.task.scene}-{Path(self.split.names[i]).name}"
@@ -87,6 +98,7 @@ class NerfEvaluation(Evaluation):
         row |= image_metrics(rendered_rgb.astype(np.float32), reference.astype(np.float32), self.cfg.metrics)
         row |= {"ms_per_image": seconds * 1e3, "ms_per_mpixel": seconds * 1e3 / megapixels}
         row["rays_per_s"] = megapixels * 1e6 / seconds
+        row["gflops"] = self.flops_per_ray * row["rays_per_s"] / 1e9
         return row
 
     def save_outputs(self, i: int, rendered: dict[str, np.ndarray]) -> None:

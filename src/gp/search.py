@@ -346,22 +346,24 @@ class GPSearch:
         state: SearchState | None = None,
         checkpoint: str | Path | None = None,
         on_generation: Callable[[SearchState], None] | None = None,
-        job: Mapping[str, Any] | None = None,
+        job: Mapping[str, Any] | Callable[[], Mapping[str, Any]] | None = None,
     ) -> SearchState:
         """All `generations` from `state` (or from the start), saving `checkpoint` after each (with `job`:
-        what the caller records of the job that wrote it, see `save_state`)."""
+        what the caller records of the job that wrote it, see `save_state`; a callable is asked at each
+        save, e.g. for the search's clock at that generation)."""
+        record = job if callable(job) else (lambda: job)
         if state is not None:
             self.remember(state)
         if state is None:
             state = self.start()
             if checkpoint is not None:
-                save_state(checkpoint, state, self.params, job)
+                save_state(checkpoint, state, self.params, record())
             if on_generation is not None:
                 on_generation(state)
         while state.generation < self.params.generations:
             state = self.step(state)
             if checkpoint is not None:
-                save_state(checkpoint, state, self.params, job)
+                save_state(checkpoint, state, self.params, record())
             if on_generation is not None:
                 on_generation(state)
         return state

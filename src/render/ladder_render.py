@@ -126,6 +126,11 @@ def render_ladder(
     }
 
 
+def nothing_rendered(removed: Sequence[str]) -> dict[str, Any]:
+    """The summary of a ladder render with nothing to render (after removing the stale rungs `removed`)."""
+    return {"scenes": [], "counts": [], "files_rendered": 0, "files_cached": 0, "files_removed": len(removed)}
+
+
 def render_still_ladder(
     ds: Mapping, ladder_dir: Path, held_out: Sequence[str], variant: str
 ) -> dict[str, Any]:
@@ -150,14 +155,8 @@ def render_still_ladder(
         return render_key(source.identity(), ds, spp, LADDER_ROLE, still_image_key_extra())
 
     plan = ladder_plan(ds, wanted, None, key_of)
-    if not plan:
-        return {
-            "scenes": [],
-            "counts": [],
-            "files_rendered": 0,
-            "files_cached": 0,
-            "files_removed": len(removed),
-        }
+    if not plan:  # no held-out scene, or no ladder: Mitsuba is not even set up
+        return nothing_rendered(removed)
     set_mitsuba_variant(variant)
     integrator = mi.load_dict({"type": "kpcn_aov", **dict(ds["integrator"])})
 
@@ -191,14 +190,8 @@ def render_sequence_ladder(
         return volume_render_key(source, ds, int(frame), spp, LADDER_ROLE)
 
     plan = ladder_plan(ds, wanted, list(frames), key_of)
-    if not plan:
-        return {
-            "scenes": [],
-            "counts": [],
-            "files_rendered": 0,
-            "files_cached": 0,
-            "files_removed": len(removed),
-        }
+    if not plan:  # no held-out scene, or no ladder: Mitsuba is not even set up
+        return nothing_rendered(removed)
     set_mitsuba_variant(variant)
     from src.render.volpath_integrator import register  # defines Mitsuba classes: needs the variant set
 

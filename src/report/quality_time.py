@@ -2,9 +2,11 @@
 compared arm with the seeds' spread, and the two numbers a reader asks of it.
 
 Every validation point of a training logs the metric and `train_time_s` at the same step (the clock covers
-the training batches and optimiser steps, not validation or logging: src/train/loop.py). The metric is the
-first of `METRICS` every run logged: NeRF's validation PSNR (higher is better), else a denoiser's
-validation loss (`val_loss_total`, else `val_loss_color`; lower is better).
+the training batches and optimiser steps, not validation or logging: src/train/loop.py); every generation
+of a filter search logs its fitness and `search_time_s` (the search's seconds over every job that ran it).
+The metric is the first of `METRICS` every run logged: NeRF's validation PSNR (higher is better), a
+denoiser's validation loss (`val_loss_total`, else `val_loss_color`; lower is better), or the search's
+minimum fitness so far (`search_best_so_far`, lower is better).
 
 - `quality_vs_time.png`: per arm (the runs sharing the report's axis values), the median over seeds of the
   metric interpolated on a common clock, and the band from the seeds' minimum to maximum, where every seed
@@ -41,12 +43,12 @@ log = logging.getLogger("nrbench.report")
 
 STEM = "quality_vs_time"
 HEADING = "Quality against training time"
-CLOCK = "train_time_s"
-#: (metric, higher is better, axis label), the first that every run logged is drawn.
+#: (metric, higher is better, axis label, its clock), the first that every run logged is drawn.
 METRICS = (
-    ("val_psnr", True, "validation PSNR (dB)"),
-    ("val_loss_total", False, "validation loss (total)"),
-    ("val_loss_color", False, "validation loss (colour)"),
+    ("val_psnr", True, "validation PSNR (dB)", "train_time_s"),
+    ("val_loss_total", False, "validation loss (total)", "train_time_s"),
+    ("val_loss_color", False, "validation loss (colour)", "train_time_s"),
+    ("search_best_so_far", False, "search fitness (min so far)", "search_time_s"),
 )
 
 
@@ -72,9 +74,10 @@ def value_at(seconds: np.ndarray, values: np.ndarray, time: float) -> float:
     return float(np.interp(time, seconds, values))
 
 
-def curve(client: MlflowClient, run_id: str, metric: str) -> tuple[np.ndarray, np.ndarray]:
-    """(seconds, values) of `metric` at the steps where the run also logged the clock, in step order."""
-    clock = {m.step: m.value for m in client.get_metric_history(run_id, CLOCK)}
+def curve(client: MlflowClient, run_id: str, metric: str, clock_key: str) -> tuple[np.ndarray, np.ndarray]:
+    """(seconds, values) of `metric` at the steps where the run also logged the clock `clock_key`, in step
+    order."""
+    clock = {m.step: m.value for m in client.get_metric_history(run_id, clock_key)}
     points = sorted((m.step, m.value) for m in client.get_metric_history(run_id, metric) if m.step in clock)
     steps = dict(points)  # one value per step (a repeated step keeps its last)
     seconds = np.array([clock[s] for s in steps], dtype=np.float64)
@@ -93,30 +96,41 @@ def _arms(runs: pd.DataFrame, axes: Sequence[str]) -> pd.Series:
 def quality_against_time(
     runs: pd.DataFrame, out_png: Path, axes: Sequence[str] | None = None
 ) -> tuple[Path | None, pd.DataFrame | None]:
-    """The figure and the table of the module docstring; (None, None) when fewer than one run has a curve."""
+    """The figure and the table of the module docstring; (None, None) when no run has a curve of the first
+    metric (and its clock) that every run logged."""
     axes = list(axes or DEFAULT_AXES)
-    chosen = next(
-        (m for m in METRICS if f"metrics.{m[0]}" in runs and runs[f"metrics.{m[0]}"].notna().all()), None
-    )
-    if chosen is None or f"metrics.{CLOCK}" not in runs:
+    logged = [
+        m
+        for m in METRICS
+        if all(f"metrics.{k}" in runs and runs[f"metrics.{k}"].notna().all() for k in (m[0], m[3]))
+    ]
+    if not logged:
         return None, None
-    metric, higher, label = chosen
+    metric, higher, label, clock_key = logged[0]
     client = MlflowClient()
     curves, arm_of = {}, {}
     for (_, run), arm in zip(runs.iterrows(), _arms(runs, axes), strict=True):
-        seconds, values = curve(client, run["run_id"], metric)
+        seconds, values = curve(client, run["run_id"], metric, clock_key)
         if len(seconds) < 2:
             log.info(
-                "report: run %s has no %s at its validation points; not in %s", run["run_id"], CLOCK, STEM
+                "report: run %s has no %s beside its %s; not in %s", run["run_id"], clock_key, metric, STEM
             )
             continue
         curves[run["run_id"]], arm_of[run["run_id"]] = (seconds, values), arm
     if not curves:
         return None, None
-    return _figure(curves, arm_of, label, out_png), time_table(runs, curves, higher, axes, label)
+    figure = _figure(curves, arm_of, label, clock_key, out_png)
+    return figure, time_table(runs, curves, higher, axes, label, clock_key)
 
 
-def time_table(runs: pd.DataFrame, curves: dict, higher: bool, axes: list[str], label: str) -> pd.DataFrame:
+def time_table(
+    runs: pd.DataFrame,
+    curves: dict,
+    higher: bool,
+    axes: list[str],
+    label: str,
+    clock_key: str = "train_time_s",
+) -> pd.DataFrame:
     finals = pd.DataFrame(
         {
             "final": {r: v[-1] for r, (_, v) in curves.items()},
@@ -149,14 +163,15 @@ def time_table(runs: pd.DataFrame, curves: dict, higher: bool, axes: list[str], 
     }
     table = aggregate(rows, axes, specs)
     table.attrs["notes"] = [
-        f"{label} against the training clock (train_time_s: batches and optimiser steps, not validation); "
+        f"{label} against the clock {clock_key} (training: batches and optimiser steps, not validation; a "
+        "search: its generations); "
         f"X = {fmt.format(target)}, the worst arm's mean final value; T = {horizon:.1f} s, the shortest "
         "arm's mean training time; a seed that never reaches X has no time ('reached' is the share that did)"
     ]
     return table
 
 
-def _figure(curves: dict, arm_of: dict, label: str, out_png: Path) -> Path:
+def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, arm in enumerate(dict.fromkeys(arm_of.values())):
@@ -168,7 +183,7 @@ def _figure(curves: dict, arm_of: dict, label: str, out_png: Path) -> Path:
         ax.plot(grid, np.median(stack, axis=0), color=color, label=f"{arm} ({len(members)} seeds)")
         if len(members) > 1:
             ax.fill_between(grid, stack.min(axis=0), stack.max(axis=0), color=color, alpha=0.2, linewidth=0)
-    ax.set_xlabel("training seconds (train_time_s)")
+    ax.set_xlabel(f"seconds ({clock_key})")
     ax.set_ylabel(f"{label} (median, band: min-max over seeds)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", frameon=False)

@@ -73,6 +73,7 @@ COST_METRICS: dict[str, MetricSpec] = {
     # the cost card (issue 46): FLOPs of one output pixel, achieved GFLOP/s at eval and its fraction of the
     # device's measured peak (src/report/cost_card.py), peak memory of the training and eval stages
     "FLOPs / px": ("eval_flops_per_pixel", None, "{:,.0f}"),
+    "FLOPs / ray": ("eval_flops_per_ray", None, "{:,.0f}"),  # NeRF: MLP forward, nominal samples
     "GFLOP/s (eval)": ("eval_gflops", True, "{:.2f}"),
     "of peak": ("eval_peak_fraction", True, "{:.1%}"),
     "host MB (train)": ("train_peak_host_mb", False, "{:,.0f}"),

@@ -235,7 +235,7 @@ class FilterSearchTask(DenoiseTask):
 
         from src.gp.fitness import WORST
         from src.gp.run_metrics import best_through, search_run_metrics
-        from src.gp.search import load_state
+        from src.gp.search import load_state, saved_job
         from src.io.atomic import atomic_write_json, atomic_write_text
         from src.provenance import config_digest
         from src.train.device import pick_device
@@ -246,11 +246,13 @@ class FilterSearchTask(DenoiseTask):
         fitness, available, meta = build_fitness(cfg, device)
         gp_search, pset = make_search(cfg, fitness, available)
         params = gp_search.params
-        state = None
+        state, searched_before = None, 0.0
         resume = resumable_search_state(cfg)
         if resume is not None:
             state = load_state(resume, params, pset)
             tracker.skip_logged_after(state.generation)
+            # the search's clock continues where the checkpoint's job left it (0 in older checkpoints)
+            searched_before = float(saved_job(resume).get("search_time_s", 0.0))
         h, w = fitness.color.shape[-2:]
         print(
             f"search: {params.islands} islands x {params.population}, {params.generations} generations on "
@@ -261,9 +263,13 @@ class FilterSearchTask(DenoiseTask):
         bar = tqdm(total=params.generations, desc="search", unit="gen", initial=done)
         start = time.perf_counter()
 
+        def clock() -> float:
+            """The search's seconds so far, over every job that ran it (the quality-against-time x axis)."""
+            return searched_before + time.perf_counter() - start
+
         def on_generation(s) -> None:
             stats = s.history[-1]
-            metrics: dict[str, float] = {"search_evaluations": stats["evaluations"]}
+            metrics: dict[str, float] = {"search_evaluations": stats["evaluations"], "search_time_s": clock()}
             for k, island in enumerate(stats["islands"]):
                 metrics[f"search_best_island{k}"] = island["best"]
                 if island["mean"] < WORST:
@@ -281,9 +287,14 @@ class FilterSearchTask(DenoiseTask):
             bar.set_postfix(best=f"{best['best']:.4f}")
 
         job = {"config_digest": config_digest(cfg), "mlflow_run_id": tracker.run_id}
-        state = gp_search.run(state=state, checkpoint=out / STATE_FILE, on_generation=on_generation, job=job)
+        state = gp_search.run(
+            state=state,
+            checkpoint=out / STATE_FILE,
+            on_generation=on_generation,
+            job=lambda: {**job, "search_time_s": clock()},
+        )
         bar.close()
-        seconds = time.perf_counter() - start
+        seconds = clock()  # a resumed search's total, not only this job's part
         rows = best_expressions(state, cfg)
         header = (
             "# Best expression of each island (Davletaliyev 2016, Sec. 3.2.6), best first; fitness = mean\n"
