@@ -184,7 +184,8 @@ def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Pat
         if len(members) > 1:
             ax.fill_between(grid, stack.min(axis=0), stack.max(axis=0), color=color, alpha=0.2, linewidth=0)
     ax.set_xlabel(f"seconds ({clock_key})")
-    ax.set_ylabel(f"{label} (median, band: min-max over seeds)")
+    ax.set_ylabel(label)
+    ax.set_title("median over seeds; band: their min to max", fontsize="small")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", frameon=False)
     fig.tight_layout()
