@@ -180,3 +180,13 @@ def assert_same_curves(resumed, straight):
     a, b = pd.read_csv(resumed), pd.read_csv(straight)
     assert a["train_time_s"].is_monotonic_increasing and b["train_time_s"].is_monotonic_increasing
     pd.testing.assert_frame_equal(a.drop(columns="train_time_s"), b.drop(columns="train_time_s"))
+
+
+#: Parts of a metric's name that mark it as measured by a clock or a memory counter (times, rates, the
+#: speed-up, achieved GFLOP/s and its fraction of peak, peak memory): they differ between any two runs.
+TIMED_MARKS = ("time", "seconds", "per_s", "ms_per", "speedup", "gflops", "peak_")
+
+
+def is_timed(key: str) -> bool:
+    """Whether two runs of one configuration may log different values of metric `key` (`TIMED_MARKS`)."""
+    return any(mark in key for mark in TIMED_MARKS)

@@ -17,7 +17,7 @@ import mlflow
 import pytest
 from mlflow.tracking import MlflowClient
 
-from tests.conftest import ROOT, cli_job
+from tests.conftest import ROOT, cli_job, is_timed
 
 pytestmark = pytest.mark.skipif(os.geteuid() != 0, reason="a one-node SLURM runs its daemons as root")
 SCRIPT = ROOT / "scripts" / "cluster.sh"
@@ -66,11 +66,7 @@ def _eval_metrics(uri: str) -> dict[tuple[str, str], dict[str, float]]:
         for run in client.search_runs([experiment.experiment_id]):
             if run.data.tags.get("nrbench.sweep_parent") == "true" or run.info.status != "FINISHED":
                 continue
-            metrics = {
-                k: v
-                for k, v in run.data.metrics.items()
-                if k.startswith("eval_") and not any(t in k for t in ("ms_per", "seconds", "time"))
-            }
+            metrics = {k: v for k, v in run.data.metrics.items() if k.startswith("eval_") and not is_timed(k)}
             out[(run.data.params["model.name"], run.data.params["seed"])] = metrics
     return out
 
@@ -199,11 +195,7 @@ def _sweep_runs(uri: str, sweep_dir) -> list:
 
 
 def _held_out(run) -> dict[str, float]:
-    return {
-        k: v
-        for k, v in run.data.metrics.items()
-        if k.startswith("eval_") and not any(t in k for t in ("ms_per", "seconds", "time"))
-    }
+    return {k: v for k, v in run.data.metrics.items() if k.startswith("eval_") and not is_timed(k)}
 
 
 @pytest.mark.slow

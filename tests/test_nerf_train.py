@@ -19,7 +19,15 @@ from src.stages import evaluate, render, train
 from src.tracking.mlflow_tracking import job_run
 from src.train.checkpoint import load_checkpoint
 from src.train.nerf_trainer import NerfTrainer, train_nerf
-from tests.conftest import ROOT, assert_same_curves, cli_job, one_line_error, smoke_config, stop_at
+from tests.conftest import (
+    ROOT,
+    assert_same_curves,
+    cli_job,
+    is_timed,
+    one_line_error,
+    smoke_config,
+    stop_at,
+)
 
 
 def _cfg(data, run_dir, *overrides):
@@ -237,12 +245,9 @@ def test_a_run_killed_with_sigkill_resumes_to_the_same_weights_and_metrics(nerf_
         assert torch.equal(b["model"][key], value), key
     assert_same_curves(tmp_path / "b" / "curves.csv", tmp_path / "a" / "curves.csv")
 
-    def timed(key):  # seconds and rates: they differ between any two runs
-        return "time" in key or "per_s" in key or "ms_per" in key
-
     means = [json.loads((tmp_path / n / "eval" / "metrics.json").read_text())["mean"] for n in ("a", "b")]
-    assert {k: v for k, v in means[1].items() if not timed(k)} == {
-        k: v for k, v in means[0].items() if not timed(k)
+    assert {k: v for k, v in means[1].items() if not is_timed(k)} == {
+        k: v for k, v in means[0].items() if not is_timed(k)
     }
 
     # The killed run was continued, not restarted, and holds what the uninterrupted one holds.
@@ -250,7 +255,7 @@ def test_a_run_killed_with_sigkill_resumes_to_the_same_weights_and_metrics(nerf_
     runs = [client.get_run(c["mlflow_run_id"]) for c in (a, b)]
     assert [r.info.status for r in runs] == ["FINISHED", "FINISHED"]
     assert runs[1].data.metrics.keys() == runs[0].data.metrics.keys()
-    for key in filter(lambda k: not timed(k), runs[0].data.metrics):
+    for key in filter(lambda k: not is_timed(k), runs[0].data.metrics):
         history = [[(m.step, m.value) for m in client.get_metric_history(r.info.run_id, key)] for r in runs]
         assert sorted(history[1]) == sorted(history[0]), key
 

@@ -112,6 +112,7 @@ BOUNDED: dict[Bound, str] = {
     """,
     POSITIVE: """
         run.Ssim.sigma run.Ssim.k1 run.Ssim.k2 run.Metrics.gamma run.Metrics.relmse_eps run.Cvvdp.fps
+        run.SppEquivalentOptions.margin
         run.Metrics.smape_eps denoise.Repair.firefly_clamp dataset.StillPreprocess.eps_albedo
         denoise.Preprocess.importance_window denoise.Preprocess.whiten_eps denoise.Train.lr
         nerf.Train.lr_init nerf.Train.grad_max_norm filter_search.SeedSigmas.spatial
@@ -174,7 +175,8 @@ BOUNDED: dict[Bound, str] = {
     """,
     POSITIVE_INT_ITEMS: """
         filter_search.Search.spp dataset.ProceduralDataset.noisy_spp dataset.VolumetricDataset.noisy_spp
-        dataset.NoisebaseDataset.noisy_spp
+        dataset.NoisebaseDataset.noisy_spp dataset.ProceduralDataset.ladder_spp
+        dataset.VolumetricDataset.ladder_spp
     """,
     NON_NEGATIVE_VALUES: """
         filter_search.Search.mutation_kinds

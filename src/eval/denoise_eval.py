@@ -135,9 +135,21 @@ class DenoiseEvaluation(Evaluation):
         self.space = self.kind.color_space(cfg)
         self.scorers = scorers_for(cfg, self.kind.temporal, self.device, self.out_dir)
         self.baseline = self._baseline(cfg)
-        # the useful FLOPs of one output pixel (None: unknown, e.g. OIDN): with the timed seconds, the
-        # achieved GFLOP/s of the cost card (work redone in tile halos lowers it, it adds no FLOPs)
-        self.flops_per_pixel = flops_per_pixel(self.model)["total"]
+        self.flops_per_pixel = self._flops_per_pixel(cfg)
+
+    def _flops_per_pixel(self, cfg: DictConfig) -> float | None:
+        """The useful FLOPs of one output pixel, probed with the data's input channels (None: unknown, e.g.
+        OIDN): with the timed seconds, the achieved GFLOP/s of the cost card (work redone in tile halos
+        lowers it, it adds no FLOPs). A model the probe's random batch cannot run gets None and a warning:
+        the cost card is not worth an evaluation."""
+        channels = cfg.dataset.get("input_channels")
+        try:
+            if channels is None:
+                return flops_per_pixel(self.model)["total"]
+            return flops_per_pixel(self.model, in_channels=int(channels))["total"]
+        except Exception as err:  # a user's model with inputs of its own: no FLOPs, said so
+            log.warning("eval: FLOPs per pixel of model=%s unknown (%s); no GFLOP/s", cfg.model.name, err)
+            return None
 
     def _baseline(self, cfg: DictConfig) -> Denoiser | None:
         """`task.eval.baseline` (a filter's model config, e.g. the filter search's constant-sigma
