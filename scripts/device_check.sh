@@ -18,9 +18,10 @@
 #   mlflow.db                  the denoise bench runs (experiment nrbench-bench), which a report on the
 #                              same store reads the peak from (src/report/cost_card.py)
 #
-# Settings (environment): DEVICE (cuda), WIDTH, HEIGHT (1280, 720), ROUNDS (7), NERF_PROFILE (paper),
-# NERF_STEPS (20), PYTHON (python). The test suite runs it on the CPU with a tiny frame
-# (tests/test_device_check.py) to check its plumbing; only a GPU gives its numbers meaning.
+# Settings (environment): DEVICE (cuda), WIDTH, HEIGHT (1280, 720), ROUNDS (7), MODELS (unet_kpcn,kpcn),
+# NERF_PROFILE (paper), NERF_MODELS (nerf,mipnerf,refnerf), NERF_STEPS (20), PYTHON (python). The test
+# suite runs it on the CPU with a tiny frame and fewer models (tests/test_device_check.py) to check its
+# plumbing; only a GPU gives its numbers meaning.
 set -uo pipefail
 
 OUT=${1:-${OUT:-device_check}}
@@ -28,6 +29,8 @@ DEVICE=${DEVICE:-cuda}
 WIDTH=${WIDTH:-1280}
 HEIGHT=${HEIGHT:-720}
 ROUNDS=${ROUNDS:-7}
+MODELS=${MODELS:-unet_kpcn,kpcn}
+NERF_MODELS=${NERF_MODELS:-nerf,mipnerf,refnerf}
 NERF_PROFILE=${NERF_PROFILE:-paper}
 NERF_STEPS=${NERF_STEPS:-20}
 PYTHON=${PYTHON:-python}
@@ -57,11 +60,11 @@ torch.backends.cudnn.version(), "GPU", torch.cuda.get_device_name(0) if torch.cu
 } >"$OUT/device.txt" 2>&1
 
 denoise=("$PYTHON" -m src.bench denoise --device "$DEVICE" --width "$WIDTH" --height "$HEIGHT"
-    --rounds "$ROUNDS" --warmup 2 --models unet_kpcn,kpcn --oidn --log)
+    --rounds "$ROUNDS" --warmup 2 --models "$MODELS" --oidn --log)
 step denoise_fp32 100 "${denoise[@]}" --tf32 off
 step denoise_tf32 100 "${denoise[@]}" --tf32 on
 step denoise_bf16 100 "${denoise[@]}" --autocast bf16
-nerf=("$PYTHON" -m src.bench nerf --device "$DEVICE" --profile "$NERF_PROFILE" --models nerf,mipnerf,refnerf
+nerf=("$PYTHON" -m src.bench nerf --device "$DEVICE" --profile "$NERF_PROFILE" --models "$NERF_MODELS"
     --steps "$NERF_STEPS")
 step nerf 90 "${nerf[@]}"
 step nerf_bf16 90 "${nerf[@]}" --autocast bf16
