@@ -343,6 +343,9 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert not [n for n in names if n.startswith(".")]  # no temporary files left
     for name in ("comparison.md", "comparison.tex", "comparison.csv", "cost.md", "index.html"):
         assert "task.train.lr" in (out / name).read_text(), name  # the warning is visible everywhere
+    for name in ("cost.md", "cost.csv", "index.html"):  # what each clock covers: under the table, on the page
+        assert "Clocks: train time counts the training batches" in (out / name).read_text(), name
+    assert "Clocks:" not in (out / "comparison.md").read_text()
     csv = pd.read_csv(out / "comparison.csv", comment="#")
     assert len(csv) == 3
     # per image: rows model x image, each image's scores averaged over the row's runs (kpcn: seeds 0, 1)

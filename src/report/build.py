@@ -125,6 +125,15 @@ EXPRESSION_METRICS = {
     "held-out PSNR": "eval_psnr",
     "held-out Energy": "eval_energy",
 }
+#: What each clock of the cost table covers: under the table and in the page's subtitle.
+CLOCKS = (
+    "Clocks: train time counts the training batches and optimiser steps (not validation, logging or data "
+    "preparation); ms / image the method's call on an item already on the device (a denoiser's frames in "
+    "tiles, a radiance field's view in ray chunks), after one untimed warm-up item (not loading, scoring or "
+    "saving); GFLOP/s the useful FLOPs over "
+    "that time; host and GPU MB the peak of each stage (host sampled every 50 ms, GPU from PyTorch's "
+    "allocator)."
+)
 #: The run metrics a method page shows per report (means over the method's runs in the report).
 METHOD_METRICS = ("param_count", "train_time_s", "eval_ms_per_image", "eval_ms_per_mpixel")
 
@@ -182,7 +191,8 @@ def build_report(cfg: Any) -> dict[str, Any]:
 
     name = str(config_value(rc, "name", DEFAULT_REPORT_NAME))
     out_dir = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser() / name
-    files = _write_tables(tables, out_dir, warnings)
+    files = _write_tables({k: v for k, v in tables.items() if k != "cost"}, out_dir, warnings)
+    files |= write_table_with_notes("cost", tables["cost"], out_dir, warnings, [CLOCKS])
     if (usage := feature_usage_table(runs)) is not None:  # no confounding notes: it compares no rows
         tables["feature_usage"] = usage
         files |= _write_tables({"feature_usage": usage}, out_dir, [])
@@ -332,7 +342,7 @@ def _page(
         f"{mlflow.get_tracking_uri()}, compared by {compared}; generated {manifest['generated']}. Values: "
         "mean ± std over runs (seeds) per row; best per column in bold; the noisy input's row (italics), "
         f"where logged, is what a denoiser must beat and is never marked best. Timings measured on: "
-        f"{measured_on(runs)}.",
+        f"{measured_on(runs)}. {CLOCKS}",
         tables={_heading(k): v for k, v in tables.items()},
         figures=figures,
         runs=runs,
