@@ -103,7 +103,8 @@ NOTES = [
     "seconds from the ladder's renders, denoising seconds from the evaluation, on the devices the report's "
     "subtitle names",
     "noisy reads: the noisy inputs' own equivalents, a check (near spp when the ladder reads a plain render "
-    "at its own count); best values are marked within each spp",
+    "at its own count); best values are marked within each spp; an undefined output (a GP expression's "
+    "NaN weights) has no equivalent and is not among 'images': the quality tables' 'undefined' counts it",
 ]
 
 
