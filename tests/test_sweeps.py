@@ -385,6 +385,10 @@ def test_whitening_sweep_in_parallel_reports_one_row_per_setting(smoke_data, tmp
         (w, s) for w in ("False", "True") for s in ("4", "16")
     }
     assert all(float(r["spp-equivalent"]) > 0 and r["runs"] == "2" for r in saved)
+    # the method page shows the mean over the method's runs of their logged spp-equivalent and speed-up
+    page = (tmp_path / "reports" / "methods" / "resnet.html").read_text()
+    assert "<th>spp-equivalent</th>" in page and "<th>speed-up</th>" in page
+    assert f"<td>{runs['metrics.eval_spp_equivalent'].mean():.1f}</td>" in page
     # The sweep rewrote the ledger: the whitening claim found this sweep's runs, at a profile (smoke)
     # where it means nothing.
     ledger = {r["claim"]: r for r in read_csv(tmp_path / "reports" / "ledger.csv")}

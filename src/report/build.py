@@ -135,7 +135,14 @@ CLOCKS = (
     "allocator)."
 )
 #: The run metrics a method page shows per report (means over the method's runs in the report).
-METHOD_METRICS = ("param_count", "train_time_s", "eval_ms_per_image", "eval_ms_per_mpixel")
+METHOD_METRICS = (
+    "param_count",
+    "train_time_s",
+    "eval_ms_per_image",
+    "eval_ms_per_mpixel",
+    "eval_spp_equivalent",
+    "eval_speedup",
+)
 
 
 #: Defaults of optional `report:` keys for a config that lacks them (a hand-built one, e.g. in the tests);

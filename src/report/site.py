@@ -350,11 +350,19 @@ def method_page(model: str, records: list[tuple[Entry, dict[str, Any]]], out_dir
                 _number(record.get("train_time_s"), "{:.1f}"),
                 _number(record.get("eval_ms_per_image"), "{:.1f}"),
                 _number(record.get("eval_ms_per_mpixel"), "{:.1f}"),
+                _number(record.get("eval_spp_equivalent"), "{:.1f}"),
+                _number(record.get("eval_speedup"), "{:.2f}"),
             ]
         )
     header = ["report", "profile(s)", "runs", "params", "train time (s)", "ms / image", "ms / MP"]
+    header += ["spp-equivalent", "speed-up"]
     body.append(html_table(header, rows))
-    body.append("<p>Times: means over the report's runs of the method (train time: the whole training).</p>")
+    body.append(
+        "<p>Times: means over the report's runs of the method (train time: the whole training). "
+        "spp-equivalent and speed-up: each run's geometric mean over its held-out images and input counts "
+        "(the samples a plain render needs for its error; the render time saved), averaged over the runs; "
+        "per count in the report's Samples saved table.</p>"
+    )
     marks = bench_numbers(bench, model) if len(bench) else []
     if marks:
         body.append("<h2>Benchmark</h2>")
