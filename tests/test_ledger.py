@@ -351,6 +351,7 @@ def ledger_store(tmp_path_factory):
     denoise = client.create_experiment("nrbench-denoise", artifact_location=(tmp / "art").as_uri())
     bench = client.create_experiment("nrbench-bench", artifact_location=(tmp / "art_bench").as_uri())
     cpu = {"nrbench.profile": "cpu", "nrbench.git_commit": "abc1234def", "nrbench.data_fingerprint": "f00d"}
+    cpu |= {"nrbench.device_name": "AMD EPYC", "nrbench.threads": "2", "nrbench.precision": "fp32"}
     study = {"report.name": f"sweeps/{STUDY}"}
     rng = np.random.default_rng(0)
     for seed in range(6):
@@ -653,6 +654,11 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     # ledger.budget_shown: the counted runs' values of each logged key (numbers in numeric order), beside
     # the seed's budget from the claims file's `budgets:` (or the claim's own source.budget).
     assert kpcn["run_budget"] == "seed 0, 1, 2, 3, 4, 5" and kpcn["seed_budget"] == "80 epochs of Doc A"
+    # the cost card of the counted runs: their device card with a run count
+    assert kpcn["measured_on"] == "AMD EPYC, 2 threads, fp32 (12 runs)"
+    assert (
+        "measured_on: AMD EPYC, 2 threads, fp32 (12 runs)" in (tmp_path / "reports" / "ledger.md").read_text()
+    )
     assert ledger.loc["unet_10x", "seed_budget"] == "its own budget"
     items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
     assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)

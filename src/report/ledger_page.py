@@ -46,6 +46,7 @@ COLUMNS = (
     "not_counted",
     "numbers",
     "runs",
+    "measured_on",
     "run_ids",
     "items_csv",
     "commits",
@@ -65,7 +66,7 @@ SHOWN = (
     "from",
 )
 #: What each claim's details list under the tables, in this order: our budget beside the seed's.
-DETAILS = ("quote", "caveat", "numbers", "budget", "run_budget", "seed_budget", "not_counted")
+DETAILS = ("quote", "caveat", "numbers", "budget", "run_budget", "seed_budget", "not_counted", "measured_on")
 _COLOURS = {
     "reproduced": "#d4edda",
     "direction only": "#fff3cd",
@@ -158,6 +159,7 @@ def ledger_frame(rows: Sequence) -> pd.DataFrame:
                 "not_counted": r.not_counted or "-",
                 "numbers": r.verdict.numbers,
                 "runs": r.runs,
+                "measured_on": r.measured_on or "-",
                 "run_ids": " ".join(r.run_ids) or "-",
                 "items_csv": f"items/{r.claim.id}.csv" if replicates is not None else "-",
                 "commits": " ".join(r.commits) or "-",
