@@ -38,7 +38,7 @@ from src.io.exr import write_exr
 from src.io.images import save_comparison_strip, write_png
 from src.metrics import noisebase_protocol
 from src.metrics.image import tonemap
-from src.metrics.spp_equivalent import speedup
+from src.metrics.spp_equivalent import geometric_mean, speedup
 from src.models.denoise.base import Batch, ColorSpace, Denoiser, final_color
 from src.models.denoise.models import infer_tiled
 from src.models.denoise.summary import flops_per_pixel
@@ -85,14 +85,7 @@ GEOMETRIC = {
 
 def geometric_means(rows: list[dict[str, Any]], means: dict[str, float]) -> dict[str, float]:
     """`means` with the `GEOMETRIC` columns' arithmetic means replaced by geometric ones."""
-    out = dict(means)
-    for key in GEOMETRIC:
-        if key not in out:
-            continue
-        values = np.array([r[key] for r in rows], dtype=np.float64)
-        values = values[~np.isnan(values)]
-        out[key] = float(np.exp(np.mean(np.log(values)))) if values.size else float("nan")
-    return out
+    return means | {key: geometric_mean([r[key] for r in rows]) for key in GEOMETRIC if key in means}
 
 
 @torch.no_grad()

@@ -121,15 +121,9 @@ def speedup(equivalent_spp: float, input_spp: float, render_s_per_spp: float, de
     return equivalent_spp * render_s_per_spp / (input_spp * render_s_per_spp + denoise_s)
 
 
-def geometric_summary(values: Sequence[SppEquivalent]) -> tuple[float, float, float, bool]:
-    """(geometric mean, min, max, whether it is a lower bound) over images and seeds: with any "at least"
-    among them, the mean and the max are lower bounds too."""
-    if not values:
-        raise DataError("spp-equivalent summary of no images")
-    logs = [math.log(v.value) for v in values]
-    return (
-        math.exp(sum(logs) / len(logs)),
-        min(v.value for v in values),
-        max(v.value for v in values),
-        any(v.at_least for v in values),
-    )
+def geometric_mean(values: Sequence[float]) -> float:
+    """The geometric mean of sample counts or speed-ups (ratios: a 2x above and a 2x below cancel), NaN
+    values left out (an undefined output has no equivalent); NaN when none is left."""
+    finite = np.asarray(values, dtype=np.float64)
+    finite = finite[~np.isnan(finite)]
+    return float(np.exp(np.mean(np.log(finite)))) if finite.size else math.nan

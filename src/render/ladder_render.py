@@ -110,7 +110,6 @@ def render_ladder(
             color = render(loaded, file["spp"], file["seeds"], file["passes"])
             seconds = time.perf_counter() - start
             totals.seconds += seconds
-            totals.samples += color.shape[0] * color.shape[1] * file["spp"]
             write_exr(
                 ladder_dir / file["file"], {c: color[..., i].astype(np.float32) for i, c in enumerate("RGB")}
             )

@@ -36,8 +36,8 @@ import pandas as pd  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from src.io.atomic import atomic_path  # noqa: E402
-from src.report.collect import DEFAULT_AXES, param_column  # noqa: E402
-from src.report.tables import MISSING, MetricSpec, aggregate  # noqa: E402
+from src.report.collect import DEFAULT_AXES  # noqa: E402
+from src.report.tables import MetricSpec, aggregate, axis_keys  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
 
@@ -85,12 +85,8 @@ def curve(client: MlflowClient, run_id: str, metric: str, clock_key: str) -> tup
 
 
 def _arms(runs: pd.DataFrame, axes: Sequence[str]) -> pd.Series:
-    columns = [param_column(a) for a in axes]
-    parts = [
-        runs[c].fillna(MISSING).astype(str) if c in runs else pd.Series(MISSING, index=runs.index)
-        for c in columns
-    ]
-    return pd.concat(parts, axis=1).agg(" / ".join, axis=1)
+    """Each run's arm: its axis values joined by " / "."""
+    return axis_keys(runs, axes).agg(" / ".join, axis=1)
 
 
 def quality_against_time(

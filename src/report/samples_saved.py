@@ -24,13 +24,13 @@ import html
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from src.report.collect import DEFAULT_AXES, param_column
+from src.metrics.spp_equivalent import geometric_mean
+from src.report.collect import DEFAULT_AXES
 from src.report.site import html_table
 from src.report.table_writers import cells, write_table_with_notes
-from src.report.tables import MISSING, RUNS_COLUMN, MetricSpec, axis_label
+from src.report.tables import RUNS_COLUMN, MetricSpec, axis_keys, axis_label
 
 STEM = "samples_saved"
 HEADING = "Samples saved: spp-equivalent and speed-up over rendering more samples"
@@ -49,23 +49,18 @@ SPECS: dict[str, MetricSpec] = {
 }
 
 
-def _geometric(values: pd.Series) -> float:
-    values = pd.to_numeric(values).dropna()
-    return float(np.exp(np.log(values).mean())) if len(values) else float("nan")
-
-
 def _row(group: pd.DataFrame) -> dict[str, float]:
     value = pd.to_numeric(group["metrics.spp_equivalent"])
     speed = pd.to_numeric(group["metrics.speedup"])
     return {
-        "spp-equivalent": _geometric(value),
+        "spp-equivalent": geometric_mean(value),
         "min": float(value.min()),
         "max": float(value.max()),
         "lower bounds": float(pd.to_numeric(group["metrics.spp_equivalent_at_least"]).mean()),
-        "speed-up": _geometric(speed),
+        "speed-up": geometric_mean(speed),
         "speed-up min": float(speed.min()),
         "speed-up max": float(speed.max()),
-        "noisy reads": _geometric(group["metrics.noisy_spp_equivalent"]),
+        "noisy reads": geometric_mean(pd.to_numeric(group["metrics.noisy_spp_equivalent"])),
         "ladder residual": float(pd.to_numeric(group["metrics.ladder_residual"]).max()),
         "images": float(value.notna().sum()),
         RUNS_COLUMN: group["run_id"].nunique() if "run_id" in group else 1,
@@ -79,13 +74,7 @@ def samples_saved_table(images: pd.DataFrame, axes: Sequence[str] | None = None)
     images = images[images[REQUIRED].notna() | images["metrics.noisy_spp_equivalent"].notna()]
     axes = list(axes or DEFAULT_AXES)
     labels = [axis_label(a) for a in axes]
-    keys = {
-        label: images[param_column(a)].fillna(MISSING).astype(str)
-        if param_column(a) in images
-        else pd.Series(MISSING, index=images.index)
-        for label, a in zip(labels, axes, strict=True)
-    }
-    keys["spp"] = images["spp"].astype(int)
+    keys = axis_keys(images, axes).assign(spp=images["spp"].astype(int))
     grouped = images.groupby([keys[k] for k in keys], sort=False)
     rows = {key: _row(group) for key, group in grouped}
     table = pd.DataFrame.from_dict(rows, orient="index")

@@ -143,16 +143,24 @@ def _shown(values: pd.Series, key: str) -> bool:
     return bool(values.notna().any())
 
 
+def axis_keys(runs: pd.DataFrame, axes: Sequence[str]) -> pd.DataFrame:
+    """Each row's value of each axis as text, one column per axis label (`MISSING` where a run did not log
+    the axis): what the tables group rows by."""
+    return pd.DataFrame(
+        {
+            axis_label(a): runs[c].fillna(MISSING).astype(str)
+            if c in runs
+            else pd.Series(MISSING, index=runs.index)
+            for a, c in ((a, param_column(a)) for a in axes)
+        },
+        index=runs.index,
+    )
+
+
 def aggregate(runs: pd.DataFrame, axes: Sequence[str], metrics: Mapping[str, MetricSpec]) -> pd.DataFrame:
     """Mean, std and count per distinct axis value, rows in order of first appearance."""
-    columns = [param_column(a) for a in axes]
     labels = [axis_label(a) for a in axes]
-    keys = pd.DataFrame(
-        {
-            label: runs[c].fillna(MISSING).astype(str) if c in runs else pd.Series(MISSING, index=runs.index)
-            for label, c in zip(labels, columns, strict=True)
-        }
-    )
+    keys = axis_keys(runs, axes)
     present = {lab: spec for lab, spec in metrics.items() if f"metrics.{spec[0]}" in runs}
     present = {lab: spec for lab, spec in present.items() if _shown(runs[f"metrics.{spec[0]}"], spec[0])}
     values = pd.DataFrame({lab: pd.to_numeric(runs[f"metrics.{spec[0]}"]) for lab, spec in present.items()})
