@@ -161,6 +161,8 @@ def test_seconds_per_spp_is_the_slope_and_falls_back_to_the_top_rung():
     assert seconds_per_spp([1, 4, 16], [3.0, 2.0, 1.6]) == pytest.approx(0.1)
     with pytest.raises(DataError):
         seconds_per_spp([4, 4], [1.0, 1.0])
+    # a rung without a time (a ladder averaged from stored samples): no cost per sample, so no speed-up
+    assert math.isnan(seconds_per_spp([1, 4, 16], [1.0, float("nan"), 4.0]))
 
 
 def test_the_ladder_job_start_check_is_one_line(tmp_path):

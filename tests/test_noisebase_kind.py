@@ -4,6 +4,7 @@ checks, and (slow) the whole smoke pipeline of the sequence and per-frame models
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -13,20 +14,23 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
+from src.data.ladder import read_ladder
 from src.data.noisebase import convert_to_volume_exrs, read_frames, volume_frame_buffers
+from src.data.splits import split_scenes
 from src.data.volume_buffers import load_volume_exr
 from src.errors import ConfigError, DataError
+from src.render.ladder_render import noisebase_ladder
 from src.schema.checks import check
 from src.schema.dataset import NoisebaseDataset
-from tests.conftest import compose_config, one_line_cli_error, one_line_error
+from tests.conftest import compose_config, data_kind, one_line_cli_error, one_line_error
 from tests.noisebase_fixture import write_test_sequence, write_training_sequence
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _training_set(root: Path, n=3, size=8) -> None:
+def _training_set(root: Path, n=3, size=8, spp=4) -> None:
     for i in range(n):
-        write_training_sequence(root / "train" / f"scene{i:04d}.zip", frames=2, size=size, spp=4, seed=i)
+        write_training_sequence(root / "train" / f"scene{i:04d}.zip", frames=2, size=size, spp=spp, seed=i)
 
 
 def _ds(root: Path, **over) -> dict:
@@ -98,6 +102,50 @@ def test_a_test_format_set_is_one_store_per_frame(tmp_path):
     assert got["color"].shape == (8, 8, 3)
 
 
+def test_the_ladder_averages_the_last_of_the_top_counts_samples_and_has_no_render_time(tmp_path):
+    stores = [tmp_path / "nb" / "train" / f"scene{i:04d}.zip" for i in range(3)]
+    written = [write_training_sequence(p, frames=2, size=8, spp=8, seed=i) for i, p in enumerate(stores)]
+    radiance = written[1]["radiance"]  # (F, 3, H, W, S) in float64, from the fixture's own decoding
+
+    def samples(lo, hi):  # the mean of stored samples lo..hi-1 per frame, (F, H, W, 3)
+        return np.moveaxis(radiance[..., lo:hi].mean(-1), 1, -1)
+
+    ladder = tmp_path / "ladder"
+    made = noisebase_ladder(_ds(tmp_path / "nb", ladder_spp=[1, 2, 4]), ladder, ["scene0001", "scene9999"])
+    assert (made["scenes"], made["files_rendered"]) == (["scene0001"], 2 * 3)
+    got = read_ladder(ladder, "scene0001", [1, 2, 4], frames=2)
+    for k in (1, 2, 4):  # the top count is 4: rung k holds stored samples 4-k..3
+        np.testing.assert_allclose(got.frames[k], samples(4 - k, 4), rtol=1e-5, err_msg=str(k))
+    assert all(math.isnan(s) for s in got.seconds.values())  # averaged, never rendered: no time
+    assert not list(ladder.glob("scene0000*")) and not list(ladder.glob("scene0002*"))  # held out: 0001
+    # unchanged: nothing averaged again; a new top count moves every rung to the new last samples and drops
+    # the rungs the ladder no longer has
+    assert (
+        noisebase_ladder(_ds(tmp_path / "nb", ladder_spp=[1, 2, 4]), ladder, ["scene0001"])["files_cached"]
+        == 6
+    )
+    again = noisebase_ladder(_ds(tmp_path / "nb", ladder_spp=[2, 8]), ladder, ["scene0001"])
+    assert (again["files_rendered"], again["files_removed"]) == (4, 4)
+    got = read_ladder(ladder, "scene0001", [2, 8], frames=2)
+    np.testing.assert_allclose(got.frames[2], samples(6, 8), rtol=1e-5)
+    np.testing.assert_allclose(got.frames[8], samples(0, 8), rtol=1e-5)
+    with pytest.raises(DataError) as e:  # more than the stored samples
+        noisebase_ladder(_ds(tmp_path / "nb", ladder_spp=[2, 16]), ladder, ["scene0001"])
+    one_line_error(e, "scene0001.zip", "has 8 samples per pixel", "dataset.ladder_spp", "16")
+
+
+def test_the_noisebase_ladder_holds_out_the_sequences_the_evaluation_scores():
+    cfg = compose_config(["dataset=noisebase", "dataset.root=/data/nb", "dataset.sequences=[0,1,2,3,4,5]"])
+    p = cfg.task.preprocess
+    want = split_scenes([f"scene{i:04d}" for i in range(6)], p.split, p.split_seed)
+    kind = data_kind(cfg)
+    assert kind.ladder_scenes(cfg) == want["test"]
+    cfg.task.eval.split = "val"
+    assert kind.ladder_scenes(cfg) == want["val"] != want["test"]
+    cfg.dataset.ladder_spp = []
+    assert data_kind(cfg).ladder_scenes(cfg) == []
+
+
 def _checked(*overrides):
     cfg = compose_config(["dataset=noisebase", "dataset.root=/data/nb", *overrides])
     return check(NoisebaseDataset, OmegaConf.to_container(cfg.dataset, resolve=True), "dataset.")
@@ -113,6 +161,8 @@ def _checked(*overrides):
         (["dataset.crop=[0,0,0,8]"], ["dataset.crop=[0, 0, 0, 8]", "height, width >= 1"]),
         (["dataset.crop=[0,0,8]"], ["dataset.crop=[0, 0, 8]"]),
         (["dataset.noisy_spp=[1,4]"], ["noisy_spp"]),
+        (["dataset.ladder_spp=[8]"], ["dataset.ladder_spp=[8]", "at least two"]),
+        (["dataset.ladder_spp=[1,4096]"], ["dataset.ladder_spp", "[4096]", "below"]),
     ],
 )
 def test_a_bad_noisebase_config_is_one_line(overrides, needles):
@@ -159,7 +209,7 @@ def _run(tmp_path, *args):
 @pytest.mark.slow
 @pytest.mark.parametrize("model", ["unet_kpcn", "kpcn"])
 def test_the_sequence_and_per_frame_models_train_and_evaluate_on_a_noisebase_set(tmp_path, model):
-    _training_set(tmp_path / "nb", size=16)
+    _training_set(tmp_path / "nb", size=16, spp=8)  # the smoke ladder reaches 8 samples
     result = _run(
         tmp_path,
         f"model={model}",
@@ -173,5 +223,5 @@ def test_the_sequence_and_per_frame_models_train_and_evaluate_on_a_noisebase_set
 
 @pytest.mark.slow
 def test_a_missing_store_stops_the_job_with_one_line(tmp_path):
-    _training_set(tmp_path / "nb", n=2)  # scene0002.zip is missing
+    _training_set(tmp_path / "nb", n=2, spp=8)  # scene0002.zip is missing
     one_line_cli_error(_run(tmp_path, "stage=render"), "scene0002.zip", "no such Noisebase ZipStore")

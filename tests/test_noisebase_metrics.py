@@ -335,8 +335,8 @@ def test_the_smoke_pipeline_with_the_protocol_writes_the_noisebase_table(tmp_pat
 
     for i in range(3):
         write_training_sequence(
-            tmp_path / "nb" / "train" / f"scene{i:04d}.zip", frames=2, size=16, spp=4, seed=i
-        )
+            tmp_path / "nb" / "train" / f"scene{i:04d}.zip", frames=2, size=16, spp=8, seed=i
+        )  # 8 stored samples: the smoke profile's ladder reaches 8
     env = os.environ | {
         "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/mlflow.db",
         "NRBENCH_DATA_DIR": str(tmp_path / "data"),
@@ -361,3 +361,9 @@ def test_the_smoke_pipeline_with_the_protocol_writes_the_noisebase_table(tmp_pat
     assert "| published | NPPD (Balint et al. 2023, test8) | 4 | 29.35 |" in table
     assert "pyfvvdp 1.2.0" in table and "first 0 frames" in table
     assert "Noisebase protocol" in (tmp_path / "report" / "index.html").read_text()
+    # the protocol and the spp-equivalent meet: an equivalent from the stored samples, no speed-up (no render
+    # time), and the samples-saved table says so
+    assert rows["spp_equivalent"].notna().all() and rows["noisy_spp_equivalent"].gt(0).all()
+    assert rows["speedup"].isna().all() and rows["render_s_per_spp"].isna().all()
+    saved = pd.read_csv(tmp_path / "report" / "samples_saved.csv", comment="#")
+    assert len(saved) == 2 and saved["speed-up"].isna().all() and saved["spp-equivalent"].gt(0).all()

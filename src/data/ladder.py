@@ -7,12 +7,13 @@ the prepared folders' cache keys, stays what it was): ``<file>`` holds one rende
 (channels R, G, B, float32; the still images' ``<scene>-<NNNNN>spp.exr``, the sequences'
 ``<scene>-f<FFFF>-<NNNNN>spp.exr``) and ``manifest/<file>.json`` its render key, sample count and
 render seconds (the clock covers the render passes only: not the scene's build, not the file's
-writing). The render stage writes them
-(`src.render.ladder_render`); this module names and reads them.
+writing; null for a rung averaged from a Noisebase set's stored samples, which has no render time here).
+The render stage writes them (`src.render.ladder_render`); this module names and reads them.
 
 Each rung is its own render (pass seeds of the role ``ladder``), independent of the noisy inputs and of
 the reference, so a noisy input scored against the ladder is an honest check: its equivalent should come
-out near its own count.
+out near its own count. A Noisebase set's rungs are averaged from its stored samples instead
+(`src.data.noisebase.ladder_color`): the last k, where the inputs take the first n.
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ def entry_path(ladder_dir: Path, file: str) -> Path:
 @dataclass(frozen=True)
 class Ladder:
     """One held-out scene's rungs: per count the (F, H, W, 3) colour of every frame (F = 1 for a still) and
-    the mean render seconds of a frame."""
+    the mean render seconds of a frame (NaN for a ladder that was not rendered here)."""
 
     scene: str
     frames: dict[int, np.ndarray]
@@ -91,7 +92,8 @@ def read_ladder(ladder_dir: Path, scene: str, counts: Sequence[int], frames: int
                 )
             channels = read_exr(path, ("R", "G", "B"))
             stack.append(np.stack([channels[c] for c in "RGB"], axis=-1).astype(np.float32))
-            times.append(float(json.loads(entry.read_text())["seconds"]))
+            seconds_of_rung = json.loads(entry.read_text())["seconds"]
+            times.append(np.nan if seconds_of_rung is None else float(seconds_of_rung))
         images[int(spp)] = np.stack(stack)
         seconds[int(spp)] = float(np.mean(times))
     return Ladder(scene, images, seconds)

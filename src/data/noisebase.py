@@ -129,7 +129,8 @@ def read_frames(
         height, width, stored = (int(s) for s in colour.shape[-3:])
         if samples > stored:
             raise DataError(
-                f"{path}: array 'color' has {stored} samples per pixel; dataset asks for {samples}"
+                f"{path}: array 'color' has {stored} samples per pixel; the dataset's counts "
+                f"(dataset.noisy_spp, dataset.ladder_spp) ask for {samples}"
             )
         missing = [f for f in frames if not 0 <= f < n_frames]
         if missing:
@@ -207,6 +208,19 @@ def pixel_moments(samples: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
         np.moveaxis(mean, 0, -1).astype(np.float32),
         var.mean(0)[..., None].astype(np.float32),
     )
+
+
+def ladder_color(frame: Frame, spp: int) -> np.ndarray:
+    """One rung of a held-out frame's sample-count ladder (`src.data.ladder`): the (H, W, 3) per-pixel mean
+    of the *last* `spp` of the frame's read samples. The noisy inputs take the first n (`pixel_moments`),
+    so a rung of k samples shares none of an n-sample input's when n + k <= the samples read (the ladder's
+    top count): the noisy inputs' own equivalents are then an independent check, as with a rendered
+    ladder. Non-finite samples count as 0, as in `pixel_moments`."""
+    stored = frame.radiance.shape[-1]
+    if not 1 <= spp <= stored:
+        raise DataError(f"dataset.ladder_spp: {spp} samples per pixel; the frames read have {stored}")
+    x = np.nan_to_num(frame.radiance[..., stored - spp :].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    return np.moveaxis(x.mean(-1), 0, -1).astype(np.float32)
 
 
 def forward_flow(mean_position: np.ndarray, frame: Frame, following: Frame | None) -> np.ndarray:
@@ -287,7 +301,8 @@ def sequence_sources(ds: dict) -> dict[str, list[tuple[Path, int]]]:
     return out
 
 
-def _source_stamp(paths) -> list:
+def source_stamp(paths) -> list:
+    """[path, size, mtime] of each store ([path, None] when missing): what says a set's files changed."""
     return [
         [str(p), p.stat().st_size, p.stat().st_mtime_ns] if p.is_file() else [str(p), None] for p in paths
     ]
@@ -312,7 +327,7 @@ def convert_to_volume_exrs(ds: dict, raw: Path) -> dict[str, Any]:
     }
     settings |= {"rendering": [ds["rendering_height"], ds["rendering_width"]]}
     stores = sorted({p for frames in sources.values() for p, _ in frames})
-    record = {"settings": settings, "sources": _source_stamp(stores)}
+    record = {"settings": settings, "sources": source_stamp(stores)}
     wanted = {
         volume_exr_name(scene, f, n)
         for scene, frames in sources.items()

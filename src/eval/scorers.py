@@ -263,7 +263,7 @@ class SppEquivalentScores(Scorer):
 
 def spp_equivalent_scorer(cfg: DictConfig, temporal: bool) -> Scorer | None:
     """The run's `SppEquivalentScores`, or None (logged) when it is off, the dataset has no ladder
-    (`dataset.ladder_spp` empty or absent: a user's EXRs, Noisebase sets) or no ladder was ever rendered in
+    (`dataset.ladder_spp` empty or absent: a user's EXRs) or no ladder was ever rendered in
     `paths.ladder` (a user's KPCN EXRs read with `paths.raw=`)."""
     options = cfg.metrics.get("spp_equivalent")
     if options is None or not options.enabled:

@@ -98,11 +98,16 @@ class DenoisingKind(DataKind):
         """The train/val/test scenes preprocessing will make of this config's renders: `split_scenes` of
         every scene the dataset renders, with the `task.preprocess` split settings preprocessing uses."""
         from src.data.splits import split_scenes
-        from src.render.render_dataset import scene_sources  # lazy: the render package
 
         p = self.preprocess_options(cfg)
-        names = [source.name for source in scene_sources(self.dataset)]
-        return split_scenes(names, p["split"], p["split_seed"], bool(p.get("split_by_base", False)))
+        split_by_base = bool(p.get("split_by_base", False))
+        return split_scenes(self.scene_names(), p["split"], p["split_seed"], split_by_base)
+
+    def scene_names(self) -> list[str]:
+        """The names of every scene (or sequence) this dataset renders, as its raw files name them."""
+        from src.render.render_dataset import scene_sources  # lazy: the render package
+
+        return [source.name for source in scene_sources(self.dataset)]
 
     def ladder_scenes(self, cfg: DictConfig) -> list[str]:
         """The scenes whose sample-count ladder the render stage makes (`src.data.ladder`): those of

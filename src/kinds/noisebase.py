@@ -26,10 +26,19 @@ class NoisebaseSequences(RenderedSequences):
     describes = "image sequences (Noisebase sample sets)"
     export_noisebase = DataKind.export_noisebase  # it reads sets and renders none: refused in one line
 
+    def scene_names(self) -> list[str]:
+        """The configured sequences' names (`scene0000`, ... or the test set's names)."""
+        from src.data.noisebase import sequence_sources
+
+        return list(sequence_sources(self.dataset))
+
     def render(self, cfg: DictConfig) -> dict[str, Any]:
         """The configured sequences of the set at `dataset.root` into `paths.raw`
-        (`src.data.noisebase.convert_to_volume_exrs`), with a summary file."""
+        (`src.data.noisebase.convert_to_volume_exrs`), with a summary file; with `dataset.ladder_spp`, the
+        sample-count ladder of the sequences `task.eval.split` holds out, averaged from their stored samples
+        (`src.render.ladder_render.noisebase_ladder`) into `paths.ladder`."""
         from src.data.noisebase import convert_to_volume_exrs
+        from src.render.ladder_render import noisebase_ladder
 
         raw = self.raw_dir(cfg)
         summary = convert_to_volume_exrs(self.dataset, raw)
@@ -40,5 +49,13 @@ class NoisebaseSequences(RenderedSequences):
             )
         else:
             print(f"render: all {summary['files_cached']} files up to date in {raw}")
+        summary["ladder"] = noisebase_ladder(self.dataset, Path(cfg.paths.ladder), self.ladder_scenes(cfg))
+        ladder = summary["ladder"]
+        if ladder["scenes"]:
+            print(
+                f"render: ladder of {len(ladder['scenes'])} held-out sequences at {ladder['counts']} spp "
+                f"from their stored samples: {ladder['files_rendered']} files written "
+                f"({ladder['files_cached']} cached) -> {cfg.paths.ladder}"
+            )
         write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, raw)
         return summary

@@ -103,10 +103,13 @@ def seconds_per_spp(spp: Sequence[float], seconds: Sequence[float]) -> float:
     """The render seconds one more sample per pixel costs: the slope of seconds = t0 + k x spp fitted to the
     ladder's timed rungs (non-negative least squares: a fixed cost per render, such as compiling the
     kernels, goes to t0 and not to k). Falls back to the largest rung's seconds / spp when the slope comes
-    out 0 (timings too noisy to tell)."""
+    out 0 (timings too noisy to tell). NaN when a rung has no time (NaN: a ladder averaged from stored
+    samples, such as a Noisebase set's, was never rendered here), so no speed-up is claimed."""
     n, t = np.asarray(spp, dtype=np.float64), np.asarray(seconds, dtype=np.float64)
     if n.shape != t.shape or n.ndim != 1 or len(np.unique(n)) < 2 or not np.all(n > 0):
         raise DataError(f"render timings at spp {list(spp)}: expected at least two distinct positive counts")
+    if np.isnan(t).any():
+        return math.nan
     (_, slope), _ = nnls(np.stack([np.ones_like(n), n], axis=1), t)
     if slope > 0:
         return float(slope)

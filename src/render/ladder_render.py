@@ -29,7 +29,7 @@ from src.render.stale_renders import remove_stale_entries
 #: (source, frame or None, spp) -> the render key of that rung.
 KeyOf = Callable[[SceneSource, "int | None", int], str]
 #: (source, frame or None) -> whatever `RenderColor` needs of the loaded scene.
-LoadScene = Callable[[SceneSource, "int | None"], Any]
+LoadScene = Callable[[Any, "int | None"], Any]
 #: (loaded scene, spp, pass seeds, passes) -> (H, W, 3) float32 linear colour.
 RenderColor = Callable[[Any, int, list[int], list[int]], np.ndarray]
 
@@ -84,15 +84,17 @@ def remove_stale_ladder(
 
 def render_ladder(
     plan: list[dict],
-    sources: Mapping[str, SceneSource],
+    sources: Mapping[str, Any],
     load: LoadScene,
     render: RenderColor,
     ladder_dir: Path,
     desc: str,
+    timed: bool = True,
 ) -> dict[str, Any]:
     """Render the `plan`'s files that are not current into `ladder_dir` (colour only, float32), each
-    followed by its manifest entry (key, scene, frame, spp, seconds of the render passes); a scene (or
-    frame) is loaded once and only if one of its rungs renders. Returns a summary."""
+    followed by its manifest entry (key, scene, frame, spp, seconds of the render passes: null unless
+    `timed`, when `render` only averages stored samples); a scene (or frame) is loaded once and only if one
+    of its rungs renders. Returns a summary."""
     ladder_dir = Path(ladder_dir)
     totals = RenderTotals()
     units: dict[tuple[str, int | None], list[dict]] = {}
@@ -114,7 +116,8 @@ def render_ladder(
                 ladder_dir / file["file"], {c: color[..., i].astype(np.float32) for i, c in enumerate("RGB")}
             )
             entry = {k: file[k] for k in ("key", "scene", "frame", "spp", "passes", "seeds")}
-            atomic_write_json(entry_path(ladder_dir, file["file"]), {**entry, "seconds": round(seconds, 4)})
+            entry["seconds"] = round(seconds, 4) if timed else None
+            atomic_write_json(entry_path(ladder_dir, file["file"]), entry)
             totals.rendered += 1
     return {
         "scenes": sorted({f["scene"] for f in plan}),
@@ -204,4 +207,48 @@ def render_sequence_ladder(
         return load_volume_frame(source, int(frame), ds)
 
     summary = render_ladder(plan, sources, load, render, ladder_dir, "render ladder")
+    return {**summary, "files_removed": len(removed)}
+
+
+def noisebase_ladder(ds: Mapping, ladder_dir: Path, held_out: Sequence[str]) -> dict[str, Any]:
+    """The ladder of every frame of the held-out Noisebase sequences `held_out`: nothing is rendered, each
+    rung averages the last k of the first max(`dataset.ladder_spp`) stored samples
+    (`src.data.noisebase.ladder_color`), so its entry has no render seconds and no speed-up is claimed. A
+    rung's key is its store's stamp (path, size, time), frame, window and samples."""
+    import hashlib
+
+    from src.data.noisebase import ladder_color, read_frames, sequence_sources, source_stamp
+
+    sources = sequence_sources(ds)
+    removed = remove_stale_ladder(ds, ladder_dir, list(sources), int(ds["frames"]))
+    counts = ladder_counts(ds)
+    top = max(counts) if counts else 0
+    window = {k: ds[k] for k in ("format", "crop", "rendering_height", "rendering_width")}
+
+    def key_of(scene: str, frame: int, spp: int) -> str:
+        store, index = sources[scene][frame]
+        identity = [source_stamp([store]), index, window, [top - spp, top]]
+        return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()
+
+    plan = [
+        {
+            "file": ladder_file(scene, spp, frame),
+            **{"scene": scene, "frame": frame, "spp": spp, "key": key_of(scene, frame, spp)},
+            **{"passes": [], "seeds": []},
+        }
+        for scene in held_out
+        if scene in sources
+        for frame in range(len(sources[scene]))
+        for spp in counts
+    ]
+    rendering = (int(ds["rendering_height"]), int(ds["rendering_width"]))
+
+    def load(frames: list, frame: int | None):
+        store, index = frames[int(frame)]
+        return read_frames(store, ds["format"], [index], top, ds.get("crop"), rendering)[0]
+
+    def average(frame, spp: int, seeds: list[int], passes: list[int]) -> np.ndarray:
+        return ladder_color(frame, spp)
+
+    summary = render_ladder(plan, sources, load, average, ladder_dir, "ladder from samples", timed=False)
     return {**summary, "files_removed": len(removed)}

@@ -90,7 +90,8 @@ NOTES = [
     "bounds (past the ladder's top count or the reference's own noise)",
     "speed-up = spp-equivalent x render s/spp / (input spp x render s/spp + denoise s), per frame: render "
     "seconds from the ladder's renders, denoising seconds from the evaluation, on the devices the report's "
-    "subtitle names",
+    "subtitle names; '-' where the ladder has no render time (a Noisebase set's, averaged from its stored "
+    "samples)",
     "noisy reads: the noisy inputs' own equivalents, a check (near spp when the ladder reads a plain render "
     "at its own count); best values are marked within each spp; an undefined output (a GP expression's "
     "NaN weights) has no equivalent and is not among 'images': the quality tables' 'undefined' counts it",

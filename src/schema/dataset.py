@@ -590,6 +590,9 @@ class NoisebaseDataset(SequenceOptions):
     crop: list[int] | None  # [top, left, height, width], checked below
     noisy_spp: SppList
     reference_spp: PositiveInt
+    # The held-out sequences' ladder, averaged from their stored samples (src/data/noisebase.py
+    # `ladder_color`); [] or null: none.
+    ladder_spp: list[PositiveInt] | None = None
     rendering_height: PositiveInt
     rendering_width: PositiveInt
     second_reference: Literal[False]  # no second reference of a downloaded set
@@ -603,9 +606,11 @@ class NoisebaseDataset(SequenceOptions):
 
     @model_validator(mode="after")
     def _counts_and_files(self) -> NoisebaseDataset:
+        from src.data.ladder import ladder_counts  # the ladder's own check of its counts
         from src.render.render_dataset import spp_counts
 
         passes(spp_counts, {"noisy_spp": self.noisy_spp, "reference_spp": self.reference_spp})
+        passes(ladder_counts, {"ladder_spp": self.ladder_spp, "reference_spp": self.reference_spp})
         needs = ["{index"] if self.format == "training" else ["{sequence_name", "{index"]
         if not all(n in self.files for n in needs):
             raise own_error(
