@@ -176,7 +176,7 @@ BOUNDED: dict[Bound, str] = {
     POSITIVE_INT_ITEMS: """
         filter_search.Search.spp dataset.ProceduralDataset.noisy_spp dataset.VolumetricDataset.noisy_spp
         dataset.NoisebaseDataset.noisy_spp dataset.ProceduralDataset.ladder_spp
-        dataset.VolumetricDataset.ladder_spp
+        dataset.VolumetricDataset.ladder_spp dataset.NoisebaseDataset.ladder_spp
     """,
     NON_NEGATIVE_VALUES: """
         filter_search.Search.mutation_kinds
