@@ -370,7 +370,8 @@ def ledger_store(tmp_path_factory):
             tmp,
             {**study, "model.name": "kpcn", "seed": seed},
             cpu,
-            {"eval_psnr": float(np.mean(base + 1))},
+            # the cost card: FLOPs logged by kpcn (one run 7x: the median, not the mean, is stated)
+            {"eval_psnr": float(np.mean(base + 1)), "eval_flops_per_pixel": 7000.0 if seed == 5 else 1000.0},
             # with a baseline scored beside it on the same images, 0.4 dB below it
             ("eval/per_image.csv", _images(base + 1).assign(baseline_psnr=base + 0.6)),
         )
@@ -380,7 +381,7 @@ def ledger_store(tmp_path_factory):
             tmp,
             {**study, "model.name": "dpcn", "seed": seed},
             cpu,
-            {"eval_psnr": float(np.mean(base))},
+            {"eval_psnr": float(np.mean(base)), "eval_peak_host_mb": 512.0},  # memory logged by dpcn
             ("eval/per_image.csv", _images(base)),
         )
     # The DVC pipeline's runs: one seed per model, 6 held-out images, kpcn 0.5 dB above dpcn on each.
@@ -654,11 +655,12 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     # ledger.budget_shown: the counted runs' values of each logged key (numbers in numeric order), beside
     # the seed's budget from the claims file's `budgets:` (or the claim's own source.budget).
     assert kpcn["run_budget"] == "seed 0, 1, 2, 3, 4, 5" and kpcn["seed_budget"] == "80 epochs of Doc A"
-    # the cost card of the counted runs: their device card with a run count
-    assert kpcn["measured_on"] == "AMD EPYC, 2 threads, fp32 (12 runs)"
-    assert (
-        "measured_on: AMD EPYC, 2 threads, fp32 (12 runs)" in (tmp_path / "reports" / "ledger.md").read_text()
-    )
+    # the cost card of the counted runs: their device card with a run count, then the median of each cost
+    # they logged (a claim whose runs logged none says so)
+    card = "AMD EPYC, 2 threads, fp32 (12 runs); median FLOPs / px 1,000, host MB (eval) 512"
+    assert kpcn["measured_on"] == card
+    assert f"measured_on: {card}" in (tmp_path / "reports" / "ledger.md").read_text()
+    assert ledger.loc["pipeline_fallback", "measured_on"].endswith("(2 runs); FLOPs and memory not logged")
     assert ledger.loc["unet_10x", "seed_budget"] == "its own budget"
     items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
     assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)

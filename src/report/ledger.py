@@ -49,7 +49,7 @@ from src.report.matched_arms import (
 from src.report.paired import item_means
 from src.report.replication import REPLICATE, RUN_FAILED_COLUMN, Replicates, replicate_differences
 from src.report.signed_rank import benjamini_hochberg
-from src.report.tables import measured_on
+from src.report.tables import measured_on, run_costs
 from src.report.verdicts import (
     CONFOUNDED,
     NOT_RUN,
@@ -110,7 +110,9 @@ class LedgerRow:
     arm_budget: str = ""  # budget keys on which the arms differ (declared or a model's own), per arm
     run_budget: str = ""  # the counted runs' values of `ledger.budget_shown`, beside the seed's budget
     names: tuple[str, str] = ("a", "b")  # the arms as the numbers name them
-    measured_on: str = ""  # the counted runs' device cards (device, threads, precision) with run counts
+    # the counted runs' device cards (device, threads, precision) with run counts, then their median FLOPs,
+    # GFLOP/s and peak memory (`run_costs`)
+    measured_on: str = ""
 
 
 def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "params.") -> pd.Series:
@@ -478,7 +480,7 @@ def _row(
         run_ids=tuple(str(r) for r in ids),  # the failed runs' too: they count as losses
         arm_budget=_arm_budget(claim, runs, settings) if not claim.is_bench else "",
         run_budget=run_budget(runs, settings.budget_shown),
-        measured_on=measured_on(runs) if len(runs) else "",
+        measured_on=f"{measured_on(runs)}; {run_costs(runs)}" if len(runs) else "",
     )
     confound = _confound(claim, runs, settings)
     if confound:

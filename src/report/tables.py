@@ -320,6 +320,32 @@ def measured_on(runs: pd.DataFrame) -> str:
     return "; ".join(f"{c} ({n} run{'s' if n != 1 else ''})" for c, n in counts.items())
 
 
+#: The cost card's columns of `COST_METRICS` that `run_costs` states (work, throughput, memory).
+CARD_COLUMNS = (
+    "FLOPs / px",
+    "FLOPs / ray",
+    "GFLOP/s (eval)",
+    "host MB (train)",
+    "host MB (eval)",
+    "GPU MB (train)",
+    "GPU MB (eval)",
+)
+
+
+def run_costs(runs: pd.DataFrame) -> str:
+    """The runs' cost card beyond the device: the median over the runs of each `CARD_COLUMNS` value they
+    logged (`FLOPs / px 385,794, GFLOP/s (eval) 190.00, host MB (eval) 1,512`; the median, as one slow run
+    should not move the card), or that none was logged (runs older than the cost card)."""
+    parts = []
+    for label in CARD_COLUMNS:
+        key, _, fmt = COST_METRICS[label]
+        column = f"metrics.{key}"
+        values = pd.to_numeric(runs[column], errors="coerce").dropna() if column in runs else pd.Series()
+        if len(values):
+            parts.append(f"{label} {fmt.format(float(values.median()))}")
+    return "median " + ", ".join(parts) if parts else "FLOPs and memory not logged"
+
+
 def cost_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
     """Parameters, training or search time, iterations and inference time (per image and per megapixel)."""
     return aggregate(runs, list(axes or DEFAULT_AXES), COST_METRICS)
