@@ -13,7 +13,15 @@ import pytest
 import torch
 
 from src.errors import ConfigError, DataError
-from src.metrics.cvvdp_metric import JOD_MAX, check_display, cvvdp_jod, display_names, version
+from src.metrics.cvvdp_metric import (
+    JOD_MAX,
+    check_display,
+    cvvdp_jod,
+    display_encoded,
+    display_names,
+    version,
+)
+from src.metrics.image import tonemap
 from src.schema.run import validate_run
 from tests.conftest import one_line_error, smoke_config
 from tests.sequence_eval_stub import stub_frames, stub_sequence_eval
@@ -116,6 +124,44 @@ def test_undefined_or_mismatched_frames_are_one_line_data_errors():
     with pytest.raises(DataError) as excinfo:
         cvvdp_jod(reference[:, :, :-1], reference)
     one_line_error(excinfo, "cvvdp", "shapes differ")
+
+
+def test_the_shape_error_names_both_shapes_and_the_frame_layout_is_checked_on_each_axis():
+    reference = _moving()
+    with pytest.raises(DataError) as excinfo:
+        cvvdp_jod(reference[:, :, :-1], reference)
+    one_line_error(excinfo, f"denoised {(F, H, W - 1, 3)} vs reference {(F, H, W, 3)}")
+    for bad in (reference[0], np.concatenate([reference, reference[..., :1]], -1)):  # (H, W, 3); 4 channels
+        with pytest.raises(DataError) as excinfo:
+            display_encoded(bad, "clip_gamma", 2.2)
+        one_line_error(excinfo, "expected frames of shape (F, H, W, 3)", str(bad.shape))
+
+
+def test_the_frame_rate_must_be_positive_and_a_slow_one_is_accepted():
+    reference = _moving(frames=3)
+    for fps in (0.0, -1.0):
+        with pytest.raises(ConfigError) as excinfo:
+            cvvdp_jod(reference, reference, fps=fps)
+        one_line_error(excinfo, f"metrics.cvvdp.fps={fps!r}")
+    assert cvvdp_jod(reference, reference, fps=0.5) == pytest.approx(JOD_MAX, abs=1e-3)  # 0 < fps <= 1
+
+
+def test_the_gamma_reaches_the_display_encoding_and_the_score():
+    frames = _moving(frames=3)
+    for gamma in (2.2, 1.6):
+        want = np.stack([tonemap(f, "clip_gamma", gamma) for f in frames]).astype(np.float32)
+        np.testing.assert_array_equal(display_encoded(frames, "clip_gamma", gamma), want)
+    noisy = np.clip(frames + np.random.default_rng(3).normal(0, 0.05, frames.shape), 0, None)
+    assert cvvdp_jod(noisy, frames, gamma=1.6) != pytest.approx(cvvdp_jod(noisy, frames), abs=1e-4)
+
+
+def test_the_metric_prints_nothing(capsys):
+    reference = _moving(frames=3)
+    cvvdp_jod(reference, reference)  # the first call imports the package (whose import may warn)
+    capsys.readouterr()
+    cvvdp_jod(reference, reference)
+    # quiet=True: no progress bar per sequence in an evaluation's log
+    assert capsys.readouterr() == ("", "")
 
 
 def test_the_known_displays_are_the_packages_sdr_models():
@@ -261,3 +307,13 @@ def test_the_noisebase_table_shows_cvvdp_as_an_optional_column_with_its_version(
     without = noisebase_table(_protocol_runs(cvvdp=False))
     assert "CVVDP" not in without.columns and "CVVDP" not in without.attrs["metrics"]
     assert any("metrics.cvvdp.enabled=false" in n for n in without.attrs["notes"])
+
+
+# Mutation testing (scripts/mutation.sh cvvdp): the mutants left alive are equivalent on a CPU:
+# - `import_own("pycvvdp", <another name>)`: the package name only chooses whose top-level helpers come
+#   first while pycvvdp is imported for the first time in a process; no other package with an `interp`
+#   module is imported before it in the tests or the evaluation, so the same modules load;
+# - `device=None` or no `device=`: pycvvdp then picks CUDA when there is one, else the CPU: the same device
+#   on this machine (the evaluation passes its own device, tested on a GPU by scripts/device_check.sh);
+# - `dim_order="fhwc"`: pycvvdp upper-cases the order (`video_source.reshuffle_dims`), and finds no batch
+#   axis in either spelling.
