@@ -206,6 +206,42 @@ def test_bad_sequences_are_one_line_errors():
     one_line_error(excinfo, "MS-SSIM", "24 pixels", "161")
 
 
+@pytest.mark.parametrize("side", [nbp.MSSSIM_MIN_SIDE - 1, nbp.MSSSIM_MIN_SIDE])
+def test_msssim_is_scored_from_its_minimum_side_and_left_out_one_pixel_below(side):
+    test, ref = _pair(2, side, side + 3, noise=20)
+    scores = nbp.score_sequence(test, ref, warmup=0, use_fvvdp=False)
+    if side < nbp.MSSSIM_MIN_SIDE:
+        assert scores["msssim"] is None
+        with pytest.raises(DataError) as excinfo:
+            nbp.msssim(nbp.to_unit(test[0]), nbp.to_unit(ref[0]))
+        one_line_error(excinfo, f"{side} pixels")
+        return
+    import pytorch_msssim
+
+    def lum(x):  # Rec. 709 weights of the PNG values to the power 2.2, written out here
+        lin = (torch.as_tensor(x, dtype=torch.float64) / 255) ** 2.2
+        return (lin @ torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64))[None, None].float()
+
+    want = np.mean(
+        [
+            float(pytorch_msssim.ms_ssim(lum(t), lum(r), data_range=1.0))
+            for t, r in zip(test, ref, strict=True)
+        ]
+    )
+    assert scores["msssim"] == pytest.approx(want, rel=1e-5) and 0 < scores["msssim"] < 1
+
+
+@pytest.mark.parametrize(("warmup", "ok"), [(-1, False), (0, True), (3, True), (4, False)])
+def test_the_warmup_may_leave_exactly_two_frames_and_not_fewer(warmup, ok):
+    test, ref = _pair(5, 24, 32)
+    if ok:
+        assert nbp.score_sequence(test, ref, warmup=warmup, use_fvvdp=False)["frames"] == 5 - warmup
+        return
+    with pytest.raises(DataError) as excinfo:
+        nbp.score_sequence(test, ref, warmup=warmup, use_fvvdp=False)
+    one_line_error(excinfo, f"metrics.noisebase.warmup={warmup}", "5 frames")
+
+
 def test_versions_recorded_and_pyfvvdp_shim():
     found = nbp.versions()
     assert set(found) == set(nbp.PACKAGES)
@@ -251,6 +287,25 @@ def test_the_sequence_evaluation_scores_each_sequence_with_the_protocol(vol_data
     assert header == {"warmup": 1, "fvvdp": True, "versions": nbp.versions()}
     assert tags["nrbench.noisebase.pyfvvdp"] == "1.2.0" and tags["nrbench.noisebase.fvvdp"] == "true"
     assert summary["mean"]["nb_fvvdp"] == pytest.approx(rows["nb_fvvdp"].mean(), rel=1e-12)
+
+
+def test_an_undefined_output_frame_has_no_protocol_numbers_and_writes_no_file(
+    vol_data, tmp_path, monkeypatch
+):
+    """The protocol meets an undefined output (a GP expression's NaN weights): the sequence's nb_ scores
+    are NaN (its 8-bit frames would hide the NaN), the other sequence is scored as usual."""
+    protocol = ["metrics.protocol=noisebase", "metrics.noisebase.warmup=1", "metrics.noisebase.fvvdp=false"]
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, protocol, undefined_spp=min(SPPS))
+    rows = run.rows
+    bad, good = rows[rows.spp == min(SPPS)].iloc[0], rows[rows.spp != min(SPPS)].iloc[0]
+    assert bad["undefined"] > 0 and np.isnan(bad["nb_psnr"]) and np.isnan(bad["nb_flip"])
+    assert np.isfinite(good["nb_psnr"]) and good["undefined"] == 0
+    # the same columns as a defined sequence's: no fvvdp (left out), no msssim (frames under 161 pixels)
+    assert "nb_fvvdp" not in rows and "nb_msssim" not in rows
+    assert np.isnan(run.logged[f"eval_nb_psnr_spp{min(SPPS)}"])
+    assert run.logged["eval_nb_psnr"] == pytest.approx(good["nb_psnr"], rel=1e-12)
+    saved = {p.name for p in (tmp_path / "eval" / "noisebase").glob("*.json")}
+    assert saved == {f"{good['scene']}-{good['spp']:05d}spp.json"}
 
 
 def test_fvvdp_can_be_left_out_and_the_warmup_must_leave_two_frames(vol_data, tmp_path, monkeypatch):

@@ -176,8 +176,10 @@ class NoisebaseProtocol(Scorer):
         self.device, self.out_dir, self.model = device, out_dir, model
 
     def score(self, item: Mapping[str, Any], images: Frames, defined: list[bool]) -> dict[str, float]:
-        if not all(defined):
-            return dict.fromkeys((f"nb_{k}" for k in noisebase_protocol.METRICS), NAN)
+        if not all(defined):  # NaN for each number a defined sequence of this size would have
+            height, width = images["reference"].shape[1:3]
+            scored = noisebase_protocol.scored_metrics(height, width, self.fvvdp)
+            return dict.fromkeys((f"nb_{k}" for k in scored), NAN)
         scores = noisebase_protocol.score_sequence(
             np.stack([noisebase_protocol.srgb8(f) for f in images["denoised"]]),
             np.stack([noisebase_protocol.srgb8(f) for f in images["reference"]]),

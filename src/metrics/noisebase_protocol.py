@@ -263,6 +263,15 @@ def fovvideovdp(
     return stream.compute()
 
 
+def scored_metrics(height: int, width: int, use_fvvdp: bool = True) -> tuple[str, ...]:
+    """The `METRICS` `score_sequence` gives a number for, for frames of `height` x `width`: all but `fvvdp`
+    when it is left out and `msssim` under `MSSSIM_MIN_SIDE` pixels a side."""
+    left_out = {"fvvdp"} if not use_fvvdp else set()
+    if min(height, width) < MSSSIM_MIN_SIDE:
+        left_out.add("msssim")
+    return tuple(m for m in METRICS if m not in left_out)
+
+
 # -- a sequence --------------------------------------------------------------------------------------------
 def score_sequence(
     test: np.ndarray,
@@ -289,15 +298,14 @@ def score_sequence(
         )
     out = [to_unit(f, device) for f in test[warmup:]]
     ref = [to_unit(f, device) for f in reference[warmup:]]
-    small = min(test.shape[1:3]) < MSSSIM_MIN_SIDE
+    scored = scored_metrics(*test.shape[1:3], use_fvvdp)
     scores: dict[str, Any] = {
-        "fvvdp": fovvideovdp(out, ref, fps, device=device) if use_fvvdp else None,
+        "fvvdp": fovvideovdp(out, ref, fps, device=device) if "fvvdp" in scored else None,
         "tpsnr": temporal(psnr, out, ref),
         "trmae": temporal(rmae, out, ref),
     }
     for name, metric in (("mse", mse), ("psnr", psnr), ("ssim", ssim), ("msssim", msssim), ("flip", flip)):
-        if name == "msssim" and small:
-            scores[name] = None
-            continue
-        scores[name] = float(np.mean([metric(t, r) for t, r in zip(out, ref, strict=True)]))
+        scores[name] = (
+            float(np.mean([metric(t, r) for t, r in zip(out, ref, strict=True)])) if name in scored else None
+        )
     return {**scores, "frames": len(out), "warmup": warmup, "versions": versions()}
