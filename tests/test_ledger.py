@@ -221,6 +221,28 @@ def test_a_claims_seed_budget_is_its_documents_unless_it_names_its_own(tmp_path)
     one_line_error(excinfo, "budgets", "expected a mapping of documents to budget texts")
 
 
+@pytest.mark.parametrize(
+    "runs",
+    [
+        "{study: denoisers, pipeline: denoise, experiment: nrbench-denoise}",
+        "{pipeline: denoise, study: denoisers, experiment: nrbench-denoise}",
+        "{experiment: nrbench-denoise, pipeline: denoise, study: denoisers}",
+    ],
+)
+def test_a_study_is_tried_before_the_pipeline_in_whatever_order_the_file_names_them(tmp_path, runs):
+    text = CLAIM.format(id="c").replace("{study: denoisers, experiment: nrbench-denoise}", runs)
+    (claim,) = load_claims(_claims_file(tmp_path, "claims:" + text))
+    assert claim.sources == (("study", "denoisers"), ("pipeline", "denoise"))
+    assert claim.command("cpu") == "python -m src.run -m +sweep=denoisers profile=cpu"
+    (alone,) = load_claims(
+        _claims_file(
+            tmp_path, "claims:" + text.replace("study: denoisers, ", "").replace(", study: denoisers", "")
+        )
+    )
+    assert alone.sources == (("pipeline", "denoise"),)
+    assert alone.command("cpu") == "dvc repro (profile: cpu in params.yaml)"
+
+
 def test_run_budget_lists_each_logged_keys_values_in_numeric_order():
     runs = pd.DataFrame({"params.e": ["16", "8", "8", "100"], "params.b": ["x", "x", None, "None"]})
     assert run_budget(runs, ["e", "b", "absent"]) == "e 8, 16, 100; b x"  # null, as logged: left out

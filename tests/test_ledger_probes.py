@@ -17,7 +17,7 @@ from mlflow.tracking import MlflowClient
 from src.report.claims import parse_claim
 from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim, item_scores
 from src.report.matched_arms import off_profile_key, profile_keys
-from src.report.replication import RUN_FAILED_COLUMN, replicate_differences
+from src.report.replication import NESTED, REPLICATE, RUN_FAILED_COLUMN, arm_table, replicate_differences
 from src.report.signed_rank import signed_rank
 from src.report.verdicts import (
     CONFOUNDED,
@@ -435,6 +435,33 @@ def _arm(values_by_seed, undefined_by_seed=None):
         failed = (undefined_by_seed or {}).get(seed, np.zeros(len(values)))
         parts.append(frame.assign(value=frame["psnr"], failed=np.asarray(failed) > 0))
     return pd.concat(parts, ignore_index=True)
+
+
+def _two_rows(column: str, per: str) -> pd.DataFrame:
+    """Two scores alike in every key column but `column` (values 1 and 3), with a column outside the key."""
+    base = {c: "x" for c in (*REPLICATE, *NESTED[per])} | {"model.name": "m", "value": 1.0}
+    return pd.DataFrame([base, base | {column: "y", "value": 3.0}])
+
+
+@pytest.mark.parametrize(
+    ("per", "column"), [("image", c) for c in NESTED["image"]] + [("run", *NESTED["run"])]
+)
+def test_each_field_of_an_item_key_tells_two_items_apart(per, column):
+    table = arm_table(_two_rows(column, per), per)
+    assert len(table) == 2 and sorted(table["value"]) == [1.0, 3.0]
+    assert table.index.get_level_values("replicate").nunique() == 1
+
+
+@pytest.mark.parametrize("column", REPLICATE)
+def test_each_field_of_a_replicate_key_tells_two_replicates_apart(column):
+    table = arm_table(_two_rows(column, "image"), "image")
+    assert table.index.get_level_values("replicate").nunique() == 2
+    assert table.index.get_level_values("item").nunique() == 1
+
+
+def test_a_column_outside_the_keys_is_one_item_scored_twice_and_averaged():
+    table = arm_table(_two_rows("model.name", "image"), "image")
+    assert len(table) == 1 and table["value"].iloc[0] == 2.0
 
 
 def test_one_seed_of_deterministic_arms_still_counts_its_images_and_of_learned_arms_does_not():

@@ -111,6 +111,26 @@ def test_flow_is_zero_where_the_point_is_behind_a_camera(training):
     assert not forward_flow(position, frames[0], frames[1]).any()
 
 
+def test_a_point_on_a_coordinate_plane_has_flow_and_only_the_origin_means_no_surface(training):
+    """Undefined is a pixel whose mean position is exactly 0 (no surface: sky samples read as 0), not one
+    with a single coordinate 0: a point on the plane x = 0, y = 0 or z = 0 moves like any other."""
+    root, data = training
+    frames = read_frames(root / "train" / "scene0000.zip", "training", [0, 1], 4, rendering=(64, 96))
+    mean = data["position"][0].astype(np.float64).mean(-1)  # (3, H, W)
+    for axis in range(3):
+        mean[axis, 0, axis] = 0.0  # pixel (0, axis) on the plane of that axis
+    mean[:, 1, 1] = 0.0  # pixel (1, 1): no surface
+    flow = forward_flow(np.moveaxis(mean, 0, -1), frames[0], frames[1])
+    offsets = data["crop_offset"].astype(np.float64)
+    then = _pixels(mean, data["view_proj_mat"][1].astype(np.float64), 64, 96) - offsets[1][:, None, None]
+    now = _pixels(mean, data["view_proj_mat"][0].astype(np.float64), 64, 96) - offsets[0][:, None, None]
+    want = np.moveaxis((then - now)[::-1], 0, -1)  # (H, W, 2): x, y
+    for axis in range(3):
+        np.testing.assert_allclose(flow[0, axis], want[0, axis], atol=2e-3, err_msg=str(axis))
+        assert np.abs(flow[0, axis]).max() > 0.1
+    assert not flow[1, 1].any()
+
+
 def test_our_samples_equal_the_package_training_loader(training):
 
     root, _ = training
