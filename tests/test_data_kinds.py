@@ -219,3 +219,77 @@ def test_a_checkpoint_trained_on_other_features_is_refused_in_one_line_by_each_k
     with pytest.raises(DataError) as excinfo:
         stills.check_trained_features({"features": ["color", "normal"]}, ["color", "depth"], "b.pt")
     one_line_error(excinfo, "b.pt", "task.features=[color,normal]", "[color,depth]")
+
+
+class _Captured(Exception):
+    """Raised by a stand-in sampler once it has the arguments a kind passed it (nothing is written)."""
+
+
+#: Every preprocessing setting away from its default, shared (task.preprocess) and a kind's own.
+SHARED_PREPROCESS = {
+    "patch_size": 6,
+    "candidates_factor": 3.0,
+    "min_keep_prob": 0.2,
+    "min_distance": 0.25,
+    "importance": "mc_variance",
+    "importance_window": 2.0,
+    "importance_percentile": 90.0,
+    "split_seed": 11,
+    "sample_seed": 13,
+    "whiten_eps": 1e-3,
+}
+
+
+def _captured_settings(tmp_path, monkeypatch, module, function, overrides):
+    cfg = smoke_config(tmp_path / "data", tmp_path / "run", overrides)
+    got = {}
+
+    def sampler(*args, **kwargs):
+        got.update(kwargs)
+        raise _Captured
+
+    monkeypatch.setattr(module, function, sampler)
+    (tmp_path / "raw").mkdir()
+    cfg.paths.raw = str(tmp_path / "raw")
+    with pytest.raises(_Captured):
+        data_kind(cfg).preprocess(cfg)
+    return got
+
+
+def test_every_still_image_preprocessing_setting_arrives_at_the_sampler(tmp_path, monkeypatch):
+    import src.data.shards
+
+    own = {"eps_albedo": 0.01, "specular_variance": "thesis", "patches_per_image": 7}
+    overrides = [f"task.preprocess.{k}={v}" for k, v in SHARED_PREPROCESS.items()]
+    overrides += [
+        "task.preprocess.split_by_base=true",
+        "task.preprocess.split={train:0.5,val:0.25,test:0.25}",
+    ]
+    overrides += [f"dataset.preprocess.{k}={v}" for k, v in own.items()]
+    got = _captured_settings(tmp_path, monkeypatch, src.data.shards, "preprocess_dataset", overrides)
+    want = {k: v for k, v in SHARED_PREPROCESS.items() if k != "min_distance"} | own
+    want["eps"] = want.pop("eps_albedo")  # the sampler's name for it
+    assert {k: got[k] for k in want} == want
+    assert got["min_distance"] == 0.25 * 6  # in pixels: patch sizes x the patch size
+    assert got["split_by_base"] is True and got["split_fractions"] == {
+        "train": 0.5,
+        "val": 0.25,
+        "test": 0.25,
+    }
+    assert got["patches_per_split"] is None
+
+
+def test_every_sequence_preprocessing_setting_arrives_at_the_sampler(tmp_path, monkeypatch):
+    import src.data.volume_shards
+
+    own = {"volume_transform": "none", "sequence_frames": 2, "patches_per_sequence": 5}
+    overrides = ["dataset=volumetric", *(f"task.preprocess.{k}={v}" for k, v in SHARED_PREPROCESS.items())]
+    overrides += ["task.preprocess.split_by_base=true", "dataset.second_reference=true"]
+    overrides += [f"dataset.preprocess.{k}={v}" for k, v in own.items()]
+    got = _captured_settings(
+        tmp_path, monkeypatch, src.data.volume_shards, "preprocess_volume_dataset", overrides
+    )
+    want = {k: v for k, v in SHARED_PREPROCESS.items() if k != "min_distance"} | own
+    assert {k: got[k] for k in want} == want
+    assert got["min_distance"] == 0.25 * 6
+    assert got["split_by_base"] is True and got["second_reference"] is True
