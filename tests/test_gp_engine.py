@@ -420,6 +420,27 @@ def test_undefined_expressions_are_flagged_invalid():
         assert result.valid[0].tolist() == expected, text
 
 
+def test_negative_weights_are_defined_unless_their_sum_is_zero():
+    """Negative weights are allowed (module docstring: Mitchell's lobes); only a zero or non-finite sum is
+    undefined. Weights 7 at the centre and -2 at its 8 neighbours sum to -9: defined, and the output is
+    the hand-computed (7 c - 2 sum of neighbours) / -9; weights 8 and -1 sum to exactly 0: undefined."""
+    feats = random_features(2, 5, 5, seed=6, dtype=torch.float64)
+    color = feats["color"]
+    padded = torch.nn.functional.pad(color, (1,) * 4, mode="replicate")
+    around = sum(padded[:, :, 1 + dy : 6 + dy, 1 + dx : 6 + dx] for dy, dx in _NEIGHBOURS)
+    lobes = filter_images([parse("7.0 - 9.0 * distanceMax(pixel, pixel)")], feats, color, radius=1)
+    assert lobes.valid[0].tolist() == [True, True]
+    torch.testing.assert_close(lobes.color[0], (7 * color - 2 * around) / -9)
+    negative = filter_images([parse("neg(1.0)")], feats, color, radius=1)  # all negative: the box filter
+    assert negative.valid[0].tolist() == [True, True]
+    torch.testing.assert_close(negative.color[0], (color + around) / 9)
+    zero = filter_images([parse("8.0 - 9.0 * distanceMax(pixel, pixel)")], feats, color, radius=1)
+    assert zero.valid[0].tolist() == [False, False]
+
+
+_NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+
+
 def test_intermediate_values_are_freed_after_their_last_use():
     """Per offset, a varying value is freed once the last node reading it has run: twelve nested sines
     above a distance hold no more memory at their peak than two (without the freeing, ten more planes)."""
