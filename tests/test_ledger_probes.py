@@ -21,6 +21,7 @@ from src.report.replication import NESTED, REPLICATE, RUN_FAILED_COLUMN, arm_tab
 from src.report.signed_rank import signed_rank
 from src.report.verdicts import (
     CONFOUNDED,
+    DIRECTION_ONLY,
     NOT_DISTINGUISHABLE,
     NOT_REPRODUCED,
     NOT_RUN,
@@ -137,7 +138,7 @@ def probe_store(tmp_path_factory):
     mlflow.set_tracking_uri(previous)
 
 
-def _claim(study, a, b, metric="psnr", kind="better", extra=""):
+def _claim(study, a, b, metric="psnr", kind="better", extra="", higher=True):
     text = textwrap.dedent(
         f"""
         id: probe_{study}
@@ -148,7 +149,7 @@ def _claim(study, a, b, metric="psnr", kind="better", extra=""):
         runs: {{study: {study}, experiment: nrbench-denoise}}
         metric: {metric}
         per: image
-        higher: true
+        higher: {str(higher).lower()}
         rule: {{kind: {kind}, a: {a}, b: {b}{extra}}}
         """
     )
@@ -288,6 +289,31 @@ def test_an_lpips_claim_reads_only_runs_with_the_trained_weights(probe_store, tm
     # Another metric of the same runs does not care about the LPIPS weights.
     psnr = evaluate_claim(_claim("lpips", "{model.name: p}", "{model.name: q}"), _settings(tmp_path))
     assert psnr.verdict.status == NOT_DISTINGUISHABLE and psnr.replicates.unit == "images"
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "size", "status"),
+    [
+        ("x", "y", 0.05, REPRODUCED),  # x's LPIPS is 0.1 lower on every item: beyond the size
+        ("x", "y", 0.1, REPRODUCED),  # the interval [0.1, 0.1] reaches the size: consistent with it
+        ("x", "y", 0.2, DIRECTION_ONLY),  # lower, but by less than the published 0.2
+        ("y", "x", 0.05, NOT_REPRODUCED),  # the other way round
+    ],
+)
+def test_a_lower_is_better_claim_with_a_published_size_reads_both_sides(
+    probe_store, tmp_path, a, b, size, status
+):
+    claim = _claim(
+        "lpips",
+        f"{{model.name: {a}}}",
+        f"{{model.name: {b}}}",
+        "lpips",
+        extra=f", size: {size}",
+        higher=False,
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.verdict.status == status, row.verdict.numbers
+    assert row.verdict.estimate == pytest.approx(0.1 if a == "x" else -0.1)  # a's advantage, lower = better
 
 
 def test_a_search_is_replicated_by_its_seeds_though_its_model_is_not_trained(probe_store, tmp_path):
