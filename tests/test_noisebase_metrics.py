@@ -121,6 +121,35 @@ def test_fovvideovdp_equals_their_feeder(theirs):
     assert nbp.fovvideovdp(reference, reference) == pytest.approx(10.0, abs=1e-4)  # identical: 10 JOD
 
 
+@pytest.mark.parametrize(("frames", "fps"), [(5, 8.0), (1, 30.0)])
+def test_fovvideovdp_equals_their_feeder_at_another_rate_and_on_one_frame(theirs, frames, fps):
+    """At 8 fps the 250 ms window is exactly two frames (a longer one would take three); one frame pair
+    is a sequence too."""
+    from noisebase.metrics.fvvdp import nb_fvvdp
+
+    test, ref = _pair(frames, 32, 40, seed=7)
+    out, reference = [nbp.to_unit(f) for f in test], [nbp.to_unit(f) for f in ref]
+    feeder = nb_fvvdp(display_name="standard_fhd").video_feeder(32, 40, frames, fps)
+    for t, r in zip(out, reference, strict=True):
+        feeder.feed(t, r)
+    assert nbp.fovvideovdp(out, reference, fps=fps) == pytest.approx(feeder.compute(), abs=1e-6)
+
+
+def test_sequences_of_unequal_length_are_one_line_errors_for_the_temporal_metrics():
+    test, ref = _pair(3, 24, 32)
+    out, reference = [nbp.to_unit(f) for f in test], [nbp.to_unit(f) for f in ref]
+    for call in (
+        lambda: nbp.temporal(nbp.psnr, out, reference[:2]),
+        lambda: nbp.fovvideovdp(out, reference[:2]),
+    ):
+        with pytest.raises(DataError) as excinfo:
+            call()
+        one_line_error(excinfo, "3 and 2")
+    with pytest.raises(DataError) as excinfo:  # one frame has no pair to difference
+        nbp.temporal(nbp.psnr, out[:1], reference[:1])
+    one_line_error(excinfo, "1 and 1")
+
+
 def _their_sequence(theirs, test, ref, warmup):
     """Their `main()` loop for one sequence, minus the PNG reading and the 'cuda' moves."""
     from noisebase.metrics.flip import flip
@@ -201,6 +230,10 @@ def test_bad_sequences_are_one_line_errors():
     with pytest.raises(DataError) as excinfo:
         nbp.score_sequence(test.astype(np.float32), ref, warmup=0, use_fvvdp=False)
     one_line_error(excinfo, "uint8", "float32")
+    four = np.concatenate([test, test[..., :1]], -1)  # four channels, rank right
+    with pytest.raises(DataError) as excinfo:
+        nbp.score_sequence(four, np.concatenate([ref, ref[..., :1]], -1), warmup=0, use_fvvdp=False)
+    one_line_error(excinfo, "(17, 24, 32, 4)")
     with pytest.raises(DataError) as excinfo:
         nbp.msssim(nbp.to_unit(test[0]), nbp.to_unit(ref[0]))
     one_line_error(excinfo, "MS-SSIM", "24 pixels", "161")
