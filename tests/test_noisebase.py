@@ -4,11 +4,15 @@ the same files, and its one-line errors."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from src.data.noisebase import (
+    Frame,
     forward_flow,
+    ladder_color,
     pixel_moments,
     read_frames,
     volume_frame_buffers,
@@ -129,6 +133,63 @@ def test_a_point_on_a_coordinate_plane_has_flow_and_only_the_origin_means_no_sur
         np.testing.assert_allclose(flow[0, axis], want[0, axis], atol=2e-3, err_msg=str(axis))
         assert np.abs(flow[0, axis]).max() > 0.1
     assert not flow[1, 1].any()
+
+
+def _frame(radiance: np.ndarray) -> Frame:
+    """A frame holding only per-sample radiance (3, H, W, S) (what `pixel_moments`/`ladder_color` read)."""
+    zeros = np.zeros_like(radiance)
+    return Frame(radiance, zeros, zeros, zeros, radiance[..., 0], np.zeros(3), np.eye(4), np.zeros(2), (1, 1))
+
+
+def test_non_finite_samples_count_as_zero_and_the_buffers_are_float32():
+    samples = np.array([1.0, np.inf, -np.inf, np.nan, 3.0], np.float32).reshape(1, 1, 1, 5).repeat(3, 0)
+    mean, variance = pixel_moments(samples, 5)
+    assert mean.dtype == variance.dtype == np.float32
+    np.testing.assert_allclose(mean[0, 0], 0.8)  # (1 + 0 + 0 + 0 + 3) / 5
+    np.testing.assert_allclose(variance[0, 0, 0], np.var([1, 0, 0, 0, 3], ddof=1) / 5, rtol=1e-6)
+    rung = ladder_color(_frame(samples), 3)  # the last three: -inf, nan, 3 -> 0, 0, 3
+    assert rung.dtype == np.float32 and rung.shape == (1, 1, 3)
+    np.testing.assert_allclose(rung[0, 0], 1.0)
+
+
+def test_every_buffer_of_a_frame_and_of_its_reference_is_float32_and_the_reference_has_the_motion(training):
+    root, _ = training
+    frames = read_frames(root / "train" / "scene0000.zip", "training", [0, 1], 4, rendering=(64, 96))
+    noisy = volume_frame_buffers(frames[0], frames[1], 4)
+    reference = volume_reference_buffers(frames[0], frames[1])
+    for buffers in (noisy, reference):
+        assert {name: a.dtype for name, a in buffers.items()} == dict.fromkeys(buffers, np.dtype(np.float32))
+    np.testing.assert_array_equal(reference["motion"], noisy["motion"])  # the flow into the next frame
+    assert np.abs(reference["motion"]).max() > 1.0
+
+
+def test_a_test_store_has_one_frame():
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_test_sequence(Path(tmp), "kitchen", frames=1, height=12, width=10, spp=4)
+        path = Path(tmp) / "kitchen" / "frame0000.zip"
+        assert len(read_frames(path, "test", [0], 4)) == 1
+        with pytest.raises(DataError) as e:
+            read_frames(path, "test", [1], 4)
+        one_line_error(e, str(path), "has 1 frames", "[1]")
+
+
+def test_a_training_store_rebuilds_its_view_projection_and_ignores_the_stored_one(tmp_path):
+    """The training loader rebuilds `view_proj_mat` from `proj_mat` and the camera vectors; a test store's
+    is read as stored. A training store whose stored matrix is garbage reads the same as a correct one."""
+    good = write_training_sequence(tmp_path / "good" / "scene0000.zip", frames=2, size=8, spp=2, seed=3)
+    garbage = {"view_proj_mat": np.full_like(good["view_proj_mat"], 7.0)}
+    write_training_sequence(
+        tmp_path / "bad" / "scene0000.zip", frames=2, size=8, spp=2, seed=3, replace=garbage
+    )
+    read = [
+        read_frames(tmp_path / d / "scene0000.zip", "training", [0, 1], 2, rendering=(64, 96))
+        for d in ("good", "bad")
+    ]
+    for f in (0, 1):
+        np.testing.assert_array_equal(read[0][f].view_proj, read[1][f].view_proj)
+        np.testing.assert_allclose(read[0][f].view_proj, good["view_proj_mat"][f], rtol=1e-5, atol=1e-6)
 
 
 def test_our_samples_equal_the_package_training_loader(training):

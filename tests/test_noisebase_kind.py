@@ -83,6 +83,40 @@ def test_conversion_writes_the_readers_buffers_and_keeps_only_what_the_config_ma
     assert load_volume_exr(raw / "scene0000-f0000-00004spp.exr")[0]["color"].shape == (8, 8, 3)
 
 
+def test_each_frame_flows_into_the_next_and_its_reference_file_carries_that_flow(tmp_path):
+    for i in range(3):
+        write_training_sequence(
+            tmp_path / "nb" / "train" / f"scene{i:04d}.zip", frames=3, size=8, spp=4, seed=i
+        )
+    raw = tmp_path / "raw"
+    convert_to_volume_exrs(_ds(tmp_path / "nb", frames=3, noisy_spp=[2]), raw)
+    frames = read_frames(
+        tmp_path / "nb" / "train" / "scene0002.zip", "training", [0, 1, 2], 4, rendering=(64, 96)
+    )
+    for f, following in ((0, frames[1]), (1, frames[2]), (2, None)):  # frame 1 into frame 2, not back to 0
+        want = volume_frame_buffers(frames[f], following, 2)["motion"]
+        for spp in (2, 64):  # the noisy file and the reference file
+            got, _ = load_volume_exr(raw / f"scene0002-f{f:04d}-{spp:05d}spp.exr")
+            np.testing.assert_array_equal(got["motion"], want, err_msg=f"{f} {spp}")
+    assert np.abs(volume_frame_buffers(frames[1], frames[2], 2)["motion"]).max() > 0
+
+
+def test_a_changed_store_or_window_converts_again_and_an_unchanged_one_is_cached(tmp_path):
+    _training_set(tmp_path / "nb")
+    raw, ds = tmp_path / "raw", _ds(tmp_path / "nb")
+    assert convert_to_volume_exrs(ds, raw)["files_cached"] == 0
+    cached = convert_to_volume_exrs(ds, raw)
+    assert (cached["files_written"], cached["files_cached"], cached["seconds"]) == (0, 18, 0.0)
+    # the same file names from another window of the stores
+    assert convert_to_volume_exrs(ds | {"crop": [0, 0, 4, 4]}, raw)["files_written"] == 18
+    assert convert_to_volume_exrs(ds | {"crop": [0, 0, 4, 4]}, raw)["files_written"] == 0
+    # a store replaced by another of the same name (a new download): its size or time changed
+    before = load_volume_exr(raw / "scene0001-f0000-00002spp.exr")[0]["color"]
+    write_training_sequence(tmp_path / "nb" / "train" / "scene0001.zip", frames=2, size=8, spp=4, seed=42)
+    assert convert_to_volume_exrs(ds | {"crop": [0, 0, 4, 4]}, raw)["files_written"] == 18
+    assert not np.array_equal(load_volume_exr(raw / "scene0001-f0000-00002spp.exr")[0]["color"], before)
+
+
 def test_a_test_format_set_is_one_store_per_frame(tmp_path):
     for k, name in enumerate(("bistro1", "kitchen", "bedroom")):
         write_test_sequence(tmp_path / "nb" / "test8", name, frames=2, height=12, width=10, spp=4, seed=k)
