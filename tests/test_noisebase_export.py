@@ -8,6 +8,8 @@ import pytest
 
 from src.data.noisebase import read_frames
 from src.data.noisebase_export import (
+    FAR,
+    NEAR,
     encode_rgbe,
     frame_arrays,
     projection_matrix,
@@ -61,6 +63,47 @@ def test_an_all_black_frame_encodes_to_zero_and_bad_radiance_is_one_line():
     with pytest.raises(DataError) as e:
         encode_rgbe(np.full((3, 1, 1, 2), np.nan), np.random.default_rng(0).random)
     one_line_error(e, "finite and non-negative")
+
+
+def test_black_samples_and_channels_encode_as_the_packages():
+    from noisebase.compression import compress_RGBE
+
+    color = _radiance(np.random.default_rng(2))
+    color[:, 1, 1, :2] = 0.0  # black samples: every byte 0, the exponent too
+    color[1:, 2, 2, 0] = 0.0  # a pure red sample: its green and blue bytes stay 0
+    np.random.seed(9)  # noqa: NPY002 (the package's global generator)
+    theirs, _ = compress_RGBE(color)
+    ours, _ = encode_rgbe(color, np.random.RandomState(9).random_sample)
+    np.testing.assert_array_equal(ours, theirs)
+    assert not ours[:, 1, 1, :2].any()
+    # no dither at all: an exact zero channel never rounds up (only a positive fraction above the draw does)
+    zero_dither, _ = encode_rgbe(color, np.zeros)
+    assert not zero_dither[1:3, 2, 2, 0].any() and zero_dither[0, 2, 2, 0] > 0
+
+
+def test_a_frame_of_one_value_gets_a_tiny_range_and_decodes_to_it():
+    from noisebase.compression import decompress_RGBE
+
+    rgbe, exposure = encode_rgbe(np.full((3, 2, 2, 2), 2.0), np.random.default_rng(0).random)
+    assert exposure[0] == pytest.approx(np.log(2.0)) and exposure[1] - exposure[0] == pytest.approx(
+        1e-6, rel=0.1
+    )
+    np.testing.assert_allclose(decompress_RGBE(rgbe, exposure), 2.0, rtol=0.01)
+
+
+def test_the_projection_maps_the_near_plane_to_0_the_far_plane_to_1_and_the_field_of_view_to_the_edges():
+    p = projection_matrix(90.0, 200, 100).astype(np.float64)
+    assert projection_matrix(90.0, 200, 100).dtype == np.float32
+
+    def ndc(x, y, z):
+        clip = p @ np.array([x, y, z, 1.0])
+        return clip[:3] / clip[3]
+
+    np.testing.assert_allclose(ndc(0, 0, NEAR), [0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(ndc(0, 0, FAR), [0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(ndc(5.0, 0, 5.0), [1, 0, ndc(0, 0, 5.0)[2]], atol=1e-6)  # 45 deg: right edge
+    np.testing.assert_allclose(ndc(0, 2.5, 5.0)[1], 1.0, atol=1e-6)  # half the width's extent: top edge
+    np.testing.assert_allclose(p[3], [0, 0, 1, 0])  # w = z
 
 
 def _frames(rng, frames, height, width, spp):
@@ -141,6 +184,10 @@ def test_an_exported_test_sequence_reads_back_through_the_package_loader(tmp_pat
 def test_a_mismatched_buffer_is_one_line():
     rng = np.random.default_rng(4)
     samples, reference, camera = _frames(rng, 1, 4, 4, 2)[0]
+    four = dict(samples, radiance=np.concatenate([samples["radiance"], samples["radiance"][:1]]))
+    with pytest.raises(DataError) as e:  # four colour channels, the rank right
+        frame_arrays(four, reference, camera, [0, 0], (4, 4), rng.random)
+    one_line_error(e, "radiance", "(4, 4, 4, 2)", "expected (3, H, W, S)")
     samples["normal"] = samples["normal"][..., :1]
     with pytest.raises(DataError) as e:
         frame_arrays(samples, reference, camera, [0, 0], (4, 4), rng.random)
