@@ -135,6 +135,17 @@ def test_fovvideovdp_equals_their_feeder_at_another_rate_and_on_one_frame(theirs
     assert nbp.fovvideovdp(out, reference, fps=fps) == pytest.approx(feeder.compute(), abs=1e-6)
 
 
+def test_the_frame_rate_reaches_fovvideovdp_through_score_sequence_and_nothing_is_printed(capsys):
+    test, ref = _pair(4, 32, 40, seed=8)
+    out, reference = [nbp.to_unit(f) for f in test], [nbp.to_unit(f) for f in ref]
+    nbp.fovvideovdp(out, reference)  # the first call imports pyfvvdp (which may warn)
+    capsys.readouterr()
+    at_8 = nbp.score_sequence(test, ref, warmup=0, fps=8.0)["fvvdp"]
+    assert at_8 == pytest.approx(nbp.fovvideovdp(out, reference, fps=8.0), abs=1e-9)
+    assert abs(at_8 - nbp.score_sequence(test, ref, warmup=0)["fvvdp"]) > 1e-4  # 30 fps reads otherwise
+    assert capsys.readouterr() == ("", "")  # quiet: an evaluation's log stays one line per sequence
+
+
 def test_sequences_of_unequal_length_are_one_line_errors_for_the_temporal_metrics():
     test, ref = _pair(3, 24, 32)
     out, reference = [nbp.to_unit(f) for f in test], [nbp.to_unit(f) for f in ref]
@@ -230,6 +241,9 @@ def test_bad_sequences_are_one_line_errors():
     with pytest.raises(DataError) as excinfo:
         nbp.score_sequence(test.astype(np.float32), ref, warmup=0, use_fvvdp=False)
     one_line_error(excinfo, "uint8", "float32")
+    with pytest.raises(DataError) as excinfo:  # the same rank, another width
+        nbp.score_sequence(test, ref[:, :, :-1], warmup=0, use_fvvdp=False)
+    one_line_error(excinfo, "(17, 24, 32, 3)", "(17, 24, 31, 3)")
     four = np.concatenate([test, test[..., :1]], -1)  # four channels, rank right
     with pytest.raises(DataError) as excinfo:
         nbp.score_sequence(four, np.concatenate([ref, ref[..., :1]], -1), warmup=0, use_fvvdp=False)
@@ -455,3 +469,24 @@ def test_the_smoke_pipeline_with_the_protocol_writes_the_noisebase_table(tmp_pat
     assert rows["speedup"].isna().all() and rows["render_s_per_spp"].isna().all()
     saved = pd.read_csv(tmp_path / "report" / "samples_saved.csv", comment="#")
     assert len(saved) == 2 and saved["speed-up"].isna().all() and saved["spp-equivalent"].gt(0).all()
+
+
+# Mutation testing (scripts/mutation.sh noisebase_protocol): the mutants left alive are equivalent here:
+# - every `device=` dropped or set to None, and `to_unit` without its dtype or device: the CPU either way
+#   (and to_unit's frames are uint8, which `/ 255` makes float32 too); a GPU run of the protocol is what
+#   scripts/device_check.sh is for;
+# - `zip(..., strict=...)` weakened: both sequences' lengths are checked before every zip;
+# - `luminance`'s `x[:, 2:4]`, `msssim`'s and `fovvideovdp`'s `shape[+2:]`, `float("INF")`: the same values
+#   on (N, 3, H, W) tensors;
+# - FovVideoVDP's foveation inputs (`centre` and the first argument of `process_block_of_frames`), the
+#   band frequencies passed to `do_pooling_and_jods`, `temp_padding`, `use_checkpoints`, `quiet`,
+#   `foveated=None`, `color_space` and the pyramid choice (`local_adapt` is "gpyr" in pyfvvdp 1.2.0):
+#   pyfvvdp reads them only in foveated mode, in its own `predict_video_source` (whose padding and
+#   printing the stream replaces), or they equal its defaults; the parity with Noisebase's feeder
+#   (at 30 and 8 fps, on 1 and 5 frames) pins the number;
+# - `channels` with a batch of 2 or a fifth channel: the block reads channels 0-3 of each batch entry and
+#   the pooling's mean of two identical entries is the entry;
+# - `250.0 / (1001.0 / fps)`: the same window length at every frame rate where 250 ms x fps / 1000 is not
+#   within 0.1 % above an integer (30 and 8 fps among them);
+# - the pyfvvdp shim's module names (`import_own`'s package, the `numpy.lib.shape_base` key): pyfvvdp is
+#   imported once per process, before which nothing else registers the name.
