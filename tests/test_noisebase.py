@@ -142,7 +142,8 @@ def _frame(radiance: np.ndarray) -> Frame:
 
 
 def test_non_finite_samples_count_as_zero_and_the_buffers_are_float32():
-    samples = np.array([1.0, np.inf, -np.inf, np.nan, 3.0], np.float32).reshape(1, 1, 1, 5).repeat(3, 0)
+    samples = np.array([1.0, np.inf, -np.inf, np.nan, 3.0, np.inf], np.float32).reshape(1, 1, 1, 6)[..., :5]
+    samples = samples.repeat(3, 0)
     mean, variance = pixel_moments(samples, 5)
     assert mean.dtype == variance.dtype == np.float32
     np.testing.assert_allclose(mean[0, 0], 0.8)  # (1 + 0 + 0 + 0 + 3) / 5
@@ -150,6 +151,8 @@ def test_non_finite_samples_count_as_zero_and_the_buffers_are_float32():
     rung = ladder_color(_frame(samples), 3)  # the last three: -inf, nan, 3 -> 0, 0, 3
     assert rung.dtype == np.float32 and rung.shape == (1, 1, 3)
     np.testing.assert_allclose(rung[0, 0], 1.0)
+    tail = samples[..., [0, 1, 4]]  # the last three: 1, +inf, 3 -> 1, 0, 3
+    np.testing.assert_allclose(ladder_color(_frame(tail), 3)[0, 0], 4.0 / 3.0)
 
 
 def test_every_buffer_of_a_frame_and_of_its_reference_is_float32_and_the_reference_has_the_motion(training):
@@ -161,6 +164,73 @@ def test_every_buffer_of_a_frame_and_of_its_reference_is_float32_and_the_referen
         assert {name: a.dtype for name, a in buffers.items()} == dict.fromkeys(buffers, np.dtype(np.float32))
     np.testing.assert_array_equal(reference["motion"], noisy["motion"])  # the flow into the next frame
     assert np.abs(reference["motion"]).max() > 1.0
+
+
+def _point_at_depths(base: np.ndarray, now: Frame, then: Frame, w_now: float, w_then: float) -> np.ndarray:
+    """A world point near `base` whose clip w is `w_now` in `now`'s camera and `w_then` in `then`'s (w is
+    linear in the point: [p, 1] @ view_proj[:, 3])."""
+    g = np.stack([now.view_proj[:3, 3], then.view_proj[:3, 3]])  # (2, 3): the gradients of the two w's
+    w0 = np.array([base @ g[0] + now.view_proj[3, 3], base @ g[1] + then.view_proj[3, 3]])
+    step = np.linalg.solve(g @ g.T, np.array([w_now, w_then]) - w0)
+    return base + step @ g
+
+
+def test_flow_is_defined_in_front_of_both_cameras_at_any_depth_and_zero_behind_either(training):
+    root, data = training
+    frames = read_frames(root / "train" / "scene0000.zip", "training", [0, 1], 4, rendering=(64, 96))
+    base = data["position"][0].astype(np.float64).mean(-1)[:, 4, 4]
+    depths = [
+        [(0.5, 0.5), (3.0, -1.0)],
+        [(-1.0, 3.0), (0.0, 3.0)],
+    ]  # near both; behind next; behind; on plane
+    points = np.array([[_point_at_depths(base, frames[0], frames[1], *d) for d in row] for row in depths])
+    flow = forward_flow(points, frames[0], frames[1])
+    offsets = data["crop_offset"].astype(np.float64)
+    grid = np.moveaxis(points, -1, 0)
+    then = _pixels(grid, data["view_proj_mat"][1].astype(np.float64), 64, 96) - offsets[1][:, None, None]
+    now = _pixels(grid, data["view_proj_mat"][0].astype(np.float64), 64, 96) - offsets[0][:, None, None]
+    for i, j in ((0, 0), (1, 1)):  # depths below 1 in one camera: defined all the same
+        np.testing.assert_allclose(flow[i, j], (then - now)[::-1, i, j], rtol=1e-4)
+        assert np.abs(flow[i, j]).max() > 0.1
+    assert not flow[0, 1].any() and not flow[1, 0].any()  # behind the next camera; behind this one
+
+
+@pytest.mark.parametrize(
+    ("crop", "ok"),
+    [
+        ([0, 0, 1, 1], True),  # one pixel
+        ([4, 6, 12, 10], True),  # to the last row and column of the 16 x 16 frame
+        ([5, 6, 12, 10], False),  # one row past the bottom
+        ([4, 7, 12, 10], False),  # one column past the right
+        ([0, 0, 0, 4], False),
+        ([0, 0, 4, 0], False),
+        ([-1, 0, 4, 4], False),
+        ([0, -1, 4, 4], False),
+    ],
+)
+def test_a_window_may_reach_each_edge_of_the_frame_and_no_further(training, crop, ok):
+    root, data = training
+    path = root / "train" / "scene0000.zip"
+    if ok:
+        (frame,) = read_frames(path, "training", [0], 2, crop, rendering=(64, 96))
+        top, left, h, w = crop
+        np.testing.assert_array_equal(
+            frame.reference, data["reference"][0][:, top : top + h, left : left + w]
+        )
+        return
+    with pytest.raises(DataError) as e:
+        read_frames(path, "training", [0], 2, crop, rendering=(64, 96))
+    one_line_error(e, f"dataset.crop={crop}", "16x16")
+
+
+def test_a_colour_array_of_the_wrong_rank_names_the_formats_layout(tmp_path):
+    for fmt, want in (("training", "[F, 4, H, W, S]"), ("test", "[4, H, W, S]")):
+        wrong = np.zeros((4, 2, 2, 2, 2, 1) if fmt == "test" else (4, 2, 2, 2), np.uint8)
+        path = tmp_path / fmt / "scene0000.zip"
+        write_training_sequence(path, frames=1, size=4, spp=2, replace={"color": wrong})
+        with pytest.raises(DataError) as e:
+            read_frames(path, fmt, [0], 2)
+        one_line_error(e, str(path), f"expected {want} ({fmt})")
 
 
 def test_a_test_store_has_one_frame():
@@ -272,3 +342,17 @@ def test_asking_for_more_frames_samples_or_window_than_stored_is_one_line(traini
         with pytest.raises(DataError) as e:
             read_frames(path, "training", args["frames"], args["samples"], args["crop"], rendering=(64, 96))
         one_line_error(e, str(path), needle)
+
+
+# Mutation testing (scripts/mutation.sh noisebase_data), src/data/noisebase.py: the mutants left alive are
+# equivalent:
+# - dtypes dropped or None where the value is float32 already (the store's positions, the flow's zeros)
+#   or becomes float32 on the way out (the EXR writer), and `nan=0.0` dropped (numpy's default);
+# - `FlipRotate(7, ...)` with another rendering size or crop offset: orientation 7 (no flip, no rotation)
+#   reads neither; `slice(None, n)` / `slice(n)` for `slice(0, n)`; `np.einsum` subscripts upper-cased;
+# - the flow's `isfinite` taken over the whole frame, and `w <= 0` against `w < 0`: a flow is non-finite
+#   only where a w is exactly 0, which the w rule already catches;
+# - the conversion record's key names and the summary's "sequences"/"seconds" keys (the record compares
+#   with itself; the summary is printed), `raw.mkdir(parents=...)` (the data folder exists), `same = None`;
+# - the error texts of a wrong colour rank other than the format's layout (read by a person, and
+#   `test_a_colour_array_of_the_wrong_rank_names_the_formats_layout` reads the layout).

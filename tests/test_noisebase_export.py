@@ -181,6 +181,33 @@ def test_an_exported_test_sequence_reads_back_through_the_package_loader(tmp_pat
     np.testing.assert_array_equal(ours.radiance, theirs["color"])
 
 
+def test_stores_are_lz4hc_9_chunked_per_frame_and_per_4_samples(tmp_path):
+    """The layout the format page gives (docs/noisebase.md): Blosc LZ4HC level 9 with byte shuffle; a
+    training store chunked one frame at a time, every per-sample array also per 4 samples."""
+    import zarr
+    from numcodecs import Blosc
+
+    rng = np.random.default_rng(6)
+    frames = [frame_arrays(*f, [0, 0], (4, 6), rng.random) for f in _frames(rng, 2, 4, 6, 8)]
+    write_training_sequence(tmp_path / "train.zip", frames)
+    write_test_frame(tmp_path / "test.zip", frames[0])
+    for name, frame_axis in (("train.zip", True), ("test.zip", False)):
+        group = zarr.open_group(zarr.ZipStore(str(tmp_path / name), mode="r"), mode="r")
+        lead = (1,) if frame_axis else ()
+        assert group["color"].chunks == (*lead, 4, 4, 6, 4) and group["position"].chunks == (
+            *lead,
+            3,
+            4,
+            6,
+            4,
+        )
+        assert group["reference"].chunks == (*lead, 3, 4, 6)  # no sample axis: whole frames
+        assert group["exposure"].chunks == (*lead, 2)
+        codec = group["color"].compressor
+        assert (codec.cname, codec.clevel, codec.shuffle) == ("lz4hc", 9, Blosc.SHUFFLE)
+        assert not (tmp_path / f"{name}.part").exists()
+
+
 def test_a_mismatched_buffer_is_one_line():
     rng = np.random.default_rng(4)
     samples, reference, camera = _frames(rng, 1, 4, 4, 2)[0]
@@ -373,3 +400,16 @@ def test_stage_export_writes_a_set_the_package_reads(tmp_path):
     loader = package_training_loader(out, frames, 12, (12, 16), 2, BUFFERS)
     theirs = loader[{"idx": frames - 1, "epoch": 0}]
     assert theirs["color"].shape == (3, 12, 16, 2) and np.isfinite(theirs["color"]).all()
+
+
+# Mutation testing (scripts/mutation.sh noisebase_data), src/data/noisebase_export.py: the mutants left
+# alive are equivalent:
+# - dtypes dropped or None where the value is already that dtype (float64 radiance, float32 cameras, the
+#   all-black frame's zeros, which the store casts), and the all-black frame's shapes (an all-black
+#   frame is never written: the renders have light);
+# - `FlipRotate(7, ...)` with another rendering size, window or crop offset: orientation 7 reads none;
+# - the byte ceiling 256 for 255: E >= the brightest channel, so no byte reaches 256 (tested against the
+#   package's encoder); `np.log(np.where(lit, brightest, 2.0))`: the value of an unlit sample is masked;
+# - the temporary name (".part") and the ZipStore's mode (the temporary is removed first);
+# - `lit = brightest >= 0`: a black sample's exponent is then floor(-inf) cast to uint8, 0 on this
+#   platform (the parity with the package covers black samples).
