@@ -60,6 +60,12 @@ def test_a_decoded_channel_is_within_one_step_of_its_exponent_and_unbiased():
 def test_an_all_black_frame_encodes_to_zero_and_bad_radiance_is_one_line():
     rgbe, exposure = encode_rgbe(np.zeros((3, 2, 2, 2)), np.random.default_rng(0).random)
     assert not rgbe.any() and not exposure.any()
+    assert (rgbe.shape, rgbe.dtype, exposure.shape, exposure.dtype) == (
+        (4, 2, 2, 2),
+        np.uint8,
+        (2,),
+        np.float32,
+    )
     with pytest.raises(DataError) as e:
         encode_rgbe(np.full((3, 1, 1, 2), np.nan), np.random.default_rng(0).random)
     one_line_error(e, "finite and non-negative")
@@ -404,9 +410,7 @@ def test_stage_export_writes_a_set_the_package_reads(tmp_path):
 
 # Mutation testing (scripts/mutation.sh noisebase_data), src/data/noisebase_export.py: the mutants left
 # alive are equivalent:
-# - dtypes dropped or None where the value is already that dtype (float64 radiance, float32 cameras, the
-#   all-black frame's zeros, which the store casts), and the all-black frame's shapes (an all-black
-#   frame is never written: the renders have light);
+# - dtypes dropped or None where the value is already that dtype (float64 radiance, float32 cameras);
 # - `FlipRotate(7, ...)` with another rendering size, window or crop offset: orientation 7 reads none;
 # - the byte ceiling 256 for 255: E >= the brightest channel, so no byte reaches 256 (tested against the
 #   package's encoder); `np.log(np.where(lit, brightest, 2.0))`: the value of an unlit sample is masked;
