@@ -64,6 +64,7 @@ def test_the_baseline_is_scored_on_the_same_frames_as_the_method(vol_data, tmp_p
         assert abs(row.baseline_psnr - row.psnr) > 0.5  # the stub's output and the filter's differ
         assert abs(row.baseline_psnr - row.noisy_psnr) > 0.5  # and the filter changes its input
     assert "baseline_noisy_relmse_spp" not in rows  # the noisy input is scored once
+    assert run.header["baseline"] == "cross_bilateral"  # metrics.json names the baseline
     assert logged["eval_baseline_psnr"] == pytest.approx(rows["baseline_psnr"].mean(), rel=1e-12)
     spp = int(rows.spp.iloc[0])
     assert logged[f"eval_baseline_relmse_spp_spp{spp}"] == pytest.approx(rows.baseline_relmse_spp.iloc[0])
@@ -74,6 +75,51 @@ def test_without_a_baseline_there_are_no_baseline_columns(vol_data, tmp_path, mo
     logged, rows = run.logged, run.rows
     assert not [c for c in rows if c.startswith("baseline_")]
     assert not [k for k in logged if "baseline" in k]
+
+
+def test_the_cost_card_of_a_sequence_evaluation_and_the_tags_of_every_scorer(vol_data, tmp_path, monkeypatch):
+    """Per item: ms per megapixel and GFLOP/s over the item's 4 frames, from the FLOPs per pixel probed
+    with the data's input channels; metrics.json and the logged metrics carry the probe's number; the tags
+    of two scorers (ColorVideoVDP, the Noisebase protocol) both arrive."""
+    import src.eval.denoise_eval as denoise_eval
+
+    asked = {}
+
+    def probe(model, in_channels=None):
+        asked["in_channels"] = in_channels
+        return {"total": 1234.0}
+
+    monkeypatch.setattr(denoise_eval, "flops_per_pixel", probe)
+    extra = ["metrics.cvvdp.enabled=true", "metrics.protocol=noisebase", "metrics.noisebase.warmup=1"]
+    run = stub_sequence_eval(
+        vol_data, tmp_path, monkeypatch, [*TONEMAP, *extra, "metrics.noisebase.fvvdp=false"]
+    )
+    from tests.conftest import smoke_config
+
+    channels = smoke_config(vol_data, tmp_path, ["dataset=volumetric"]).dataset.input_channels
+    assert asked["in_channels"] == channels and channels != 3
+    assert run.header["flops_per_pixel"] == 1234.0 and run.logged["eval_flops_per_pixel"] == 1234.0
+    for row in run.rows.itertuples():
+        frames, (height, width) = row.frames, stub_frames(row)[2].shape[1:3]
+        assert frames == 4
+        assert row.ms_per_mpixel == pytest.approx(row.ms_per_image / (height * width / 1e6))
+        assert row.gflops == pytest.approx(1234.0 * height * width / (row.ms_per_image / 1e3) / 1e9)
+    assert "nrbench.cvvdp.version" in run.tags and "nrbench.noisebase.pyfvvdp" in run.tags
+
+
+def test_a_model_the_flops_probe_cannot_run_has_no_gflops_and_says_so(
+    vol_data, tmp_path, monkeypatch, caplog
+):
+    import src.eval.denoise_eval as denoise_eval
+
+    def probe(model, in_channels=None):
+        raise RuntimeError("inputs of its own")
+
+    monkeypatch.setattr(denoise_eval, "flops_per_pixel", probe)
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, TONEMAP)
+    assert run.header["flops_per_pixel"] is None and "gflops" not in run.rows
+    assert "eval_flops_per_pixel" not in run.logged
+    assert "FLOPs per pixel of model=cross_bilateral unknown (inputs of its own)" in caplog.text
 
 
 def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch):

@@ -237,6 +237,9 @@ def test_the_evaluation_scores_the_equivalent_and_the_speedup(smoke_data, tmp_pa
     for spp, means in summary["per_spp"].items():
         values = [float(r["spp_equivalent"]) for r in rows if int(r["spp"]) == int(spp)]
         assert means["spp_equivalent"] == pytest.approx(math.exp(np.mean(np.log(values))))
+    overall = [float(r["speedup"]) for r in rows]  # the overall mean of a ratio is geometric too
+    assert summary["mean"]["speedup"] == pytest.approx(math.exp(np.mean(np.log(overall))))
+    assert summary["mean"]["speedup"] != pytest.approx(np.mean(overall))
     metrics = json.loads((tmp_path / "run" / "eval" / "metrics.json").read_text())
     header = metrics["spp_equivalent"]
     assert header["metric"] == "relmse" and header["ladder_spp"] == list(cfg.dataset.ladder_spp)
