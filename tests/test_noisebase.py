@@ -163,6 +163,8 @@ def test_every_buffer_of_a_frame_and_of_its_reference_is_float32_and_the_referen
     for buffers in (noisy, reference):
         assert {name: a.dtype for name, a in buffers.items()} == dict.fromkeys(buffers, np.dtype(np.float32))
     np.testing.assert_array_equal(reference["motion"], noisy["motion"])  # the flow into the next frame
+    for name in ("albedo", "albedoVariance", "normalVariance", "depth", "depthVariance"):  # all 4 samples
+        np.testing.assert_array_equal(reference[name], noisy[name], err_msg=name)
     assert np.abs(reference["motion"]).max() > 1.0
 
 
@@ -353,6 +355,8 @@ def test_asking_for_more_frames_samples_or_window_than_stored_is_one_line(traini
 # - the flow's `isfinite` taken over the whole frame, and `w <= 0` against `w < 0`: a flow is non-finite
 #   only where a w is exactly 0, which the w rule already catches;
 # - the conversion record's key names and the summary's "sequences"/"seconds" keys (the record compares
-#   with itself; the summary is printed), `raw.mkdir(parents=...)` (the data folder exists), `same = None`;
+#   with itself; the summary is printed), `raw.mkdir(parents=...)` (the data folder exists), `same = None`,
+#   a stamp without the store's path (the paths are in the record's settings too);
+# - `slice(0, None)` for a window of the whole frame;
 # - the error texts of a wrong colour rank other than the format's layout (read by a person, and
 #   `test_a_colour_array_of_the_wrong_rank_names_the_formats_layout` reads the layout).
