@@ -122,6 +122,38 @@ def test_a_model_the_flops_probe_cannot_run_has_no_gflops_and_says_so(
     assert "FLOPs per pixel of model=cross_bilateral unknown (inputs of its own)" in caplog.text
 
 
+def test_every_frame_is_saved_as_exr_and_tone_mapped_pngs_and_the_middle_frame_as_a_strip(
+    vol_data, tmp_path, monkeypatch
+):
+    """With `task.eval.save_exr` and a gamma away from its default: each frame's EXR holds the output's
+    R, G, B; its PNGs are the tone map of the images at that gamma (an undefined pixel black); only the
+    middle frame (2 of 4) has a comparison strip."""
+    from PIL import Image
+
+    from src.io.exr import read_exr
+
+    overrides = [*TONEMAP, "task.eval.save_exr=true", "metrics.gamma=1.6"]
+    run = stub_sequence_eval(vol_data, tmp_path, monkeypatch, overrides, undefined_spp=8)
+    out = tmp_path / "eval"
+    for row in run.rows.itertuples():
+        denoised, noisy, reference, _ = stub_frames(row)
+        if row.spp == 8:
+            denoised[1, 2, 3, :] = np.nan  # the stub's undefined pixel (its (F, C, H, W) [1, :, 2, 3])
+        for f in range(4):
+            name = f"{row.scene}-f{f:04d}-{row.spp:05d}spp"
+            exr = read_exr(out / "images" / f"{name}.exr")
+            got = np.stack([exr[c] for c in "RGB"], -1)
+            np.testing.assert_allclose(got, denoised[f], rtol=1e-6, equal_nan=True)
+            for kind, image in (("noisy", noisy[f]), ("denoised", denoised[f]), ("reference", reference[f])):
+                png = np.asarray(Image.open(out / "png" / f"{name}-{kind}.png"), dtype=np.float64)
+                want = np.round(255 * np.clip(tonemap(np.nan_to_num(image), "reinhard_gamma", 1.6), 0, 1))
+                np.testing.assert_allclose(png, want, atol=1, err_msg=f"{name} {kind}")
+            assert (out / "strips" / f"{name}.png").exists() == (f == 2)
+        if row.spp == 8:
+            png = np.asarray(Image.open(out / "png" / f"{row.scene}-f0001-00008spp-denoised.png"))
+            assert not png[2, 3].any()  # NaN drawn black
+
+
 def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch):
     learned = "+task.eval.baseline={name: identity, _target_: torch.nn.Identity}"  # no `learned = False`
     with pytest.raises(ConfigError) as excinfo:
