@@ -9,12 +9,14 @@ import subprocess
 import sys
 
 import mlflow
+import pytest
 
 from src.report.cost_card import DEVICE_TAG, PRECISION_TAG, measured_peaks
 from src.train.device import cpu_model
 from tests.conftest import ROOT
 
 
+@pytest.mark.slow  # 40 s of benches on a tiny frame; the benches themselves are tested by value elsewhere
 def test_the_device_check_writes_every_card_and_tags_its_peaks(tmp_path):
     env = {
         **os.environ,

@@ -88,6 +88,7 @@ def _tiny_studies(tmp_path):
     return searchpath
 
 
+@pytest.mark.slow  # 22 s; its SLURM twin (tests/test_cluster.py, also slow) launches the same study
 def test_a_study_launches_its_data_once_then_its_jobs_tagged_with_the_planned_digests(tmp_path):
     searchpath = _tiny_studies(tmp_path)
     code, out = _studies(["--study", "tiny"], tmp_path, searchpath)
