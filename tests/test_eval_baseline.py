@@ -159,3 +159,19 @@ def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch)
     with pytest.raises(ConfigError) as excinfo:
         stub_sequence_eval(vol_data, tmp_path, monkeypatch, [learned])
     one_line_error(excinfo, "task.eval.baseline", "learned")
+
+
+# Mutation testing (scripts/mutation.sh denoise_eval): the mutants left alive, against this group's files
+# (this one, tests/test_ladder.py, tests/test_flicker_metrics.py):
+# - equivalent: `nan_to_num` without `nan=0.0` (numpy's default), `device=None` / `.to(None)` (the CPU),
+#   the progress bar's `desc`, the strip's panel label "denoised" (text in an image), the baseline's
+#   `build_method(section=..., resolve=...)` (the section only names a key in build errors; the shipped
+#   baselines have no interpolations), the FLOPs divisor 1e9 + 1 (a 1e-9 change, inside every tolerance);
+# - not reached by these files, tested elsewhere: `check_trained_features`' arguments (the stub's filter
+#   has no checkpoint; tests/test_data_kinds.py refuses a checkpoint of other features in each kind), the
+#   data's colour space (the stub replaces inference; the trained models' evaluations in
+#   tests/test_denoise_train.py and tests/test_volumetric_training.py use it), a still image's file names
+#   (the stills' evaluations in tests/test_ladder.py and tests/test_report.py);
+# - not tested, and not equivalent: the FLOPs probe without input channels (no shipped dataset lacks
+#   `input_channels`), and `f == frames / 2` for `frames // 2`, which differs only for an odd frame count
+#   (the stub's sequences have 4 frames): an odd-length sequence would then get no strip.
