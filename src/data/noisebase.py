@@ -195,13 +195,19 @@ def read_frames(
         group.store.close()
 
 
+def finite_samples(samples: np.ndarray) -> np.ndarray:
+    """`samples` in float64 with every non-finite value (a sky sample's position, a broken one) as 0: what
+    the pixel means of the noisy inputs and of the ladder both average."""
+    return np.nan_to_num(samples.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+
+
 def pixel_moments(samples: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """(C, H, W, S) samples -> the mean of the first `n` per pixel (H, W, C) and the variance of that mean
     (H, W, 1): the unbiased sample variance over the n samples divided by n, averaged over the channels
     (`src.render.moments.variance_of_mean`). Non-finite samples count as 0 (sky positions)."""
     if n < 2:
         raise DataError(f"dataset.noisy_spp: {n} sample(s) per pixel; a variance needs at least 2")
-    x = np.nan_to_num(samples[..., :n].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    x = finite_samples(samples[..., :n])
     mean = x.mean(-1)
     var = x.var(-1, ddof=1) / n
     return (
@@ -219,7 +225,7 @@ def ladder_color(frame: Frame, spp: int) -> np.ndarray:
     stored = frame.radiance.shape[-1]
     if not 1 <= spp <= stored:
         raise DataError(f"dataset.ladder_spp: {spp} samples per pixel; the frames read have {stored}")
-    x = np.nan_to_num(frame.radiance[..., stored - spp :].astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    x = finite_samples(frame.radiance[..., stored - spp :])
     return np.moveaxis(x.mean(-1), 0, -1).astype(np.float32)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,16 @@ def held_out_index(cfg: DictConfig) -> Path:
 def repaired_note(summary: dict[str, Any]) -> str:
     """The printed line's note of the files repaired on loading (empty when none)."""
     return f", repaired {len(summary['repairs'])} files" if summary["repairs"] else ""
+
+
+def print_ladder(ladder: Mapping[str, Any], where: str, made: str = "rendered") -> None:
+    """The render stage's line about the held-out scenes' ladder (`src.render.ladder_render`'s summary), or
+    nothing when no scene has one; `made`: how its files were made."""
+    if ladder.get("scenes"):
+        print(
+            f"render: ladder of {len(ladder['scenes'])} held-out scenes at {ladder['counts']} spp: "
+            f"{ladder['files_rendered']} files {made} ({ladder['files_cached']} cached) -> {where}"
+        )
 
 
 class DenoisingKind(DataKind):
@@ -159,13 +169,7 @@ class DenoisingKind(DataKind):
             )
         else:
             print(f"render: all {summary['files_cached']} files up to date in {raw}")
-        ladder = summary.get("ladder") or {}
-        if ladder.get("scenes"):
-            print(
-                f"render: ladder of {len(ladder['scenes'])} held-out scenes at {ladder['counts']} spp: "
-                f"{ladder['files_rendered']} files rendered ({ladder['files_cached']} cached) -> "
-                f"{cfg.paths.ladder}"
-            )
+        print_ladder(summary.get("ladder") or {}, cfg.paths.ladder)
         write_summary(summary_path, summary, cfg, raw)
         return summary
 

@@ -13,6 +13,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from src.kinds.base import DataKind
+from src.kinds.denoising import print_ladder
 from src.kinds.sequences import RenderedSequences
 from src.provenance import write_summary
 from src.schema.dataset import NoisebaseDataset
@@ -50,12 +51,6 @@ class NoisebaseSequences(RenderedSequences):
         else:
             print(f"render: all {summary['files_cached']} files up to date in {raw}")
         summary["ladder"] = noisebase_ladder(self.dataset, Path(cfg.paths.ladder), self.ladder_scenes(cfg))
-        ladder = summary["ladder"]
-        if ladder["scenes"]:
-            print(
-                f"render: ladder of {len(ladder['scenes'])} held-out sequences at {ladder['counts']} spp "
-                f"from their stored samples: {ladder['files_rendered']} files written "
-                f"({ladder['files_cached']} cached) -> {cfg.paths.ladder}"
-            )
+        print_ladder(summary["ladder"], cfg.paths.ladder, made="averaged from their stored samples")
         write_summary(Path(cfg.paths.dataset) / "render_summary.json", summary, cfg, raw)
         return summary

@@ -224,10 +224,11 @@ def noisebase_ladder(ds: Mapping, ladder_dir: Path, held_out: Sequence[str]) -> 
     counts = ladder_counts(ds)
     top = max(counts) if counts else 0
     window = {k: ds[k] for k in ("format", "crop", "rendering_height", "rendering_width")}
+    stamps = {store: source_stamp([store]) for scene in held_out for store, _ in sources.get(scene, [])}
 
     def key_of(scene: str, frame: int, spp: int) -> str:
         store, index = sources[scene][frame]
-        identity = [source_stamp([store]), index, window, [top - spp, top]]
+        identity = [stamps[store], index, window, [top - spp, top]]
         return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()
 
     plan = [

@@ -340,7 +340,9 @@ def run_costs(runs: pd.DataFrame) -> str:
     for label in CARD_COLUMNS:
         key, _, fmt = COST_METRICS[label]
         column = f"metrics.{key}"
-        values = pd.to_numeric(runs[column], errors="coerce").dropna() if column in runs else pd.Series()
+        if column not in runs:
+            continue
+        values = pd.to_numeric(runs[column], errors="coerce").dropna()
         if len(values):
             parts.append(f"{label} {fmt.format(float(values.median()))}")
     return "median " + ", ".join(parts) if parts else "FLOPs and memory not logged"
