@@ -135,7 +135,7 @@ def site(cfg: DictConfig, tracker=None, task=None) -> dict:
 
     if cfg.tracking.enabled:  # the benchmark runs come from the store
         mlflow.set_tracking_uri(str(cfg.tracking.uri))
-    summary = build_site(cfg.report.out_dir)
+    summary = build_site(cfg.report.out_dir, cfg.report.get("committed_ledger"))
     print(f"site: {summary['reports']} reports -> {summary['index']}")
     return summary
 

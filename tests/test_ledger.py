@@ -3,6 +3,7 @@ claims file's reader (src/report/claims.py), and the ledger built from fixture M
 a benchmark (src/report/ledger.py), through `python -m src.run stage=ledger` for its errors."""
 
 import math
+import re
 import subprocess
 import sys
 import textwrap
@@ -697,6 +698,20 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert ledger.loc["study_first", "from"] == f"study {STUDY}" and kpcn["from"] == f"study {STUDY}"
     assert "by 12x" in ledger.loc["unet_10x", "numbers"] and ledger.loc["unet_10x", "profile"] == "paper"
     assert ledger.loc["unet_10x", "unit"] == "rounds"
+    # each claim's route at each of its profiles, cheapest first, with the time its runs took here
+    assert re.fullmatch(
+        rf"cpu: python -m src.run -m \+sweep={STUDY} profile=cpu \(measured: \d+ s of run time on AMD EPYC, "
+        r"2 threads, fp32 \(12 runs\)\); paper: python -m src.run -m \+sweep=toy_study profile=paper \(not "
+        r"measured in this store\)",
+        kpcn["to_run"],
+    ), kpcn["to_run"]
+    # profiles [paper, cpu]: cpu is the cheaper (its cpu bench run logs no autocast: `where` leaves it out)
+    unet = ledger.loc["unet_10x", "to_run"]
+    assert unet.startswith("cpu: python -m src.bench denoise --profile cpu --log (not measured in this store); ")
+    assert "; paper: python -m src.bench denoise --profile paper --log (measured: " in unet
+    assert ledger.loc["needs_scenes", "to_run"] == (
+        "thesis: python -m src.run -m +sweep=nerf_thesis profile=thesis (not measured in this store)"
+    )
     smoke = ledger.loc["smoke_only", "numbers"]
     assert "runs at smoke only" in smoke and "python -m src.run -m +sweep=smoke_only profile=cpu" in smoke
     assert "over 1 seeds (6 item(s) nested in each)" in ledger.loc["nerf_views", "numbers"]
@@ -710,8 +725,22 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     md = (tmp_path / "reports" / "ledger.md").read_text()
     assert "**8 reproduced, 1 direction only, 2 underpowered, 3 not run** (findings and readings)" in md
     html = (tmp_path / "reports" / "ledger.html").read_text()
-    # a header row per table (findings, readings) and a row per claim
-    assert html.count("<tr>") == 2 + 14 and "#d4edda" in html and "#e7f1ff" in html
+    # a section per source document: a header row per table and a row per claim that ran (11), the 3 not
+    # run folded in a list, each with its reason and routes
+    assert html.count("<tr>") == 3 + 11 and "#d4edda" in html and "#e7f1ff" in html
+    assert html.count("<h2>Doc ") == 3 and html.count("<li><code>") == 3
+    assert "<li><code>smoke_only</code>" in html and "to run (cheapest first): cpu: python" in html
+
+
+def test_the_routes_follow_the_configured_profile_order(ledger_store, tmp_path):
+    cfg = _ledger_cfg(ledger_store, tmp_path)
+    cfg.ledger.profile_order = ["paper", "cpu"]  # away from the default (cpu before paper)
+    ledger = pd.read_csv(build_ledger(cfg)["paths"]["csv"]).set_index("claim")
+    unet = ledger.loc["unet_10x", "to_run"]
+    assert unet.startswith("paper: python -m src.bench denoise --profile paper --log (measured: ")
+    assert unet.endswith("; cpu: python -m src.bench denoise --profile cpu --log (not measured in this store)")
+    smoke = ledger.loc["smoke_only", "numbers"]  # a not-run claim's reason carries the same routes
+    assert smoke.endswith(f"to run (cheapest first): {ledger.loc['smoke_only', 'to_run']}")
 
 
 def test_a_not_worse_claim_outside_its_margin_is_not_reproduced(ledger_store, tmp_path):

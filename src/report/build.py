@@ -243,7 +243,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
     files[MANIFEST] = atomic_write_text(out_dir / MANIFEST, json.dumps(manifest, indent=1) + "\n")
     files["index.html"] = atomic_write_text(out_dir / "index.html", page)
     if config_value(rc, "site", True):
-        refresh_site(root)
+        refresh_site(root, config_value(rc, "committed_ledger"))
     return {
         "runs": len(runs),
         "out_dir": str(out_dir),

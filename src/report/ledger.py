@@ -9,7 +9,8 @@ for learned arms, images for deterministic ones; a failed output is its arm's wo
 status from `src.report.verdicts`, with the p-values of a study's tests adjusted together
 (Benjamini-Hochberg, family = the claims read from one source at one profile). A claim without runs is
 **not run**, with the reason and the command that produces them. `write_ledger` writes
-`ledger.{md,html,csv}` and one CSV of replicate differences per claim (`src.report.ledger_page`).
+`ledger.{md,csv}` and one CSV of replicate differences per claim, `write_ledger_page` `ledger.html`
+(`src.report.ledger_page`).
 """
 
 from __future__ import annotations
@@ -89,6 +90,8 @@ class LedgerSettings:
     equivalent_commits: tuple[tuple[str, ...], ...] = ()
     model_keys: Mapping[str, frozenset[str]] = field(default_factory=dict)
     budget_shown: tuple[str, ...] = ()
+    # the profiles from the cheapest to the dearest (`ledger.profile_order`): the order of a claim's routes
+    profile_order: tuple[str, ...] = ("smoke", "cpu", "paper", "thesis", "bako")
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,7 @@ class LedgerRow:
     # the counted runs' device cards (device, threads, precision) with run counts, then their median FLOPs,
     # GFLOP/s and peak memory (`run_costs`)
     measured_on: str = ""
+    routes: str = ""  # the command at each of the claim's profiles, cheapest first (`routes`)
 
 
 def matching(frame: pd.DataFrame, wanted: Mapping[str, str], prefix: str = "params.") -> pd.Series:
@@ -313,13 +317,48 @@ def _nesting(replicates: Replicates) -> str:
     return ""
 
 
-def _not_run(claim: Claim, other_profiles: list[str], not_counted: list[str]) -> Verdict:
+def _not_run(claim: Claim, other_profiles: list[str], not_counted: list[str], to_run: str) -> Verdict:
     reasons = [NEEDS_REASONS[claim.needs]] if claim.needs else []
     reasons.append(f"no runs at {' or '.join(claim.profiles)}")
     if other_profiles:
         reasons.append(f"runs at {', '.join(other_profiles)} only, where it is not meaningful")
     reasons += not_counted
-    return Verdict(NOT_RUN, f"{'; '.join(reasons)}; to run: {claim.command(claim.profiles[0])}")
+    return Verdict(NOT_RUN, f"{'; '.join(reasons)}; to run (cheapest first): {to_run}")
+
+
+def duration_text(seconds: float) -> str:
+    """A run time as a reader wants it: "45 s", "41 min", "3.2 h"."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 90 * 60:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def run_time(runs: pd.DataFrame) -> str:
+    """What the runs took: the sum of their wall times (start to end: a study's jobs one after another)
+    with the machines they ran on and their counts; "not measured in this store" without runs."""
+    if runs.empty or "end_time" not in runs or "start_time" not in runs:
+        return "not measured in this store"
+    seconds = (pd.to_datetime(runs["end_time"]) - pd.to_datetime(runs["start_time"])).dt.total_seconds()
+    seconds = seconds.dropna()
+    if seconds.empty:
+        return "not measured in this store"
+    return f"measured: {duration_text(seconds.sum())} of run time on {measured_on(runs)}"
+
+
+def routes(claim: Claim, settings: LedgerSettings) -> str:
+    """The command that makes the claim's runs at each of its profiles (only those where it means
+    something), cheapest first by `settings.profile_order`, each with the time its runs took in this
+    store where it has any: "cpu: python -m src.run -m +sweep=x profile=cpu (measured: 41 min of run
+    time on AMD EPYC, 2 threads, fp32 (12 runs)); paper: ... (not measured in this store)"."""
+    order = settings.profile_order
+    ranked = sorted(claim.profiles, key=lambda p: order.index(p) if p in order else len(order))
+    parts = []
+    for profile in ranked:
+        runs = _compared_runs(claim, claim_runs(claim, claim.sources[0], profile))
+        parts.append(f"{profile}: {claim.command(profile)} ({run_time(runs)})")
+    return "; ".join(parts)
 
 
 def _provenance(runs: pd.DataFrame, column: str) -> tuple[str, ...]:
@@ -481,6 +520,7 @@ def _row(
         arm_budget=_arm_budget(claim, runs, settings) if not claim.is_bench else "",
         run_budget=run_budget(runs, settings.budget_shown),
         measured_on=f"{measured_on(runs)}; {run_costs(runs)}" if len(runs) else "",
+        routes=routes(claim, settings),
     )
     confound = _confound(claim, runs, settings)
     if confound:
@@ -525,7 +565,8 @@ def evaluate_claim(claim: Claim, settings: LedgerSettings | float = LedgerSettin
         if p not in claim.profiles
         and any(not _compared_runs(claim, claim_runs(claim, s, p)).empty for s in claim.sources)
     ]
-    return LedgerRow(claim, "-", "-", _not_run(claim, others, notes), 0, (), ())
+    to_run = routes(claim, settings)
+    return LedgerRow(claim, "-", "-", _not_run(claim, others, notes, to_run), 0, (), (), routes=to_run)
 
 
 def adjust_families(rows: Sequence[LedgerRow], alpha: float) -> list[LedgerRow]:
@@ -567,6 +608,11 @@ def settings_from(cfg: Any, claims_path: Path) -> LedgerSettings:
         equivalent_commits=tuple(tuple(str(c) for c in group) for group in groups),
         model_keys=model_keys(conf_dir),
         budget_shown=tuple(str(k) for k in OmegaConf.select(cfg, "ledger.budget_shown", default=None) or ()),
+        profile_order=tuple(
+            str(p)
+            for p in OmegaConf.select(cfg, "ledger.profile_order", default=None)
+            or LedgerSettings.profile_order
+        ),
     )
 
 
@@ -575,7 +621,7 @@ def build_ledger(cfg: Any) -> dict[str, Any]:
     under `ledger.out_dir`; returns the paths written and the status of each claim."""
     from src.provenance import git_commit
     from src.report.claims import load_claims
-    from src.report.ledger_page import ledger_frame, status_counts, write_ledger
+    from src.report.ledger_page import ledger_frame, status_counts, write_ledger, write_ledger_page
 
     claims_path = Path(str(cfg.ledger.claims))
     claims = load_claims(claims_path)
@@ -596,10 +642,13 @@ def build_ledger(cfg: Any) -> dict[str, Any]:
     out_dir = Path(str(cfg.ledger.out_dir))
     paths = write_ledger(frame, out_dir, subtitle, rows)
     paths.update(_record(cfg, frame, rows, paths))
+    committed = OmegaConf.select(cfg, "report.committed_ledger", default=None)
+    committed = Path(str(committed)) if committed else None
+    paths["html"] = write_ledger_page(out_dir, committed)  # after _record: its label reads the history
     if OmegaConf.select(cfg, "report.site", default=True):
         from src.report.site import refresh_site
 
-        refresh_site(out_dir)  # the site's index shows the ledger's findings and what changed
+        refresh_site(out_dir, committed)  # the site's index shows the ledger's findings and what changed
     return {
         "paths": paths,
         "statuses": dict(zip(frame["claim"], frame["status"], strict=True)),

@@ -9,6 +9,7 @@ checks get tables of their own and are never counted as what a seed found.
 
 from __future__ import annotations
 
+import base64
 import html
 import math
 from collections.abc import Sequence
@@ -18,11 +19,14 @@ import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.report.claims import CATEGORIES, TALLIED
-from src.report.verdicts import STATUSES, effect_text
+from src.report.ledger_figures import STATUS_FILL, forest_plot, status_chart
+from src.report.shown_ledger import choose
+from src.report.verdicts import NOT_RUN, STATUSES, effect_text
 
 COLUMNS = (
     "claim",
     "category",
+    "document",
     "source",
     "quote",
     "statement",
@@ -51,6 +55,13 @@ COLUMNS = (
     "items_csv",
     "commits",
     "data",
+    "to_run",
+    "scale",
+    "estimate",
+    "low",
+    "high",
+    "reference",
+    "tolerance",
 )
 #: What the Markdown and HTML tables show (the CSV has every column).
 SHOWN = (
@@ -66,16 +77,33 @@ SHOWN = (
     "from",
 )
 #: What each claim's details list under the tables, in this order: our budget beside the seed's.
-DETAILS = ("quote", "caveat", "numbers", "budget", "run_budget", "seed_budget", "not_counted", "measured_on")
-_COLOURS = {
-    "reproduced": "#d4edda",
-    "direction only": "#fff3cd",
-    "not reproduced": "#f8d7da",
-    "not distinguishable": "#e2e3e5",
-    "underpowered": "#e7f1ff",
-    "confounded": "#f3d9fa",
-    "not run": "#ffffff",
-}
+DETAILS = (
+    "quote",
+    "caveat",
+    "numbers",
+    "budget",
+    "run_budget",
+    "seed_budget",
+    "not_counted",
+    "measured_on",
+    "to_run",
+)
+#: The HTML tables' columns (grouped by source document: the document is the section); the site's index
+#: shows `SHOWN_ON_INDEX`, the ledger page all of these.
+SHOWN_BY_DOCUMENT = (
+    "claim",
+    "category",
+    "status",
+    "measured",
+    "published",
+    "unit",
+    "seeds",
+    "images",
+    "undefined",
+    "profile",
+    "from",
+)
+SHOWN_ON_INDEX = ("claim", "status", "measured", "published", "unit", "profile", "from")
 _TITLES = {
     "finding": "Findings the seeds state",
     "reading": "Readings: the harness's interpretation of a quoted sentence",
@@ -90,6 +118,9 @@ th, td { padding: 0.35em 0.6em; border-bottom: 1px solid #ddd; text-align: left;
 th { border-bottom: 2px solid #444; } code { font-size: 0.9em; }
 .scroll { overflow-x: auto; max-width: 100%; }
 details { margin: 0.2em 0; font-size: 0.85em; }
+.origin { background: #eef4fb; border: 1px solid #b5c9e0; padding: 0.5em 0.8em; }
+.legend { font-size: 0.85em; color: #444; } .nowrap { white-space: nowrap; }
+img { max-width: 100%; }
 """
 
 
@@ -117,6 +148,27 @@ def _published(claim) -> str:
     return "no size given"
 
 
+def effect_numbers(row) -> dict[str, float | str]:
+    """The estimate and interval as numbers on the scale the ledger prints them (`scale`: "factor" for a
+    log claim, exp of the log ratio, else the metric's name for a difference), with the published size
+    (`reference`) and the comparable / not-worse tolerance on that scale (NaN where the rule has none):
+    what the forest plot draws."""
+    claim, verdict = row.claim, row.verdict
+    rule = claim.rule
+    on_scale = math.exp if claim.log else float
+    size = rule.size if rule.kind == "better" and rule.size and (rule.size > 1 or not claim.log) else math.nan
+    tolerance = rule.tolerance if rule.kind in ("comparable", "not_worse") else math.nan
+    return {
+        "scale": "factor" if claim.log else claim.metric,
+        "estimate": on_scale(verdict.estimate),
+        "low": on_scale(verdict.low),
+        "high": on_scale(verdict.high),
+        # a log claim's size is already a factor (`10` for "10x"); its tolerance is a natural-log width
+        "reference": size,
+        "tolerance": on_scale(tolerance),
+    }
+
+
 def _quote(claim) -> str:
     if not claim.quote:
         return ""
@@ -136,6 +188,7 @@ def ledger_frame(rows: Sequence) -> pd.DataFrame:
             {
                 "claim": r.claim.id,
                 "category": r.claim.category,
+                "document": r.claim.document,
                 "source": r.claim.citation,
                 "quote": _quote(r.claim),
                 "statement": r.claim.statement,
@@ -164,6 +217,8 @@ def ledger_frame(rows: Sequence) -> pd.DataFrame:
                 "items_csv": f"items/{r.claim.id}.csv" if replicates is not None else "-",
                 "commits": " ".join(r.commits) or "-",
                 "data": " ".join(r.fingerprints) or "-",
+                "to_run": r.routes or "-",
+                **effect_numbers(r),
             }
         )
     return pd.DataFrame(records, columns=list(COLUMNS))
@@ -204,30 +259,61 @@ def ledger_markdown(frame: pd.DataFrame, subtitle: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _html_table(part: pd.DataFrame) -> list[str]:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in SHOWN)
+#: What each column of the ledger's tables means, under each table (one line each).
+LEGEND = (
+    "measured: the Hodges-Lehmann estimate of arm a's advantage with its interval (a factor for a log "
+    "claim, else a difference in the metric's units); published: the size or tolerance the claim is "
+    "judged against; unit: what replicates (training seeds, or images for a deterministic method); "
+    "undefined: replicates with an undefined output / all; from: the study, pipeline or benchmark whose "
+    "runs were counted."
+)
+
+
+def _claim_cell(row: pd.Series, items_href=None) -> str:
+    """The claim's id with its details folded (source, statement, quote, numbers, budgets, routes) and the
+    link to its per-replicate differences (`items_href(items_csv)`, None: no link)."""
+    details = "".join(
+        f"<div><i>{key}</i>: {html.escape(str(row[key]))}</div>"
+        for key in ("source", "statement", *DETAILS)
+        if key in row and str(row[key]) not in ("", "-", "nan")
+    )
+    link = row.get("items_csv", "-")
+    href = items_href(str(link)) if items_href and link not in ("-", "", None) else None
+    if href:
+        details += f'<div><a href="{html.escape(href)}">per-replicate differences</a></div>'
+    claim = html.escape(str(row["claim"]))
+    return f"<td><code>{claim}</code><details><summary>details</summary>{details}</details></td>"
+
+
+def status_cell(status: str) -> str:
+    """A status as a coloured, bold table cell."""
+    colour = STATUS_FILL.get(status, "#ffffff")
+    return f'<td style="background:{colour}"><b>{html.escape(status)}</b></td>'
+
+
+def _from_cell(source: str, study_href) -> str:
+    href = study_href(source) if study_href else None
+    text = html.escape(source)
+    return f'<td><a href="{html.escape(href)}">{text}</a></td>' if href else f"<td>{text}</td>"
+
+
+def _ran_table(part: pd.DataFrame, columns, study_href=None, items_href=None) -> list[str]:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
     body = []
     for _, row in part.iterrows():
-        colour = _COLOURS.get(row["status"], "#ffffff")
         cells = []
-        for c in SHOWN:
-            text = html.escape(str(row[c]))
-            if c == "status":
-                cells.append(f'<td style="background:{colour}"><b>{text}</b></td>')
-            elif c == "claim":
-                details = "".join(
-                    f"<div><i>{key}</i>: {html.escape(str(row[key]))}</div>"
-                    for key in ("source", "statement", *DETAILS)
-                    if str(row[key]) not in ("", "-")
-                )
-                link = row["items_csv"]
-                if link != "-":
-                    details += f'<div><a href="{html.escape(link)}">per-replicate differences</a></div>'
-                cells.append(
-                    f"<td><code>{text}</code><details><summary>details</summary>{details}</details></td>"
-                )
+        for c in columns:
+            value = str(row.get(c, "-"))
+            if c == "claim":
+                cells.append(_claim_cell(row, items_href))
+            elif c == "status":
+                cells.append(status_cell(value))
+            elif c == "from":
+                cells.append(_from_cell(value, study_href))
+            elif c == "measured":
+                cells.append(f'<td class="nowrap">{html.escape(value)}</td>')
             else:
-                cells.append(f"<td>{text}</td>")
+                cells.append(f"<td>{html.escape(value)}</td>")
         body.append(f"<tr>{''.join(cells)}</tr>")
     return [
         f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>',
@@ -236,12 +322,83 @@ def _html_table(part: pd.DataFrame) -> list[str]:
     ]
 
 
-def ledger_html(frame: pd.DataFrame, subtitle: str) -> str:
-    sections = []
-    for category in CATEGORIES:
-        part = frame[frame["category"] == category]
-        if not part.empty:
-            sections += [f"<h2>{html.escape(_TITLES[category])}</h2>", *_html_table(part)]
+def _not_run_list(part: pd.DataFrame) -> list[str]:
+    """The claims not run, folded: each with its reason and its route at each profile, cheapest first."""
+    items = []
+    for _, row in part.iterrows():
+        claim, category = html.escape(str(row["claim"])), html.escape(str(row.get("category", "-")))
+        statement, reason = (
+            html.escape(str(row.get("statement", ""))),
+            html.escape(str(row.get("numbers", "-"))),
+        )
+        items.append(f"<li><code>{claim}</code> ({category}): {statement}<br><i>{reason}</i></li>")
+    return [
+        f"<details><summary>{len(part)} claim{'s' if len(part) != 1 else ''} not run: why, and the command "
+        "at each profile (cheapest first)</summary><ul>",
+        *items,
+        "</ul></details>",
+    ]
+
+
+def document_sections(
+    frame: pd.DataFrame, study_href=None, items_href=None, columns: Sequence[str] = SHOWN_BY_DOCUMENT
+) -> list[str]:
+    """Per source document: a heading, its claims that ran (status coloured, details folded; targets and
+    set-up checks marked by their category, never counted in the headline) and its claims not run, folded.
+    A document whose claims all did not run gets no table, only the folded list: never an empty table.
+    `study_href(source)`: the link of a "from" cell, `items_href(items_csv)` of a claim's per-replicate
+    differences (`ShownLedger.items_href`), each None for no link."""
+    sections: list[str] = []
+    if frame.empty:
+        return sections
+    documents = frame["document"] if "document" in frame else pd.Series("claims", index=frame.index)
+    for document in dict.fromkeys(documents):
+        part = frame[documents == document]
+        ran, not_run = part[part["status"] != NOT_RUN], part[part["status"] == NOT_RUN]
+        order = {c: i for i, c in enumerate(CATEGORIES)}
+        ran = ran.iloc[sorted(range(len(ran)), key=lambda i: order.get(ran["category"].iloc[i], len(order)))]
+        counts = status_counts(part)
+        sections.append(f"<h2>{html.escape(str(document))}</h2>")
+        sections.append(f"<p>{html.escape(counts)} (findings and readings)</p>")
+        if len(ran):
+            sections += _ran_table(ran, columns, study_href, items_href)
+        if len(not_run):
+            sections += _not_run_list(not_run)
+    if sections:
+        sections.append(f'<p class="legend">{html.escape(LEGEND)}</p>')
+    return sections
+
+
+def figure_img(png: bytes | None, alt: str) -> list[str]:
+    """An embedded PNG (`<img>` with a base64 data URI), or nothing."""
+    if png is None:
+        return []
+    data = base64.b64encode(png).decode("ascii")
+    return [f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}"></figure>']
+
+
+def ledger_figures(frame: pd.DataFrame) -> list[str]:
+    """The status chart and the forest plot (`src.report.ledger_figures`), each with its heading."""
+    parts = []
+    chart = status_chart(frame)
+    if chart is not None:
+        parts += ["<h2>Status by source document</h2>", *figure_img(chart, "claims by document and status")]
+    forest = forest_plot(frame)
+    if forest is not None:
+        parts += [
+            "<h2>Effects and intervals</h2>",
+            *figure_img(forest, "each claim's effect and interval"),
+            '<p class="legend">Each row is a claim that ran: its estimate (dot) and interval (line), '
+            "coloured by status; the diamond is the published size where the source gives one; the shaded "
+            "band a comparable claim's tolerance. Agreement claims (published values) have no single "
+            "interval and are not drawn.</p>",
+        ]
+    return parts
+
+
+def ledger_html(frame: pd.DataFrame, subtitle: str, label: str = "", items_href=None) -> str:
+    """The whole ledger page: where it comes from (`label`), the methods (`subtitle`), the headline, the
+    figures and one section per source document."""
     return (
         "\n".join(
             [
@@ -249,10 +406,14 @@ def ledger_html(frame: pd.DataFrame, subtitle: str) -> str:
                 '<html lang="en"><head><meta charset="utf-8">',
                 f"<title>Reproduction ledger</title><style>{_STYLE}</style></head><body>",
                 "<h1>Reproduction ledger</h1>",
-                f"<p>{html.escape(subtitle)}</p>",
-                f"<p><b>{html.escape(status_counts(frame))}</b> (findings and readings)</p>",
+                f'<p class="origin">{html.escape(label)}</p>' if label else "",
+                f"<p>{html.escape(subtitle)}</p>" if subtitle else "",
+                f"<p><b>{html.escape(status_counts(frame))}</b> (findings and readings)</p>"
+                if len(frame)
+                else "<p>No ledger yet: <code>python -m src.run stage=ledger</code> writes one.</p>",
                 '<p><a href="index.html">All reports</a></p>',
-                *sections,
+                *ledger_figures(frame),
+                *document_sections(frame, items_href=items_href),
                 "</body></html>",
             ]
         )
@@ -270,10 +431,10 @@ def _items_csv(row) -> str:
 
 
 def write_ledger(frame: pd.DataFrame, out_dir: Path, subtitle: str, rows: Sequence = ()) -> dict[str, Path]:
-    """`ledger.{md,html,csv}` and `items/<claim>.csv` under `out_dir`, with `items/index.csv` listing the
+    """`ledger.{md,csv}` and `items/<claim>.csv` under `out_dir`, with `items/index.csv` listing the
     claims that have items (written even when none has: the folder is a DVC output of the ledger stage,
     and a store without a counted run, e.g. at `profile=smoke`, must not fail it); returns the ledger
-    paths by suffix."""
+    paths by suffix. The HTML page is `write_ledger_page`'s: it may show the committed snapshot instead."""
     out_dir = Path(out_dir)
     listed = []
     for row in rows:
@@ -284,9 +445,14 @@ def write_ledger(frame: pd.DataFrame, out_dir: Path, subtitle: str, rows: Sequen
             )
     index = pd.DataFrame(listed, columns=["claim", "file", "replicates"])
     atomic_write_text(out_dir / "items" / "index.csv", index.to_csv(index=False))
-    texts = {
-        "md": ledger_markdown(frame, subtitle),
-        "html": ledger_html(frame, subtitle),
-        "csv": frame.to_csv(index=False),
-    }
+    texts = {"md": ledger_markdown(frame, subtitle), "csv": frame.to_csv(index=False)}
     return {suffix: atomic_write_text(out_dir / f"ledger.{suffix}", text) for suffix, text in texts.items()}
+
+
+def write_ledger_page(out_dir: Path, committed: Path | None) -> Path:
+    """`<out_dir>/ledger.html`: the ledger `shown_ledger.choose` picks (this store's once it has a status,
+    else the committed snapshot), labelled with where it comes from."""
+    shown = choose(Path(out_dir) / "ledger.csv", committed)
+    return atomic_write_text(
+        Path(out_dir) / "ledger.html", ledger_html(shown.frame, shown.subtitle, shown.label)
+    )

@@ -31,7 +31,6 @@ import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.report.tables import NOISY_ROW
-from src.report.verdicts import NOT_RUN
 
 log = logging.getLogger("nrbench.report")
 
@@ -68,6 +67,10 @@ th { border-bottom: 2px solid #444; } td.num { text-align: right; }
 .smoke { background: #f8d7da; border: 1px solid #d08080; padding: 0.6em 1em; margin: 1em 0; }
 tr.noisy td { font-style: italic; color: #555; }
 code, pre { font-size: 0.88em; } pre { background: #f6f6f6; padding: 0.6em; overflow-x: auto; }
+img { max-width: 100%; } figure { margin: 0.5em 0; }
+.origin { background: #eef4fb; border: 1px solid #b5c9e0; padding: 0.5em 0.8em; }
+.legend { font-size: 0.85em; color: #444; } .nowrap { white-space: nowrap; }
+details { margin: 0.2em 0; }
 """
 
 
@@ -399,37 +402,37 @@ def method_page(model: str, records: list[tuple[Entry, dict[str, Any]]], out_dir
     return page(f"Method: {model}", body, banner=SMOKE_NOTE if smoke else None)
 
 
-def _ledger_section(out_dir: Path) -> list[str]:
-    """The ledger's findings: its headline count (findings and readings), one row per claim that ran
-    (linking the study that ran it), the statuses that changed since the previous ledger
-    (`ledger_history.csv`); the claims not run are counted (the ledger gives their reasons)."""
+def _ledger_section(out_dir: Path, committed: Path | None) -> list[str]:
+    """The ledger first (`shown_ledger.choose`: this store's once it has a status, else the committed
+    snapshot), labelled with where it comes from: its headline count (findings and readings), the status
+    chart and forest plot, one section per source document (claims not run folded, each with its route
+    per profile), linking the study that ran each claim; then the statuses that changed since the
+    previous ledger (`ledger_history.csv`)."""
     from src.report.ledger_history import changes
-    from src.report.ledger_page import status_counts
+    from src.report.ledger_page import SHOWN_ON_INDEX, document_sections, ledger_figures, status_counts
+    from src.report.shown_ledger import NONE, choose
 
-    path = out_dir / "ledger.csv"
-    if not path.is_file():
+    shown = choose(out_dir / "ledger.csv", committed)
+    if shown.origin == NONE:
         return [
             "<h2>Reproduction ledger</h2>",
             "<p>No ledger yet (<code>python -m src.run stage=ledger</code>).</p>",
         ]
-    frame = pd.read_csv(path, dtype=str).fillna("-")
-    summary = status_counts(frame)
-    not_run = frame[frame["status"] == NOT_RUN]
-    columns = ("claim", "category", "status", "measured", "unit", "seeds", "images", "profile")
-    rows = []
-    for _, row in frame[frame["status"] != NOT_RUN].iterrows():
-        source = str(row.get("from", "-"))
+
+    def study_href(source: str) -> str | None:
         study = source.removeprefix("study ") if source.startswith("study ") else None
         target = f"sweeps/{study}/index.html" if study else None
-        source_html = (
-            _link(target, source) if target and (out_dir / target).is_file() else html.escape(source)
-        )
-        rows.append([html.escape(str(row.get(c, "-"))) for c in columns] + [source_html])
+        return target if target and (out_dir / target).is_file() else None
+
     section = [
         '<h2><a href="ledger.html">Reproduction ledger</a></h2>',
-        f"<p><b>{html.escape(summary)}</b> (findings and readings, from <code>ledger.csv</code>).</p>",
-        html_table([*columns, "from"], rows),
-        f"<p>{len(not_run)} claims not run: the ledger says why and which command runs them.</p>",
+        f'<p class="origin">{html.escape(shown.label)}</p>',
+        f"<p><b>{html.escape(status_counts(shown.frame))}</b> (findings and readings).</p>",
+        *ledger_figures(shown.frame),
+        *(
+            s.replace("<h2>", "<h3>").replace("</h2>", "</h3>")
+            for s in document_sections(shown.frame, study_href, shown.items_href(out_dir), SHOWN_ON_INDEX)
+        ),
     ]
     history = out_dir / "ledger_history.csv"
     if history.is_file():
@@ -446,7 +449,13 @@ def _ledger_section(out_dir: Path) -> list[str]:
     return section
 
 
-def index_page(out_dir: Path, entries: list[Entry], models: Mapping[str, list], bench: pd.DataFrame) -> str:
+def index_page(
+    out_dir: Path,
+    entries: list[Entry],
+    models: Mapping[str, list],
+    bench: pd.DataFrame,
+    committed: Path | None = None,
+) -> str:
     """`index.html`: the ledger's findings, then every report by section (title, profiles, runs, date),
     the benchmark runs and the method pages."""
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
@@ -454,7 +463,7 @@ def index_page(out_dir: Path, entries: list[Entry], models: Mapping[str, list], 
         f"<p>Every report under this folder, built from the logged MLflow runs; generated {stamp}. "
         "Smoke-profile reports check the plumbing only: their numbers mean nothing.</p>"
     ]
-    body += _ledger_section(out_dir)
+    body += _ledger_section(out_dir, committed)
     for section in [*CATEGORIES.values(), STUDIES, OTHER]:
         part = [e for e in entries if e.category == section]
         if not part:
@@ -498,10 +507,15 @@ def index_page(out_dir: Path, entries: list[Entry], models: Mapping[str, list], 
     return page("nrbench reports", body)
 
 
-def build_site(out_dir: str | Path) -> dict[str, Any]:
-    """Write `index.html`, `methods/*.html` and (when there are benchmark runs) `bench/index.html` under
-    `out_dir` from what it holds and the current MLflow store; returns the written paths."""
+def build_site(out_dir: str | Path, committed_ledger: str | Path | None = None) -> dict[str, Any]:
+    """Write `index.html`, `methods/*.html` and `bench/index.html` under `out_dir` from what it holds and
+    the current MLflow store, and `ledger.html` when no ledger stage wrote one here (it shows
+    `committed_ledger`, the committed snapshot, until this store has its own); returns the written
+    paths."""
+    from src.report.ledger_page import write_ledger_page
+
     out_dir = Path(out_dir)
+    committed = Path(str(committed_ledger)) if committed_ledger else None
     entries = scan(out_dir)
     models = methods(entries)
     bench = bench_runs()
@@ -511,15 +525,19 @@ def build_site(out_dir: str | Path) -> dict[str, Any]:
         written.append(
             atomic_write_text(out_dir / method_file(model), method_page(model, records, out_dir, bench))
         )
-    written.append(atomic_write_text(out_dir / "index.html", index_page(out_dir, entries, models, bench)))
+    if not (out_dir / "ledger.csv").is_file():  # else the ledger stage wrote ledger.html (a DVC output)
+        written.append(write_ledger_page(out_dir, committed))
+    written.append(
+        atomic_write_text(out_dir / "index.html", index_page(out_dir, entries, models, bench, committed))
+    )
     return {"index": str(out_dir / "index.html"), "files": [str(p) for p in written], "reports": len(entries)}
 
 
-def refresh_site(out_dir: str | Path) -> None:
+def refresh_site(out_dir: str | Path, committed_ledger: str | Path | None = None) -> None:
     """`build_site`, its failure logged rather than raised: a report or ledger already written stays
     written when the index cannot be rebuilt."""
     try:
-        summary = build_site(out_dir)
+        summary = build_site(out_dir, committed_ledger)
     except Exception as err:
         log.error("site: index not rebuilt (%s: %s)", type(err).__name__, err)
         return

@@ -103,6 +103,7 @@ class Report(Schema):
     keep: Literal["latest", "all"]
     images: NonNegativeInt
     site: bool
+    committed_ledger: str | None = None
 
 
 class Ledger(Schema):
@@ -115,6 +116,7 @@ class Ledger(Schema):
     alpha: float = Field(gt=0, lt=1)
     equivalent_commits: list[list[str]] = []
     budget_shown: list[str] = []
+    profile_order: list[str] = Field(default=["smoke", "cpu", "paper", "thesis", "bako"], min_length=1)
     snapshot: str | None = None
 
 
