@@ -707,7 +707,8 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     ), kpcn["to_run"]
     # profiles [paper, cpu]: cpu is the cheaper (its cpu bench run logs no autocast: `where` leaves it out)
     unet = ledger.loc["unet_10x", "to_run"]
-    assert unet.startswith("cpu: python -m src.bench denoise --profile cpu --log (not measured in this store); ")
+    not_here = "(not measured in this store)"
+    assert unet.startswith(f"cpu: python -m src.bench denoise --profile cpu --log {not_here}; ")
     assert "; paper: python -m src.bench denoise --profile paper --log (measured: " in unet
     assert ledger.loc["needs_scenes", "to_run"] == (
         "thesis: python -m src.run -m +sweep=nerf_thesis profile=thesis (not measured in this store)"
@@ -738,7 +739,9 @@ def test_the_routes_follow_the_configured_profile_order(ledger_store, tmp_path):
     ledger = pd.read_csv(build_ledger(cfg)["paths"]["csv"]).set_index("claim")
     unet = ledger.loc["unet_10x", "to_run"]
     assert unet.startswith("paper: python -m src.bench denoise --profile paper --log (measured: ")
-    assert unet.endswith("; cpu: python -m src.bench denoise --profile cpu --log (not measured in this store)")
+    assert unet.endswith(
+        "; cpu: python -m src.bench denoise --profile cpu --log (not measured in this store)"
+    )
     smoke = ledger.loc["smoke_only", "numbers"]  # a not-run claim's reason carries the same routes
     assert smoke.endswith(f"to run (cheapest first): {ledger.loc['smoke_only', 'to_run']}")
 

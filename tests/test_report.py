@@ -384,6 +384,8 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
         assert grid.width >= 5 * 24 and grid.height >= 2 * (16 + 4 * 16)
 
     page = (out / "index.html").read_text()
+    # the store by its file name, never this machine's path to it
+    assert "runs (cpu profile) from sqlite:///mlflow.db," in page and str(store["tmp"]) not in page
     pngs = _embedded_pngs(page)
     assert len(pngs) == 2
     assert pngs[0] == (out / "learning_curves.png").read_bytes()

@@ -59,6 +59,7 @@ from src.report.collect import (
     find_runs,
     param_column,
     per_image_rows,
+    store_name,
 )
 from src.report.cost_card import with_peak_fraction
 from src.report.figures import (
@@ -346,7 +347,8 @@ def _page(
     return render_html(
         title=manifest["title"],
         subtitle=f"{len(runs)} MLflow runs ({', '.join(profiles) or 'no'} profile) from "
-        f"{mlflow.get_tracking_uri()}, compared by {compared}; generated {manifest['generated']}. Values: "
+        f"{store_name(mlflow.get_tracking_uri())}, compared by {compared}; "
+        f"generated {manifest['generated']}. Values: "
         "mean ± std over runs (seeds) per row; best per column in bold; the noisy input's row (italics), "
         f"where logged, is what a denoiser must beat and is never marked best. Timings measured on: "
         f"{measured_on(runs)}. {CLOCKS}",

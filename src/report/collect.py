@@ -25,6 +25,32 @@ from src.report.renamed_keys import renamed_params
 
 log = logging.getLogger("nrbench.report")
 
+#: The repository root: a page names a file under it relative to it, never by its machine path.
+REPOSITORY = Path(__file__).resolve().parents[2]
+
+
+def display_path(path: str | Path) -> str:
+    """`path` relative to the repository when it lies inside it, else its file name: what a report or a
+    committed file may print (a machine's absolute path means nothing on another machine)."""
+    resolved = Path(path).expanduser().resolve()
+    return (
+        resolved.relative_to(REPOSITORY).as_posix() if resolved.is_relative_to(REPOSITORY) else resolved.name
+    )
+
+
+def store_name(uri: str) -> str:
+    """A tracking store as a page prints it: a file or SQLite store by `display_path` ("mlflow.db",
+    "sqlite:///mlflow.db"), a server by its URL without credentials."""
+    uri = str(uri)
+    scheme, sep, rest = uri.partition("://")
+    if not sep:  # a bare path
+        return display_path(uri)
+    if scheme.startswith("sqlite") or scheme == "file":
+        return f"{scheme}:///{display_path('/' + rest.lstrip('/'))}"
+    host = rest.rsplit("@", 1)[-1]  # user:password@host: the credentials stay out of the page
+    return f"{scheme}://{host}"
+
+
 SWEEP_PARENT_TAG = "nrbench.sweep_parent"
 SWEEP_DIR_TAG = "nrbench.sweep_dir"
 GROUP_TAG = "nrbench.group"

@@ -16,10 +16,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from src.report.collect import display_path
 from src.report.verdicts import NOT_RUN
 
-#: The repository root: files under it are named relative to it.
-REPOSITORY = Path(__file__).resolve().parents[2]
 LOCAL, COMMITTED, NONE = "local", "committed", "none"
 
 
@@ -45,14 +44,6 @@ class ShownLedger:
             return Path(os.path.relpath(self.folder / link, page_dir)).as_posix()
 
         return href
-
-
-def display_path(path: Path) -> str:
-    """`path` relative to the repository when it lies inside it, else its file name."""
-    resolved = Path(path).resolve()
-    return (
-        resolved.relative_to(REPOSITORY).as_posix() if resolved.is_relative_to(REPOSITORY) else resolved.name
-    )
 
 
 def read_ledger(path: Path) -> tuple[pd.DataFrame, str]:

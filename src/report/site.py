@@ -30,6 +30,7 @@ import mlflow
 import pandas as pd
 
 from src.io.atomic import atomic_write_text
+from src.report.collect import store_name
 from src.report.tables import NOISY_ROW
 
 log = logging.getLogger("nrbench.report")
@@ -257,7 +258,7 @@ def bench_page(runs: pd.DataFrame) -> str:
         )
     body = [
         f"<p>{len(runs)} FINISHED runs of MLflow experiment <code>{BENCH_EXPERIMENT}</code> in "
-        f"<code>{html.escape(mlflow.get_tracking_uri())}</code>, newest first; "
+        f"<code>{html.escape(store_name(mlflow.get_tracking_uri()))}</code>, newest first; "
         "<code>seconds_&lt;row&gt;</code> is each timed row's median seconds per frame over the rounds. "
         f'<a href="../index.html">All reports</a>.</p>',
         html_table(header, rows),
