@@ -21,7 +21,7 @@ from src.gp.evaluate import filter_images, required_terminals, window_weights
 from src.gp.features import normalize_feature, sobel_gradient
 from src.gp.grammar import PSET, gen_full, gen_grow, gen_half_and_half
 from src.gp.published import EXPR1, EXPR2, EXPR3, PUBLISHED, bilateral_expression
-from src.gp.text import ExpressionError, parse, to_infix
+from src.gp.text import ExpressionError, compact, parse, to_infix
 from src.models.filters.cross_bilateral import cross_bilateral, guide_features
 from src.models.filters.gp_filter import GPFilter
 from src.models.instantiate import build_method
@@ -231,6 +231,14 @@ def test_parse_reads_infix_and_prefix_alike_and_keeps_constants():
     assert str(parse("-0.5")) == "-0.5" and str(parse("neg(0.5)")) == "neg(0.5)"
     assert parse("0.1")[0] is PSET.mapping["0.1"]  # the grammar's own constant
     assert parse("0.05")[0].value == 0.05
+
+
+def test_compact_text_rounds_constants_for_display_and_the_exact_text_keeps_them():
+    noisy = "exp(-(distance2(depth, depth) * 0.020000000000000004)) * biweight((-0.30000000000000004) * 1.5)"
+    assert to_infix(parse(noisy)) == noisy  # what is logged reads back to the same tree
+    assert compact(noisy) == "exp(-(distance2(depth, depth) * 0.02)) * biweight((-0.3) * 1.5)"
+    assert compact("neg(0.123456789) * 1e-07", digits=3) == "neg(0.123) * 1e-07"
+    assert compact("distance2(normal, 1.0) +") == "distance2(normal, 1.0) +"  # not an expression: as it is
 
 
 @pytest.mark.parametrize(

@@ -62,7 +62,9 @@ def site(gp_runs, tmp_path_factory):  # noqa: F811 (the imported fixture)
         held_out = {0.3: 0.6, 0.35: 0.4, 0.55: 0.5}[round(fitness, 2)]
         client.log_batch(run_id, metrics=[Metric("eval_relmse_ratio", held_out, 0, 1)])
         if fitness == pytest.approx(0.35):
-            client.set_tag(run_id, "search.evaluated_expression", "bilateral(normal, 2.0)")
+            client.set_tag(
+                run_id, "search.evaluated_expression", "exp(-distance2(normal, normal) * 2.0000000000000004)"
+            )
 
     reports = tmp / "reports"
     build_report(_cfg(runs, reports, name="denoise"))
@@ -170,11 +172,15 @@ def test_the_filter_search_report_lists_the_best_expressions_with_held_out_numbe
     assert list(table["held-out PSNR"]) == pytest.approx([29.65, 29.45, 29.7])
     assert list(table["search fitness (min)"]) == pytest.approx([0.35, 0.5, 0.3])
     # the expression the eval scored wins over the search's best; the others say they were not scored
-    assert table.loc[0, "expression"] == "bilateral(normal, 2.0)"
+    assert (
+        table.loc[0, "expression"] == "exp(-distance2(normal, normal) * 2.0000000000000004)"
+    )  # the CSV: as logged
     assert list(table["scored on"]) == ["held-out split"] + ["search only (no eval)"] * 2
     assert table["expression"].str.contains(r"distance2\(pixel, pixel\)").any()  # infix as logged
     page = (out / "index.html").read_text()
     assert "best expressions (infix)" in page and "<code>exp(" in page
+    # the page: its constants without float noise (src/gp/text.py::compact)
+    assert "<code>exp(-distance2(normal, normal) * 2)</code>" in page and "2.0000000000000004" not in page
     assert "best fitness per generation" in page  # the curves
 
 

@@ -108,10 +108,21 @@ def to_prefix(tree: gp.PrimitiveTree) -> str:
     return str(tree)
 
 
-def to_infix(tree: gp.PrimitiveTree) -> str:
-    """Readable infix form (Python syntax, minimal parentheses); `parse` reads it back to an equal tree."""
-    text, _ = _infix(tree, 0)
+def to_infix(tree: gp.PrimitiveTree, digits: int | None = None) -> str:
+    """Readable infix form (Python syntax, minimal parentheses); `parse` reads it back to an equal tree.
+    `digits`: constants to that many significant digits instead (for display: 0.02, not the
+    0.020000000000000004 a mutation can make; what is logged keeps every digit)."""
+    text, _ = _infix(tree, 0, digits)
     return text
+
+
+def compact(text: str, digits: int = 6) -> str:
+    """An expression's text as a page shows it: infix with constants to `digits` significant digits (its
+    text unchanged when it does not parse, e.g. an older grammar's)."""
+    try:
+        return to_infix(parse(text), digits)
+    except ExpressionError:
+        return text
 
 
 def _is_number(node) -> bool:
@@ -123,13 +134,17 @@ def _wrap(text: str, prec: int, minimum: int) -> str:
     return text if prec >= minimum else f"({text})"
 
 
-def _infix(tree: gp.PrimitiveTree, i: int) -> tuple[str, int]:
-    """(infix text, precedence) of the subtree rooted at tree[i]."""
+def _number(node: gp.Terminal, digits: int | None) -> str:
+    return node.format() if digits is None or not _is_number(node) else f"{node.value:.{digits}g}"
+
+
+def _infix(tree: gp.PrimitiveTree, i: int, digits: int | None = None) -> tuple[str, int]:
+    """(infix text, precedence) of the subtree rooted at tree[i]; `digits`: see `to_infix`."""
     node = tree[i]
     if isinstance(node, gp.Terminal):
         if _is_number(node) and node.value < 0:
-            return f"({node.format()})", _ATOM  # "(-0.5)": a constant, not neg(0.5)
-        return node.format(), _ATOM
+            return f"({_number(node, digits)})", _ATOM  # "(-0.5)": a constant, not neg(0.5)
+        return _number(node, digits), _ATOM
     children, j = [], i + 1
     for _ in range(node.arity):
         end = tree.searchSubtree(j).stop
@@ -137,8 +152,8 @@ def _infix(tree: gp.PrimitiveTree, i: int) -> tuple[str, int]:
         j = end
     if node.name in BINARY:
         (la, _), (ra, _) = children
-        left, lp = _infix(tree, la)
-        right, rp = _infix(tree, ra)
+        left, lp = _infix(tree, la, digits)
+        right, rp = _infix(tree, ra, digits)
         prec = _PREC[node.name]
         if node.name == "pow":  # right-associative; a ** -b is valid Python
             left, right = _wrap(left, lp, _ATOM), _wrap(right, rp, _PREC["neg"])
@@ -148,9 +163,9 @@ def _infix(tree: gp.PrimitiveTree, i: int) -> tuple[str, int]:
     if node.name == "neg":
         child = tree[children[0][0]]
         if _is_number(child):
-            return f"neg({child.format()})", _ATOM  # keep neg(0.5) apart from the constant -0.5
-        operand, op_prec = _infix(tree, children[0][0])
+            return f"neg({_number(child, digits)})", _ATOM  # keep neg(0.5) apart from the constant -0.5
+        operand, op_prec = _infix(tree, children[0][0], digits)
         return f"-{_wrap(operand, op_prec, _PREC['pow'])}", _PREC["neg"]
     assert node.name in UNARY or node.arity == 2
-    args = ", ".join(_infix(tree, a)[0] for a, _ in children)
+    args = ", ".join(_infix(tree, a, digits)[0] for a, _ in children)
     return f"{node.name}({args})", _ATOM

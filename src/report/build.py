@@ -50,6 +50,7 @@ from typing import Any
 import mlflow
 import pandas as pd
 
+from src.gp.text import compact
 from src.io.atomic import atomic_write_text
 from src.multirun import quiet_mlflow_logs
 from src.report.collect import (
@@ -449,18 +450,25 @@ def _text(value) -> str:
     return "-" if value is None else str(value)
 
 
+def _shown(column: str, value) -> str:
+    """A cell as the page and the Markdown show it: an expression with compact constants
+    (src/gp/text.py::compact; the CSV keeps the logged text), other values as `_text`."""
+    return compact(value) if column == "expression" and isinstance(value, str) else _text(value)
+
+
 def _expressions_markdown(frame) -> str:
     lines = ["| " + " | ".join(frame.columns) + " |", "|" + "---|" * len(frame.columns)]
     for row in frame.itertuples(index=False):
-        lines.append("| " + " | ".join(_text(v).replace("|", "\\|") for v in row) + " |")
+        cells = (_shown(c, v).replace("|", "\\|") for c, v in zip(frame.columns, row, strict=True))
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
 def _expressions_html(frame) -> str:
-    """The best-expressions table: numbers to 4 significant digits, expressions as code."""
+    """The best-expressions table: numbers to 4 significant digits, expressions as code (compact)."""
 
     def cell(column: str, value) -> str:
-        text = html.escape(_text(value))
+        text = html.escape(_shown(column, value))
         return f"<code>{text}</code>" if column == "expression" else text
 
     rows = [
