@@ -15,7 +15,8 @@ Markdown:
 - per job: its seed, min fitness, held-out ratio at `--spp` and best expression;
 - each arm against the first (paired by seed and held-out image, `src.report.paired`): the
   geometric-mean ratio of relMSE / noisy, the PSNR and |energy - 1| differences, wins, and the Wilcoxon
-  p-value, at `--spp` and over all sample counts; "shown" at p < 0.05, "not shown" otherwise.
+  p-value, at `--spp` and over all sample counts; "significant (n = ...)" at p < 0.05, "not significant
+  (n = ...)" otherwise.
 """
 
 from __future__ import annotations
@@ -143,7 +144,7 @@ def comparisons(jobs: list[dict], spp: int) -> pd.DataFrame:
                     "relMSE/noisy ratio": f"{ratio.ratio:.3f}",
                     "lower/higher": f"{ratio.b_higher}/{ratio.a_higher}",
                     "p": f"{ratio.p_value:.3g}",
-                    "relMSE": "shown" if ratio.shown() else "not shown",
+                    "relMSE": ratio.verdict(),
                     "PSNR diff (dB)": f"{psnr.mean_difference:+.2f}",
                     "p PSNR": f"{psnr.p_value:.3g}",
                     "|energy-1| diff": f"{energy.mean_difference:+.4f}",

@@ -131,7 +131,7 @@ def test_gp_study_compares_each_arm_with_the_first_paired_by_seed_and_image(tmp_
     rows = gp_study.comparisons(jobs, 4).set_index("spp")
     at4, every = rows.loc[4], rows.loc["all"]
     assert at4["pairs"] == 4 and at4["relMSE/noisy ratio"] == "0.500" and at4["lower/higher"] == "4/0"
-    assert at4["relMSE"] == "not shown"  # 4 pairs: the smallest two-sided p is 2/16
+    assert at4["relMSE"] == "not significant (n = 4)"  # 4 pairs: the smallest two-sided p is 2/16
     assert every["pairs"] == 8 and every["relMSE/noisy ratio"] == f"{0.5**0.5:.3f}"
     assert at4["|energy-1| diff"] == "+0.1000"
     text = gp_study.report(tmp_path, 4)
@@ -193,17 +193,23 @@ def test_paired_table_compares_each_row_with_the_best_by_seed_and_image():
     row = {m: table.loc[(m,)] for m in "ABCD"}
     assert row["A"]["relMSE / noisy"] == "best" and row["A"]["PSNR"] == "best"
     assert row["B"]["relMSE / noisy vs best (ratio)"] == pytest.approx(2.0)
-    assert row["B"]["relMSE / noisy p"] == pytest.approx(2 / 2**6) and row["B"]["relMSE / noisy"] == "shown"
-    assert row["B"]["PSNR vs best (difference)"] == pytest.approx(-1.0) and row["B"]["PSNR"] == "shown"
+    assert (
+        row["B"]["relMSE / noisy p"] == pytest.approx(2 / 2**6)
+        and row["B"]["relMSE / noisy"] == "significant (n = 6)"
+    )
+    assert (
+        row["B"]["PSNR vs best (difference)"] == pytest.approx(-1.0)
+        and row["B"]["PSNR"] == "significant (n = 6)"
+    )
     assert row["B"]["pairs"] == 6 and row["B"]["runs"] == 3
     d = np.log([0.95, 1.1, 1.12, 0.93, 1.15, 0.97])  # C against A, in the items' sorted order
     assert row["C"]["relMSE / noisy vs best (ratio)"] == pytest.approx(math.exp(d.mean()))
     assert row["C"]["relMSE / noisy p"] == pytest.approx(_signed_rank_p(d))
-    assert row["C"]["relMSE / noisy"] == "not shown"
+    assert row["C"]["relMSE / noisy"] == "not significant (n = 6)"
     assert row["D"]["pairs"] == 2 and row["D"]["relMSE / noisy vs best (ratio)"] == pytest.approx(3.0)
-    assert row["D"]["relMSE / noisy"] == "not shown"  # 2 pairs: the smallest p is 0.5
+    assert row["D"]["relMSE / noisy"] == "not significant (n = 2)"  # 2 pairs: the smallest p is 0.5
     text = to_markdown(table)
-    assert "not shown" in text and "**" not in text  # verdicts, no best-value bolding
+    assert "not significant (n = 6)" in text and "**" not in text  # verdicts, no best-value bolding
 
 
 def test_paired_table_needs_two_rows_and_compares_differences_where_a_ratio_is_zero():
@@ -237,7 +243,7 @@ def test_paired_table_compares_sequences_on_their_flicker_and_temporal_psnr():
     table = paired_table(study, ["model.name"])
     assert table.loc[("A",), "Flicker vs truth"] == "best"
     assert table.loc[("B",), "Flicker vs truth vs best (difference)"] == pytest.approx(0.03)
-    assert table.loc[("B",), "Flicker vs truth"] == "shown"  # 6 of 6 pairs one way
+    assert table.loc[("B",), "Flicker vs truth"] == "significant (n = 6)"  # 6 of 6 pairs one way
     assert pd.isna(table.loc[("C",), "Flicker vs truth vs best (difference)"])  # C has no flicker scores
     assert table.loc[("B",), "tPSNR vs best (difference)"] == pytest.approx(-2.0)
-    assert table.loc[("B",), "tPSNR"] == "not shown"  # 5 pairs left: the smallest p is 0.0625
+    assert table.loc[("B",), "tPSNR"] == "not significant (n = 5)"  # 5 pairs left: the smallest p is 0.0625

@@ -368,7 +368,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     # with it on their common items (seed 0), so no p and no finding; resnet has the best PSNR
     assert paired.loc["dpcn", "relMSE / noisy"] == "best" and paired.loc["resnet", "PSNR"] == "best"
     assert paired.loc["kpcn", "relMSE / noisy vs best (ratio)"] == 1.0 and paired.loc["kpcn", "pairs"] == 2
-    assert paired.loc["kpcn", "relMSE / noisy"] == "not shown" and pd.isna(
+    assert paired.loc["kpcn", "relMSE / noisy"] == "not significant (n = 2)" and pd.isna(
         paired.loc["kpcn", "relMSE / noisy p"]
     )
     assert "paired by seed and held-out image" in (out / "index.html").read_text()

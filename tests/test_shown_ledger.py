@@ -42,8 +42,19 @@ def _write(path: Path, rows, header: str = "") -> Path:
 
 
 RAN = [
-    _row("a1", "reproduced", estimate="2.0", low="1.5", high="2.5", scale="factor", reference="10"),
-    _row("a2", "not reproduced", estimate="-1", low="-2", high="-0.5", scale="psnr"),
+    _row(
+        "a1",
+        "reproduced",
+        estimate="2.0",
+        low="1.5",
+        high="2.5",
+        scale="factor",
+        reference="10",
+        items_csv="items/a1.csv",
+    ),
+    _row(
+        "a2", "not reproduced", estimate="-1", low="-2", high="-0.5", scale="psnr", items_csv="items/a2.csv"
+    ),
     _row("a3", "not run"),
     _row("b1", "not run", document="Doc B"),
     _row("t1", "reproduced", document="Doc B", category="target", estimate="1", low="1", high="1"),
@@ -116,7 +127,10 @@ def test_the_items_link_leads_from_the_page_to_the_snapshots_folder_when_the_fil
 
 def test_the_ledger_page_groups_by_document_folds_the_not_run_and_never_prints_an_empty_table(tmp_path):
     committed = _write(tmp_path / "docs" / "ledger.csv", RAN, HEADER)
+    (committed.parent / "items").mkdir()
+    (committed.parent / "items" / "a1.csv").write_text("seed,a_minus_b\n0,1\n")
     page = write_ledger_page(tmp_path / "reports", committed).read_text()
+    assert page.count('<a href="../docs/items/a1.csv">per-replicate differences</a>') == 1  # a2 has none
     doc_a, doc_b = page.split("<h2>Doc A</h2>")[1].split("<h2>Doc B</h2>")
     assert doc_a.count("<tr>") == 1 + 2 and "1 claim not run" in doc_a and "<li><code>a3</code>" in doc_a
     # Doc B: its finding did not run (folded), its target ran (a table, not counted in the headline)

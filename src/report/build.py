@@ -14,7 +14,7 @@ selects, written to `<report.out_dir>/<report.name>/`:
                                       of lower bounds) and the speed-up over rendering more samples, from
                                       the runs' per-image rows (src/report/samples_saved.py)
     paired.{md,tex,csv}               each row against the best row per metric, paired by seed and
-                                      held-out image: ratio or difference, Wilcoxon p, shown / not shown
+                                      held-out image: ratio or difference, Wilcoxon p, significant or not (n)
     noisebase.{md,tex,csv}            runs scored with metrics.protocol=noisebase: spp rows x PSNR, SSIM,
                                       MS-SSIM, FVVDP, FLIP, tPSNR in Noisebase's layout, the published
                                       NPPD row in its own block (src/report/noisebase_table.py)

@@ -452,7 +452,7 @@ def write_ledger(frame: pd.DataFrame, out_dir: Path, subtitle: str, rows: Sequen
 def write_ledger_page(out_dir: Path, committed: Path | None) -> Path:
     """`<out_dir>/ledger.html`: the ledger `shown_ledger.choose` picks (this store's once it has a status,
     else the committed snapshot), labelled with where it comes from."""
-    shown = choose(Path(out_dir) / "ledger.csv", committed)
-    return atomic_write_text(
-        Path(out_dir) / "ledger.html", ledger_html(shown.frame, shown.subtitle, shown.label)
-    )
+    out_dir = Path(out_dir)
+    shown = choose(out_dir / "ledger.csv", committed)
+    page = ledger_html(shown.frame, shown.subtitle, shown.label, shown.items_href(out_dir))
+    return atomic_write_text(out_dir / "ledger.html", page)

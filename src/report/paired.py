@@ -6,8 +6,8 @@ seeds and images, which a paired test measures and a table of means does not.
 relMSE, so that "B is 20 % lower" weighs the same on an easy and a hard image), their mean, how many items
 favour each arm, and the two-sided Wilcoxon signed-rank p-value of the differences (scipy: exact for
 fewer than 50 items without ties, the normal approximation beyond). With a handful of items the smallest
-p a signed-rank test can give is 2 / 2^n (n = 6: 0.031), so "not shown" at a small budget is what the
-test must say when it cannot separate the arms.
+p a signed-rank test can give is 2 / 2^n (n = 6: 0.031), so "not significant (n = 4)" at a small budget is
+what the test must say when it cannot separate the arms.
 """
 
 from __future__ import annotations
@@ -47,6 +47,11 @@ class Paired:
     def shown(self, alpha: float = 0.05) -> bool:
         """Whether the difference is significant at `alpha` (two-sided)."""
         return bool(self.p_value < alpha)
+
+    def verdict(self, alpha: float = 0.05) -> str:
+        """ "significant (n = 6)" or "not significant (n = 4)": the test's answer with the pairs it had (a
+        reader sees at once when n was too small for any p below `alpha`)."""
+        return f"{'significant' if self.shown(alpha) else 'not significant'} (n = {self.n})"
 
 
 def paired_difference(a: Sequence[float], b: Sequence[float], log: bool = False) -> Paired:
@@ -105,7 +110,8 @@ def paired_table(
     """Each compared row against the best row, paired by seed and held-out image (`src.report.paired`):
     per metric of `PAIRED_METRICS` the row whose mean is best, then for every row the geometric-mean ratio
     (relMSE / noisy) or mean difference (PSNR, dB) against it over their common items, the two-sided
-    Wilcoxon signed-rank p, and the verdict: `best`, `shown` (p < `alpha`) or `not shown` (the difference
+    Wilcoxon signed-rank p, and the verdict: `best`, `significant (n = ...)` (p < `alpha`) or `not
+    significant (n = ...)` (the difference
     stays inside the spread of seeds and images); `pairs` is the item count of the first metric. A table
     of means cannot say whether a difference is a finding; this one can. None with fewer than two rows or
     no per-image scores."""
@@ -148,11 +154,14 @@ def paired_table(
             result = paired_difference(scores[row][common], scores[best][common], log=log_scale)
             against.append(result.ratio if log_scale else result.mean_difference)
             p_values.append(result.p_value)
-            verdicts.append("shown" if result.shown(alpha) else "not shown")
+            verdicts.append(result.verdict(alpha))
             pairs.append(result.n)
         name = f"{label} vs best" + (" (ratio)" if log_scale else " (difference)")
         table[name], table[f"{label} p"], table[label] = against, p_values, verdicts
-        specs |= {name: ("", None, "{:.3f}"), f"{label} p": ("", None, "{:.3g}"), label: ("", None, "{}")}
+        # a ratio to 4 significant digits, a difference signed to 3: "-4.2e-05", never a "-0.000" that
+        # hides the size behind a verdict
+        number = "{:.4g}" if log_scale else "{:+.3g}"
+        specs |= {name: ("", None, number), f"{label} p": ("", None, "{:.3g}"), label: ("", None, "{}")}
         if "pairs" not in table:
             table["pairs"] = pairs
             specs["pairs"] = ("", None, "{:,.0f}")
