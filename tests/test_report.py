@@ -386,6 +386,8 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     page = (out / "index.html").read_text()
     # the store by its file name, never this machine's path to it
     assert "runs (cpu profile) from sqlite:///mlflow.db," in page and str(store["tmp"]) not in page
+    # a legend line under each table for the columns a reader could misread
+    assert '<p class="legend">runs: the runs (training seeds) a row averages;' in page
     pngs = _embedded_pngs(page)
     assert len(pngs) == 2
     assert pngs[0] == (out / "learning_curves.png").read_bytes()
@@ -607,3 +609,18 @@ def test_the_undefined_column_shows_only_where_an_output_was_undefined():
     table = comparison_table(runs, noisy=False)
     assert table.loc["gp_filter", "Undefined"] == pytest.approx(0.125)
     assert table.loc["cross_bilateral", "Undefined"] == 0.0
+
+
+def test_the_column_legend_explains_each_misreadable_column_once():
+    from src.report.tables import COLUMN_NOTES, column_legend
+
+    columns = ["PSNR", "PSNR std", "Energy", "Energy 4spp", "baseline PSNR", "baseline relMSE / noisy", "runs"]
+    assert column_legend(columns) == [COLUMN_NOTES["Energy"], COLUMN_NOTES["baseline"], COLUMN_NOTES["runs"]]
+    assert column_legend(["PSNR", "SSIM"]) == []  # nothing a reader could misread
+    random = column_legend(["LPIPS (vgg16-random(seed=0)+lin-uniform)"])
+    assert len(random) == 1 and "not comparable with published LPIPS" in random[0]
+    trained = column_legend(["LPIPS (vgg16+lin)"])
+    assert len(trained) == 1 and "published" not in trained[0]
+    # "relMSE / noisy" is not "relMSE (Bako)", and a column only starting like a key's word is not that key
+    assert column_legend(["relMSE / noisy"]) == [COLUMN_NOTES["relMSE / noisy"]]
+    assert column_legend(["Energyish"]) == []

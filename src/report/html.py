@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from src.report.table_writers import cells
-from src.report.tables import MISSING, NOISY_ROW
+from src.report.tables import MISSING, NOISY_ROW, RUNS_COLUMN, column_legend
 
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; padding: 0 1em; color: #222; }
@@ -26,6 +26,7 @@ th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right;
 th { border-bottom: 2px solid #444; } td.key, th.key { text-align: left; }
 .warning { background: #fff3cd; border: 1px solid #e0c060; padding: 0.6em 1em; margin: 1em 0; }
 img { max-width: 100%; border: 1px solid #ccc; } code { font-size: 0.9em; }
+.legend { font-size: 0.85em; color: #444; margin: -1em 0 0.4em; }
 """
 
 
@@ -48,6 +49,12 @@ def table_html(table: pd.DataFrame) -> str:
         lines.append(f"<tr{noisy}>" + "".join(tds) + "</tr>")
     lines += ["</tbody>", "</table></div>"]
     return "\n".join(lines)
+
+
+def legend_html(table: pd.DataFrame) -> str:
+    """One line under the table for each column a reader could misread (`tables.column_legend`)."""
+    lines = column_legend([*table.columns, RUNS_COLUMN])
+    return "".join(f'<p class="legend">{html.escape(line)}</p>' for line in lines)
 
 
 def _img(path: Path, alt: str) -> str:
@@ -110,7 +117,7 @@ def render_html(
     for note in notes:
         parts.append(f'<div class="warning"><b>Warning:</b> {html.escape(note)}</div>')
     for heading, table in tables.items():
-        parts += [f"<h2>{html.escape(heading)}</h2>", table_html(table)]
+        parts += [f"<h2>{html.escape(heading)}</h2>", table_html(table), legend_html(table)]
     for heading, content in (sections or {}).items():
         parts += [f"<h2>{html.escape(heading)}</h2>", content]
     for heading, path in figures.items():

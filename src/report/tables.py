@@ -83,6 +83,51 @@ COST_METRICS: dict[str, MetricSpec] = {
 }
 LPIPS_VARIANT_TAG = "tags.nrbench.lpips_variant"
 RUNS_COLUMN = "runs"
+#: One line under a table for each column a reader could misread, keyed by the column's label or the
+#: start of it ("baseline" covers "baseline PSNR", "Energy" covers "Energy 4spp"). LPIPS: `_lpips_note`.
+COLUMN_NOTES = {
+    "Energy": "Energy: mean output / mean reference on linear HDR; 1 is right (below: darker, above: "
+    "brighter).",
+    "baseline": "baseline: the constant-sigma cross-bilateral filter (task.eval.baseline), scored on the "
+    "same held-out images as the method of its row.",
+    "relMSE (Bako)": "relMSE (Bako): mean over pixels and RGB of (output - reference)^2 / (reference^2 + "
+    "eps).",
+    "relMSE (Eq. 3.5)": "relMSE (Eq. 3.5): the filter-search thesis's relMSE (RGB sum, times spp / 2).",
+    "relMSE / noisy": "relMSE / noisy: the output's relMSE over the noisy input's (below 1: the filter "
+    "helps).",
+    "Undefined": "Undefined: the share of held-out frames whose output is undefined; the other columns "
+    "average the rest.",
+    "Flicker vs truth": "Flicker vs truth: RMS flicker against the noise-free truth (negative: within the "
+    "estimate's noise).",
+    "CVVDP": "CVVDP: ColorVideoVDP in JOD (10: indistinguishable from the reference).",
+    "of peak": "of peak: achieved GFLOP/s over the device's measured peak.",
+    RUNS_COLUMN: "runs: the runs (training seeds) a row averages; ± is their sample standard deviation.",
+}
+
+
+def _lpips_note(label: str) -> str:
+    """What an LPIPS column can be compared with: on a random trunk it is a harness-internal distance."""
+    if "random" in label:
+        return (
+            "LPIPS: here on a VGG trunk with random weights (no pretrained weights were given): it ranks the "
+            "rows of this table and is not comparable with published LPIPS values."
+        )
+    return "LPIPS: learned perceptual distance (Zhang et al. 2018) with the weights named in its label."
+
+
+def column_legend(columns: Sequence[str]) -> list[str]:
+    """The notes (`COLUMN_NOTES`, LPIPS by its variant) for the columns of a table, once each, in column
+    order."""
+    lines: dict[str, None] = {}
+    for column in map(str, columns):
+        if column.startswith("LPIPS"):
+            lines[_lpips_note(column)] = None
+        for key, note in COLUMN_NOTES.items():
+            if column == key or column.startswith(f"{key} "):
+                lines[note] = None
+    return list(lines)
+
+
 #: The text of a value that is not there: an axis param a run did not log (its own row, not dropped), or a
 #: metric no run of a row logged (NaN mean, e.g. a model that does not log FLIP); never shown as 0.
 MISSING = "-"
