@@ -614,7 +614,15 @@ def test_the_undefined_column_shows_only_where_an_output_was_undefined():
 def test_the_column_legend_explains_each_misreadable_column_once():
     from src.report.tables import COLUMN_NOTES, column_legend
 
-    columns = ["PSNR", "PSNR std", "Energy", "Energy 4spp", "baseline PSNR", "baseline relMSE / noisy", "runs"]
+    columns = [
+        "PSNR",
+        "PSNR std",
+        "Energy",
+        "Energy 4spp",
+        "baseline PSNR",
+        "baseline relMSE / noisy",
+        "runs",
+    ]
     assert column_legend(columns) == [COLUMN_NOTES["Energy"], COLUMN_NOTES["baseline"], COLUMN_NOTES["runs"]]
     assert column_legend(["PSNR", "SSIM"]) == []  # nothing a reader could misread
     random = column_legend(["LPIPS (vgg16-random(seed=0)+lin-uniform)"])

@@ -143,25 +143,23 @@ def test_the_ledger_page_groups_by_document_folds_the_not_run_and_never_prints_a
     assert not any("<table" in part for part in only_not_run) and any("<details>" in p for p in only_not_run)
 
 
-def test_the_site_shows_the_committed_snapshot_and_writes_ledger_html_without_a_local_ledger(tmp_path):
+def test_the_site_shows_the_committed_snapshot_without_a_local_ledger(tmp_path):
     committed = _write(tmp_path / "docs" / "ledger.csv", RAN, HEADER)
     reports = tmp_path / "reports"
     reports.mkdir()
     build_site(reports, committed)
     index = (reports / "index.html").read_text()
     assert "Committed snapshot ledger.csv (this store has no ledger)" in index
-    assert (
-        "<h3>Doc A</h3>" in index and "<code>a1</code>" in index and '<img alt="claims by document' in index
-    )
-    assert (reports / "ledger.html").is_file() and "Committed snapshot" in (
-        reports / "ledger.html"
-    ).read_text()
-    # a ledger stage's own page is never overwritten by the site
+    assert "<h3>Doc A</h3>" in index and "<code>a1</code>" in index
+    assert '<img alt="claims by document' in index
+    # ledger.html is the ledger stage's output: the site neither writes it nor links it while it is absent
+    assert not (reports / "ledger.html").exists() and 'href="ledger.html"' not in index
     _write(reports / "ledger.csv", RAN)
     (reports / "ledger.html").write_text("the ledger stage's page")
     build_site(reports, committed)
     assert (reports / "ledger.html").read_text() == "the ledger stage's page"
-    assert "This store&#x27;s ledger (ledger.csv)" in (reports / "index.html").read_text()
+    index = (reports / "index.html").read_text()
+    assert "This store&#x27;s ledger (ledger.csv)" in index and '<a href="ledger.html">' in index
 
 
 # --- figures ------------------------------------------------------------------------------------------

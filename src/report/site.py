@@ -425,8 +425,13 @@ def _ledger_section(out_dir: Path, committed: Path | None) -> list[str]:
         target = f"sweeps/{study}/index.html" if study else None
         return target if target and (out_dir / target).is_file() else None
 
+    heading = (
+        '<a href="ledger.html">Reproduction ledger</a>'
+        if (out_dir / "ledger.html").is_file()
+        else ("Reproduction ledger")
+    )
     section = [
-        '<h2><a href="ledger.html">Reproduction ledger</a></h2>',
+        f"<h2>{heading}</h2>",
         f'<p class="origin">{html.escape(shown.label)}</p>',
         f"<p><b>{html.escape(status_counts(shown.frame))}</b> (findings and readings).</p>",
         *ledger_figures(shown.frame),
@@ -510,11 +515,9 @@ def index_page(
 
 def build_site(out_dir: str | Path, committed_ledger: str | Path | None = None) -> dict[str, Any]:
     """Write `index.html`, `methods/*.html` and `bench/index.html` under `out_dir` from what it holds and
-    the current MLflow store, and `ledger.html` when no ledger stage wrote one here (it shows
-    `committed_ledger`, the committed snapshot, until this store has its own); returns the written
-    paths."""
-    from src.report.ledger_page import write_ledger_page
-
+    the current MLflow store; the index shows `committed_ledger` (the committed snapshot) until this store's
+    ledger has a status. `ledger.html` is the ledger stage's (a DVC output of that stage: never written
+    here). Returns the written paths."""
     out_dir = Path(out_dir)
     committed = Path(str(committed_ledger)) if committed_ledger else None
     entries = scan(out_dir)
@@ -526,8 +529,6 @@ def build_site(out_dir: str | Path, committed_ledger: str | Path | None = None) 
         written.append(
             atomic_write_text(out_dir / method_file(model), method_page(model, records, out_dir, bench))
         )
-    if not (out_dir / "ledger.csv").is_file():  # else the ledger stage wrote ledger.html (a DVC output)
-        written.append(write_ledger_page(out_dir, committed))
     written.append(
         atomic_write_text(out_dir / "index.html", index_page(out_dir, entries, models, bench, committed))
     )
