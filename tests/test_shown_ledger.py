@@ -205,6 +205,8 @@ def test_the_figures_are_pngs_that_fit_the_page():
         (True, "better", 10.0, 0.0, {"scale": "factor", "estimate": math.e, "reference": 10.0}),
         (False, "better", 1.5, 0.0, {"scale": "psnr", "estimate": 1.0, "reference": 1.5}),
         (True, "better", 0.0, 0.0, {"reference": math.nan, "tolerance": math.nan}),
+        (True, "better", 1.0, 0.0, {"reference": math.nan}),  # a factor of 1: no size (as `_published`)
+        (False, "better", 0.5, 0.0, {"reference": 0.5}),  # a difference below 1 is a size
         (True, "comparable", 0.0, math.log(1.25), {"tolerance": 1.25, "reference": math.nan}),
         (False, "not_worse", 0.0, 0.5, {"tolerance": 0.5, "low": 0.0, "high": 2.0}),
     ],
