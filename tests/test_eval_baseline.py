@@ -172,6 +172,7 @@ def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch)
 #   data's colour space (the stub replaces inference; the trained models' evaluations in
 #   tests/test_denoise_train.py and tests/test_volumetric_training.py use it), a still image's file names
 #   (the stills' evaluations in tests/test_ladder.py and tests/test_report.py);
-# - not tested, and not equivalent: the FLOPs probe without input channels (no shipped dataset lacks
-#   `input_channels`), and `f == frames / 2` for `frames // 2`, which differs only for an odd frame count
-#   (the stub's sequences have 4 frames): an odd-length sequence would then get no strip.
+# - the FLOPs probe without input channels: that branch is gone (the run schema requires
+#   `dataset.input_channels`, so it could not be reached);
+# - not tested, and not equivalent: `f == frames / 2` for `frames // 2`, which differs only for an odd
+#   frame count (the stub's sequences have 4 frames): an odd-length sequence would then get no strip.

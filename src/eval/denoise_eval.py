@@ -135,11 +135,8 @@ class DenoiseEvaluation(Evaluation):
         OIDN): with the timed seconds, the achieved GFLOP/s of the cost card (work redone in tile halos
         lowers it, it adds no FLOPs). A model the probe's random batch cannot run gets None and a warning:
         the cost card is not worth an evaluation."""
-        channels = cfg.dataset.get("input_channels")
-        try:
-            if channels is None:
-                return flops_per_pixel(self.model)["total"]
-            return flops_per_pixel(self.model, in_channels=int(channels))["total"]
+        try:  # every dataset config has input_channels (the run schema requires it)
+            return flops_per_pixel(self.model, in_channels=int(cfg.dataset.input_channels))["total"]
         except Exception as err:  # a user's model with inputs of its own: no FLOPs, said so
             log.warning("eval: FLOPs per pixel of model=%s unknown (%s); no GFLOP/s", cfg.model.name, err)
             return None
