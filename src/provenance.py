@@ -35,17 +35,26 @@ def git_commit(repo: Path | None = None) -> str:
     return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
 
 
+#: The folder inside a data folder (or any folder of one) where the render stage sets aside the renders of
+#: another configuration (`src.render.stale_renders`): not part of the data the folder holds.
+PARKED_DIR = ".parked"
+
+
 def data_fingerprint(directory: Path) -> str:
     """Hash of every file's relative path and size, plus the render manifest's content if present
     (``manifest.json``, or the per-file entries under ``manifest/`` of the volumetric data).
 
     Cheap on paper-scale data (hundreds of GB): contents are not read, except the manifest, whose
     render keys already hash what produced each file. Files being written by another job (the hidden
-    temporaries of ``src.io.atomic``, or one renamed away meanwhile) are left out.
+    temporaries of ``src.io.atomic``, or one renamed away meanwhile) are left out, and so are the renders
+    set aside for another configuration (`PARKED_DIR`): which other configs rendered here must not change
+    this one's data (nor the prepared folder's cache key made from it).
     """
     h = hashlib.sha256()
     for path in sorted(p for p in directory.rglob("*") if p.is_file()):
         if path.name.startswith(".") and ".tmp-" in path.name:
+            continue
+        if PARKED_DIR in path.relative_to(directory).parts:
             continue
         try:
             size = path.stat().st_size

@@ -1,5 +1,6 @@
-"""`bash scripts/mlflow_ui.sh`: MLflow's UI on the project's store, at a URL that opens the training runs
-(MLflow 3 starts on its GenAI view otherwise)."""
+"""`bash scripts/mlflow_ui.sh`: MLflow's UI on the project's store, with web workers fitted to the cores and
+MLflow's GenAI job runner off, at a URL where one pick of "Model training" makes every experiment open on
+its runs (MLflow 3.17 decides an experiment's view from that browser setting, not from the experiment)."""
 
 import os
 import shutil
@@ -11,6 +12,7 @@ import urllib.request
 import pytest
 from mlflow.tracking import MlflowClient
 
+from src.tracking.experiment import run_url_line
 from tests.conftest import ROOT
 
 SCRIPT = str(ROOT / "scripts" / "mlflow_ui.sh")
@@ -20,15 +22,49 @@ def _url(line: str) -> str:
     return line.split("open ", 1)[1].strip()
 
 
-def test_the_script_prints_the_training_runs_url_for_its_store_and_port(tmp_path):
+def _script_help(tmp_path, *args, cores=None, jobs=None):
+    """The script's first two lines (then `mlflow ui --help` runs instead of a server); `cores`: what a
+    stand-in `nproc` on the PATH answers."""
     env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/m.db"}
-    command = ["bash", SCRIPT, "--port", "5123", "--help"]
+    env.pop("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", None)
+    if jobs is not None:
+        env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] = jobs
+    if cores is not None:
+        bin_dir = tmp_path / "bin"
+        bin_dir.mkdir(exist_ok=True)
+        (bin_dir / "nproc").write_text(f"#!/bin/sh\necho {cores}\n")
+        (bin_dir / "nproc").chmod(0o755)
+        env["PATH"] = f"{bin_dir}:{env['PATH']}"
+    command = ["bash", SCRIPT, *args, "--help"]
     out = subprocess.run(command, capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
-    first, *rest = out.stdout.splitlines()
-    assert f"sqlite:///{tmp_path}/m.db" in first
-    assert _url(first) == "http://127.0.0.1:5123/#/experiments?workflowType=machine_learning"
+    first, second, *rest = out.stdout.splitlines()
     assert any("--backend-store-uri" in line for line in rest)  # the rest is mlflow ui's own help
+    return first, second
+
+
+def test_the_script_prints_the_experiments_url_and_what_makes_them_open_on_their_runs(tmp_path):
+    first, second = _script_help(tmp_path, "--port", "5123", cores=2)
+    assert first == (
+        f"mlflow ui: sqlite:///{tmp_path}/m.db, 1 worker(s) for 2 core(s), job runner off -> open "
+        "http://127.0.0.1:5123/#/experiments"
+    )
+    # not ?workflowType=machine_learning: the first click drops it, and on that page the switch already
+    # shows "Model training", so picking it stores nothing (test below)
+    assert _url(first) == "http://127.0.0.1:5123/#/experiments"
+    assert "pick 'Model training'" in second and "a job's run URL opens its run directly" in second
+
+
+@pytest.mark.parametrize(("cores", "workers"), [(7, 1), (8, 2), (64, 4)])
+def test_one_web_worker_per_four_cores_from_one_to_four(tmp_path, cores, workers):
+    first, _ = _script_help(tmp_path, cores=cores)
+    assert f", {workers} worker(s) for {cores} core(s)," in first
+
+
+def test_the_callers_workers_and_job_runner_win(tmp_path):
+    assert ", 3 worker(s) for 2 core(s), job runner off " in _script_help(tmp_path, "-w", "3", cores=2)[0]
+    assert ", 6 worker(s) " in _script_help(tmp_path, "--workers=6", cores=2)[0]
+    assert ", job runner on " in _script_help(tmp_path, cores=2, jobs="true")[0]
 
 
 def _free_port() -> int:
@@ -37,17 +73,30 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _processes(root_pid: int) -> list[str]:
+    """The command lines of the process group `root_pid` leads (the script's mlflow and what it started)."""
+    out = subprocess.run(["ps", "-ww", "-o", "args=", "-g", str(root_pid)], capture_output=True, text=True)
+    return out.stdout.splitlines()
+
+
 @pytest.mark.slow
-def test_the_printed_url_opens_the_runs_where_the_plain_one_opens_genai(tmp_path, browser):
+def test_an_experiment_opens_on_its_runs_once_model_training_is_picked(tmp_path, browser):
+    """~1 min on 2 cores. A fresh browser opens the experiment on MLflow's GenAI overview, even one tagged
+    mlflow.experimentKind=custom_model_development; after one pick of "Model training" on the printed page,
+    clicking the experiment shows its runs; a job's printed run URL opens the run in a fresh browser."""
     from playwright.sync_api import sync_playwright
 
     uri = f"sqlite:///{tmp_path}/m.db"
     client = MlflowClient(uri)
-    experiment = client.create_experiment("nrbench-denoise", artifact_location=(tmp_path / "art").as_uri())
-    client.set_terminated(client.create_run(experiment, run_name="kpcn-cpu").info.run_id)
+    tags = {"mlflow.experimentKind": "custom_model_development"}
+    experiment = client.create_experiment("nrbench-denoise", (tmp_path / "art").as_uri(), tags=tags)
+    run_id = client.create_run(experiment, run_name="kpcn-cpu").info.run_id
+    client.set_terminated(run_id)
     port = _free_port()
     env = {**os.environ, "MLFLOW_TRACKING_URI": uri}
-    ui = subprocess.Popen(["bash", SCRIPT, "--port", str(port)], stdout=subprocess.PIPE, text=True, env=env)
+    env.pop("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", None)
+    command = ["bash", SCRIPT, "--port", str(port)]
+    ui = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, env=env, start_new_session=True)
     try:
         url = _url(ui.stdout.readline())
         deadline = time.monotonic() + 90
@@ -58,16 +107,31 @@ def test_the_printed_url_opens_the_runs_where_the_plain_one_opens_genai(tmp_path
             except OSError:
                 assert time.monotonic() < deadline, "mlflow ui did not start in 90 s"
                 time.sleep(1)
+        server = [p for p in _processes(ui.pid) if "uvicorn" in p]
+        cores = len(os.sched_getaffinity(0))
+        assert len(server) == 1 and f"--workers {min(max(cores // 4, 1), 4)} " in server[0]
+        assert not [p for p in _processes(ui.pid) if "huey" in p or "_job_runner" in p]  # job runner off
         with sync_playwright() as p:
             chromium = p.chromium.launch(executable_path=shutil.which("chromium"))
-            page = chromium.new_page()
-            page.goto(url.replace("#/experiments?", f"#/experiments/{experiment}?"))
-            page.get_by_text("kpcn-cpu").wait_for(timeout=30_000)  # the runs table
-            page.goto(f"http://127.0.0.1:{port}/#/experiments/{experiment}")
+            fresh = chromium.new_context().new_page()
+            fresh.goto(url)
+            fresh.get_by_role("link", name="nrbench-denoise", exact=True).first.click()
             # MLflow's default: the GenAI overview (its Usage / Quality / Tool calls tabs), no runs table
-            page.get_by_text("Tool calls", exact=True).wait_for(timeout=30_000)
-            assert page.get_by_text("kpcn-cpu").count() == 0
+            fresh.get_by_text("Tool calls", exact=True).wait_for(timeout=30_000)
+            assert fresh.get_by_text("kpcn-cpu").count() == 0
+            picked = chromium.new_context().new_page()
+            picked.goto(url)
+            picked.get_by_text("Model training", exact=True).click()
+            picked.get_by_role("link", name="nrbench-denoise", exact=True).first.click()
+            picked.get_by_text("kpcn-cpu").first.wait_for(timeout=30_000)  # the runs table
+            assert f"#/experiments/{experiment}/runs?" in picked.url
+            line = run_url_line(uri, experiment, run_id)
+            run_page = line.split()[2].replace(":5000/", f":{port}/")
+            direct = chromium.new_context().new_page()
+            direct.goto(run_page)
+            direct.get_by_text("kpcn-cpu").first.wait_for(timeout=30_000)
+            assert f"#/experiments/{experiment}/runs/{run_id}" in direct.url
             chromium.close()
     finally:
-        ui.terminate()
+        os.killpg(ui.pid, 15)
         ui.wait(timeout=30)

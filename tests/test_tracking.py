@@ -18,7 +18,7 @@ from src.errors import ConfigError
 from src.multirun import PARENT_FILE
 from src.tracking import mlflow_tracking as mt
 from src.tracking.comparison import DEFAULT_COLUMNS, comparison_table, format_table
-from src.tracking.experiment import setup_tracking
+from src.tracking.experiment import run_url_line, setup_tracking
 from src.tracking.mlflow_tracking import job_run
 from src.tracking.run_config import TRUNCATED, flatten_config
 from tests.conftest import one_line_error
@@ -101,6 +101,39 @@ def test_job_run_logs_params_tags_metrics_and_config(store):
         mlflow.artifacts.download_artifacts(run_id=tracker.run_id, artifact_path="config.yaml")
     )
     assert logged.model.name == "kpcn" and logged.tracking.experiment == "nrbench-test"
+
+
+def test_a_job_prints_its_runs_url_which_names_the_store_the_ui_script_must_serve(store, capsys):
+    with job_run(make_cfg(store), run_name="kpcn-smoke", tags={}) as tracker:
+        pass
+    experiment = mlflow.get_run(tracker.run_id).info.experiment_id
+    script = f"MLFLOW_TRACKING_URI=sqlite:///{store}/mlflow.db bash scripts/mlflow_ui.sh"
+    assert capsys.readouterr().out == (
+        f"MLflow run: http://127.0.0.1:5000/#/experiments/{experiment}/runs/{tracker.run_id} "
+        f"(once the UI runs: {script})\n"
+    )
+    # the project's own store is the script's default: no variable to set; a server is its own UI
+    assert run_url_line(f"sqlite:///{ROOT}/mlflow.db", "3", "abc") == (
+        "MLflow run: http://127.0.0.1:5000/#/experiments/3/runs/abc "
+        "(once the UI runs: bash scripts/mlflow_ui.sh)"
+    )
+    assert run_url_line("http://mlflow.lab:8080/", "3", "abc") == (
+        "MLflow run: http://mlflow.lab:8080/#/experiments/3/runs/abc"
+    )
+    assert run_url_line("databricks", "3", "abc") == "MLflow run abc (experiment 3) in databricks"
+
+
+def test_a_resumed_run_prints_the_url_in_its_own_experiment(store, capsys):
+    with job_run(make_cfg(store), run_name="first", tags={}) as first:
+        pass
+    other = make_cfg(store)
+    other.tracking.experiment = "nrbench-other"
+    capsys.readouterr()
+    with job_run(other, run_name="again", tags={}, resume_run_id=first.run_id):
+        pass
+    experiment = mlflow.get_run(first.run_id).info.experiment_id
+    assert f"/#/experiments/{experiment}/runs/{first.run_id} " in capsys.readouterr().out
+    assert experiment != MlflowClient().get_experiment_by_name("nrbench-other").experiment_id
 
 
 def test_many_params_are_batched(store):

@@ -62,8 +62,16 @@ def print_ladder(ladder: Mapping[str, Any], where: str, made: str = "rendered") 
     if ladder.get("scenes"):
         print(
             f"render: ladder of {len(ladder['scenes'])} held-out scenes at {ladder['counts']} spp: "
-            f"{ladder['files_rendered']} files {made} ({ladder['files_cached']} cached) -> {where}"
+            f"{ladder['files_rendered']} files {made} ({ladder['files_cached']} cached"
+            f"{_restored_note(ladder)}) -> {where}"
         )
+
+
+def _restored_note(summary: Mapping[str, Any]) -> str:
+    """The printed line's note of the cached files moved back from `.parked/` (empty when none), where
+    another config's render had set them aside (`src.render.stale_renders`)."""
+    restored = summary.get("files_restored") or 0
+    return f", {restored} of them moved back from .parked/" if restored else ""
 
 
 class DenoisingKind(DataKind):
@@ -163,12 +171,12 @@ class DenoisingKind(DataKind):
         summary, summary_path = self.render_files(cfg, raw)
         if summary["samples_per_second"]:
             print(
-                f"render: {summary['files_rendered']} files ({summary['files_cached']} cached) in "
-                f"{summary['render_seconds']:.1f} s, {summary['samples_per_second'] / 1e6:.2f} M samples/s "
-                f"[{summary['variant']}]"
+                f"render: {summary['files_rendered']} files ({summary['files_cached']} cached"
+                f"{_restored_note(summary)}) in {summary['render_seconds']:.1f} s, "
+                f"{summary['samples_per_second'] / 1e6:.2f} M samples/s [{summary['variant']}]"
             )
         else:
-            print(f"render: all {summary['files_cached']} files up to date in {raw}")
+            print(f"render: all {summary['files_cached']} files up to date in {raw}{_restored_note(summary)}")
         print_ladder(summary.get("ladder") or {}, cfg.paths.ladder)
         write_summary(summary_path, summary, cfg, raw)
         return summary

@@ -24,7 +24,7 @@ from src.data.ladder import LADDER_ROLE, MANIFEST_DIR, entry_path, ladder_counts
 from src.io.atomic import atomic_write_json
 from src.io.exr import write_exr
 from src.render.render_dataset import RenderTotals, SceneSource, pass_seed, split_passes
-from src.render.stale_renders import remove_stale_entries
+from src.render.stale_renders import remove_stale_entries, restore_entry
 
 #: (source, frame or None, spp) -> the render key of that rung.
 KeyOf = Callable[[SceneSource, "int | None", int], str]
@@ -106,6 +106,10 @@ def render_ladder(
             if _is_current(ladder_dir, file):
                 totals.skipped += 1
                 continue
+            if restore_entry(ladder_dir, MANIFEST_DIR, file["file"], file["key"]):  # another config's
+                totals.skipped += 1
+                totals.restored += 1
+                continue
             if loaded is None:
                 loaded = load(sources[scene], frame)
             start = time.perf_counter()
@@ -124,6 +128,7 @@ def render_ladder(
         "counts": sorted({f["spp"] for f in plan}),
         "files_rendered": totals.rendered,
         "files_cached": totals.skipped,
+        "files_restored": totals.restored,
         "render_seconds": round(totals.seconds, 3),
     }
 

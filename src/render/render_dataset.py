@@ -27,7 +27,7 @@ from src.data.splits import exr_name
 from src.errors import ConfigError, DataError
 from src.io.atomic import atomic_write_json
 from src.render.moments import MomentAccumulator, variance_of_mean
-from src.render.stale_renders import remove_stale_files
+from src.render.stale_renders import remove_stale_files, restore_file
 
 #: Each role's part of a pass seed (`pass_seed`): ``reference2`` is the volumetric sequences' second,
 #: independent reference of the held-out scenes (``dataset.second_reference``); ``ladder`` the held-out
@@ -188,12 +188,14 @@ def still_image_key_extra() -> dict:
 
 @dataclass
 class RenderTotals:
-    """What a dataset render did: samples and seconds rendered, files rendered and files kept."""
+    """What a dataset render did: samples and seconds rendered, files rendered and files kept (of which
+    `restored` were moved back from `.parked/`, `src.render.stale_renders`)."""
 
     samples: int = 0
     seconds: float = 0.0
     rendered: int = 0
     skipped: int = 0
+    restored: int = 0
 
 
 def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") -> dict:
@@ -201,8 +203,9 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
 
     Files whose render key (scene, size, spp, seeds, integrator) matches ``manifest.json`` are kept,
     so re-running with the same config renders nothing and a changed config renders only what changed;
-    files the manifest lists that the config no longer makes (another spp, a dropped scene) are deleted
-    first (``remove_stale_files``: a user's own EXRs, which it does not list, stay).
+    files the manifest lists that the config does not make (another spp, a scene of another task's
+    config) are set aside into ``.parked/`` first, and moved back when a config needs them again
+    (``remove_stale_files``, ``restore_file``: a user's own EXRs, which it does not list, stay).
     """
     import mitsuba as mi
 
@@ -226,6 +229,7 @@ def render_denoise_dataset(ds: Mapping, raw_dir: Path, variant: str = "auto") ->
         "scenes": len(sources),
         "files_rendered": totals.rendered,
         "files_cached": totals.skipped,
+        "files_restored": totals.restored,
         "files_removed": len(removed),
         "samples": totals.samples,
         "render_seconds": round(totals.seconds, 3),
@@ -269,6 +273,10 @@ def render_scene_files(
         key = render_key(identity, ds, spp, role, still_image_key_extra())
         if manifest.get(name) == key and (raw_dir / name).exists():
             totals.skipped += 1
+            continue
+        if restore_file(raw_dir, name, key, manifest):  # set aside by another config's render
+            totals.skipped += 1
+            totals.restored += 1
             continue
         if scene is None:
             scene, sensor = load_scene(source, ds)

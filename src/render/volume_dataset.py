@@ -63,7 +63,7 @@ from src.render.render_dataset import (
     split_passes,
     spp_counts,
 )
-from src.render.stale_renders import remove_stale_entries
+from src.render.stale_renders import remove_stale_entries, restore_entry
 from src.render.volume_camera import Camera, motion_vectors
 from src.render.volume_scenes import camera_at
 
@@ -259,6 +259,11 @@ def render_frame_files(
         if _is_current(raw_dir, file["file"], key):
             totals.skipped += 1
             continue
+        where = Path(file["file"])  # reference2/<name> for a second reference
+        if restore_entry(raw_dir / where.parent, MANIFEST_DIR, where.name, key):  # another config's
+            totals.skipped += 1
+            totals.restored += 1
+            continue
         if scene is None:
             start = time.perf_counter()
             scene = load_volume_frame(source, frame, ds)
@@ -330,6 +335,7 @@ def render_volumetric_dataset(
         "second_reference": sorted({f["scene"] for f in plan if f["role"] == SECOND_REFERENCE_ROLE}),
         "files_rendered": totals.rendered,
         "files_cached": totals.skipped,
+        "files_restored": totals.restored,
         "files_removed": len(removed),
         "samples": totals.samples,
         "render_seconds": round(totals.seconds, 3),

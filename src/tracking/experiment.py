@@ -16,6 +16,30 @@ from src.multirun import quiet_mlflow_logs
 _REMOTE_SCHEMES = ("http://", "https://", "databricks")
 
 
+#: Where `bash scripts/mlflow_ui.sh` serves a local store (its default port) and the store it serves unless
+#: MLFLOW_TRACKING_URI names another: the project's `mlflow.db`.
+UI_SCRIPT_URL = "http://127.0.0.1:5000"
+PROJECT_STORE = f"sqlite:///{Path(__file__).resolve().parents[2] / 'mlflow.db'}"
+
+
+def run_url_line(uri: str, experiment_id: str, run_id: str) -> str:
+    """The line a job prints about its run: the URL of the run's page in MLflow's UI (which opens the run
+    whatever the UI's GenAI | Model training switch says, unlike the experiment's page).
+
+    A tracking server (`http(s)://`) is its own UI. A local store (SQLite, another database) has no UI
+    until `scripts/mlflow_ui.sh` serves it, at port 5000 unless told otherwise: the line says so, with
+    the store when it is not the one the script serves by default. Databricks: no URL is known here."""
+    page = f"#/experiments/{experiment_id}/runs/{run_id}"
+    if uri.startswith(("http://", "https://")):
+        return f"MLflow run: {uri.rstrip('/')}/{page}"
+    if uri.startswith("databricks"):
+        return f"MLflow run {run_id} (experiment {experiment_id}) in {uri}"
+    script = "bash scripts/mlflow_ui.sh"
+    if uri != PROJECT_STORE:
+        script = f"MLFLOW_TRACKING_URI={uri} {script}"
+    return f"MLflow run: {UI_SCRIPT_URL}/{page} (once the UI runs: {script})"
+
+
 def first_line(err: BaseException) -> str:
     """The first line of an exception message (MLflow's often carry a traceback-like tail)."""
     text = str(err).strip().splitlines()

@@ -24,7 +24,7 @@ from src.errors import ConfigError
 from src.launch.requeue import requeue_pending
 from src.multirun import PARENT_FILE, read_parent
 from src.provenance import git_commit
-from src.tracking.experiment import first_line, setup_tracking
+from src.tracking.experiment import first_line, run_url_line, setup_tracking
 from src.tracking.run_config import config_yaml, flatten_config, log_params
 from src.tracking.tracker import Tracker
 
@@ -173,11 +173,15 @@ def job_run(
         )
         resume_run_id = None
     if resume_run_id:
-        run_id = _resume(cfg, resume_run_id, all_tags).info.run_id
+        run = _resume(cfg, resume_run_id, all_tags)
     else:
         if sweep_dir is not None:
             parent_id = _parent_run_id(sweep_dir, mlflow.get_tracking_uri())
-        run_id = _start(cfg, experiment_id, run_name, all_tags, parent_id).info.run_id
+        run = _start(cfg, experiment_id, run_name, all_tags, parent_id)
+    run_id = run.info.run_id
+    # At the start, so a long training can be watched; printed, not logged: a job's log level may hide it.
+    # The run's own experiment: a resumed run may live in another than tracking.experiment.
+    print(run_url_line(mlflow.get_tracking_uri(), run.info.experiment_id, run_id), flush=True)
     try:
         yield Tracker(run_id)
     except KeyboardInterrupt:
@@ -205,6 +209,7 @@ def standalone_run(tracking_cfg, *, run_name: str, tags: Mapping[str, str]) -> I
     del all_tags["nrbench.hydra_job"]  # no Hydra job
     run = MlflowClient().create_run(experiment_id, run_name=run_name, tags=all_tags)
     run_id = run.info.run_id
+    print(run_url_line(mlflow.get_tracking_uri(), experiment_id, run_id), flush=True)
     try:
         yield Tracker(run_id)
     except BaseException:
