@@ -117,8 +117,53 @@ def main(cfg: DictConfig) -> dict[str, dict]:
     except NrbenchError as err:
         # One line for the user; the traceback adds nothing for a bad input or config value.
         log.error("%s", err)
+        _remove_rejected_run_dir()
+        raise SystemExit(2) from None
+
+
+#: What Hydra writes into a job's folder before the job's own code runs: nothing else means the job made
+#: nothing, and a rejected one leaves no folder.
+_HYDRA_FILES = {".hydra", "run.log", "main.log"}
+
+
+def _remove_rejected_run_dir() -> None:
+    """Delete this job's output folder (and its date folder, when that is left empty) when it holds only
+    what Hydra wrote: a command rejected at job start leaves no `outputs/<date>/<time>/`. A folder with
+    anything else (a resumed job's checkpoints, a user's own `hydra.run.dir`) is kept."""
+    import shutil
+
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    try:
+        hydra_cfg = HydraConfig.get()
+    except ValueError:  # not under Hydra (a test calling main's body)
+        return
+    if hydra_cfg.mode != RunMode.RUN:
+        return
+    folder = Path(hydra_cfg.runtime.output_dir)
+    if not folder.is_dir() or any(p.name not in _HYDRA_FILES for p in folder.iterdir()):
+        return
+    logging.shutdown()  # the log file handler closes before its file goes
+    shutil.rmtree(folder, ignore_errors=True)
+    with contextlib.suppress(OSError):
+        folder.parent.rmdir()  # the date folder, when this was its only job
+
+
+def _check_command_line() -> None:
+    """A misspelt group option or unknown key on the command line: one line and exit status 2, before
+    Hydra composes anything or makes a folder (`src.schema.command_line`)."""
+    import sys
+
+    from src.schema.command_line import check_command_line
+
+    try:
+        check_command_line(sys.argv[1:])
+    except NrbenchError as err:
+        print(f"[nrbench][ERROR] - {err}", file=sys.stderr)
         raise SystemExit(2) from None
 
 
 if __name__ == "__main__":
+    _check_command_line()
     main()

@@ -220,6 +220,7 @@ def validate_run(cfg: DictConfig, task=None) -> dict[str, Any]:
 
     task = task or task_of(cfg)
     kind = task.kind
+    check_method_fits_task(cfg, task)
     values = resolved(cfg)
     run = check(RunSchema, values)
     if values["task"]["name"] not in values["profile_tasks"]:
@@ -232,6 +233,55 @@ def validate_run(cfg: DictConfig, task=None) -> dict[str, Any]:
         _no_video_metrics(run.metrics, str(values["dataset"].get("name")))
     build_method(values["model"])
     return values
+
+
+def method_class(target: str) -> type | None:
+    """The class a model's `_target_` builds: the class itself, or a builder function's return annotation
+    (None when neither says)."""
+    import inspect
+    import typing
+
+    from hydra.utils import get_object
+
+    built = get_object(target)
+    if inspect.isclass(built):
+        return built
+    returned = typing.get_type_hints(built).get("return")
+    return returned if inspect.isclass(returned) else None
+
+
+def check_method_fits_task(cfg: DictConfig, task) -> None:
+    """A one-line ConfigError when the model is not of the methods the task runs (a radiance field under
+    task=denoise), naming the task(s) that run it: read from `model._target_` before anything is resolved
+    (a model of another task may interpolate keys this task's dataset lacks), at job start and in
+    stage=config, not at the first batch of a training."""
+    target = OmegaConf.select(cfg, "model._target_", default=None)
+    built = method_class(str(target)) if target and task.methods is not None else None
+    if built is None or issubclass(built, task.methods):
+        return
+    fitting = [
+        t for t, methods in task_methods().items() if methods is not None and issubclass(built, methods)
+    ]
+    hint = f"add {' or '.join(f'task={t}' for t in fitting)}" if fitting else "no task runs it"
+    raise ConfigError(
+        f"model={cfg.model.get('name', '?')}: a {built.__name__}, not a {task.methods.__name__}, the kind "
+        f"of method task={cfg.task.name} runs; {hint}"
+    )
+
+
+def task_methods() -> dict[str, type | None]:
+    """Each task of conf/task/ with the base class of the methods it runs (`Task.methods`)."""
+    from hydra.utils import get_class
+
+    from src.schema.command_line import CONF_DIR
+
+    out = {}
+    for path in sorted((CONF_DIR / "task").glob("*.yaml")):
+        node = OmegaConf.load(path)  # a global task file (task/nerf.yaml) nests its keys under task:
+        target = node.get("_target_") or OmegaConf.select(node, "task._target_")
+        if target:
+            out[path.stem] = getattr(get_class(str(target)), "methods", None)
+    return out
 
 
 def _no_video_metrics(metrics: Metrics, dataset: str) -> None:

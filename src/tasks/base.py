@@ -22,10 +22,12 @@ class Task:
     """One task (denoising, radiance fields, ...). Each method gets the resolved run config; `train` and
     `evaluate` also get the MLflow tracker of the job's run. Every method returns the stage's summary.
     `schema` is the pydantic model of its `task:` group (`src/schema/`), checked when a job starts;
-    `kinds` the family of data kinds it reads (None: none)."""
+    `kinds` the family of data kinds it reads (None: none); `methods` the base class of the methods it runs
+    (None: any), checked when a job starts (`src.schema.run.validate_run`)."""
 
     schema: type[BaseModel]
     kinds: type[DataKind] | None = None
+    methods: type | None = None
 
     def __init__(self, kind: Any = None) -> None:
         """`kind`: the run's data kind (None for a task that reads none)."""

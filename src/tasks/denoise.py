@@ -8,6 +8,7 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from src.kinds.denoising import DenoisingKind
+from src.models.denoise.base import Denoiser
 from src.schema.denoise import DenoiseTaskSchema
 from src.tasks.base import Task
 
@@ -15,6 +16,7 @@ from src.tasks.base import Task
 class DenoiseTask(Task):
     schema = DenoiseTaskSchema
     kinds = DenoisingKind
+    methods = Denoiser
 
     def preprocess(self, cfg: DictConfig) -> dict:
         return self.kind.preprocess(cfg)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from src.kinds.multiview import MultiViewKind
+from src.models.nerf.models import NerfModelBase
 from src.schema.nerf import NerfTaskSchema
 from src.tasks.base import Task
 
@@ -13,6 +14,7 @@ from src.tasks.base import Task
 class NerfTask(Task):
     schema = NerfTaskSchema
     kinds = MultiViewKind
+    methods = NerfModelBase
 
     def train(self, cfg: DictConfig, tracker) -> dict:
         from src.train.nerf_trainer import train_nerf
