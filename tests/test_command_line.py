@@ -145,3 +145,13 @@ def test_a_rejected_job_keeps_a_folder_that_holds_more_than_hydras_files(tmp_pat
     result = _cli(["profile=smoke", "model=nerf", "stage=config", f"hydra.run.dir={run_dir}"])
     assert result.returncode == 2 and (run_dir / "checkpoint.pt").is_file()
     assert Path(run_dir / ".hydra").is_dir()
+
+
+def test_a_key_is_found_without_resolving_its_value():
+    from omegaconf import OmegaConf
+
+    from src.schema.command_line import has_key
+
+    cfg = OmegaConf.create({"a": {"b": "${hydra:runtime.cwd}", "l": [1, {"x": 2}]}, "c": None})
+    assert has_key(cfg, "a.b") and has_key(cfg, "a.l.1.x") and has_key(cfg, "c")
+    assert not has_key(cfg, "a.z") and not has_key(cfg, "c.d") and not has_key(cfg, "a.b.c")

@@ -123,7 +123,6 @@ def check_keys(parsed, overrides: Sequence[str], known: dict[str, list[str]]) ->
     """Compose the config with the group choices of `overrides` and check that every other changed key
     exists in it (a `+key` adds one; `~key` deletes: both are left to Hydra and the schema)."""
     from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
 
     choices = [o.input_line for o in parsed if o.key_or_group in known]
     try:
@@ -138,11 +137,24 @@ def check_keys(parsed, overrides: Sequence[str], known: dict[str, list[str]]) ->
             continue  # a group choice (checked above) or Hydra's own settings
         if override.is_add() or override.is_delete():
             continue
-        if OmegaConf.select(base, key, default=_ABSENT, throw_on_missing=False) is _ABSENT:
+        if not has_key(base, key):
             raise key_error(key, keys)
 
 
-_ABSENT = object()
+def has_key(cfg, key: str) -> bool:
+    """Whether the dotted `key` is in `cfg`, walking its nodes without resolving any value (a value may
+    interpolate `${hydra:...}`, which only a running job can resolve); a key inside a list is left to
+    Hydra."""
+    from omegaconf import DictConfig, ListConfig
+
+    node = cfg
+    for part in key.split("."):
+        if isinstance(node, ListConfig):
+            return True
+        if not isinstance(node, DictConfig) or part not in node:
+            return False
+        node = node._get_node(part)
+    return True
 
 
 def check_command_line(argv: Sequence[str]) -> None:
