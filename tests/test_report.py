@@ -632,3 +632,36 @@ def test_the_column_legend_explains_each_misreadable_column_once():
     # "relMSE / noisy" is not "relMSE (Bako)", and a column only starting like a key's word is not that key
     assert column_legend(["relMSE / noisy"]) == [COLUMN_NOTES["relMSE / noisy"]]
     assert column_legend(["Energyish"]) == []
+
+
+def test_an_arms_curve_is_the_mean_over_its_seeds_with_their_range():
+    from src.report.figures import arm_curve, component_title
+
+    seeds = [([1, 2, 3], [4.0, 2.0, 1.0]), ([1, 2, 3, 4], [2.0, 4.0, 3.0, 9.0]), ([2, 3], [3.0, 2.0])]
+    steps, mean, low, high = arm_curve(seeds)
+    assert list(steps) == [2, 3]  # the steps every seed logged
+    assert list(mean) == pytest.approx([3.0, 2.0]) and list(low) == [2.0, 1.0] and list(high) == [4.0, 3.0]
+    steps, mean, low, high = arm_curve([([1], [1.0]), ([2], [3.0])])  # no shared step: each its own
+    assert list(steps) == [1, 2] and list(mean) == [1.0, 3.0] and list(low) == list(high) == [1.0, 3.0]
+    assert arm_curve([([5, 5, 6], [1.0, 2.0, 3.0])])[1].tolist() == [2.0, 3.0]  # a step logged twice: last
+    assert component_title("diffuse") == "diffuse loss" and component_title("loss") == "loss"
+
+
+def test_the_learning_curves_draw_one_colour_per_arm_not_per_seed(store, tmp_path, monkeypatch):
+    import matplotlib.axes
+
+    from src.report.figures import arm_labels, learning_curves
+
+    mlflow.set_tracking_uri(store["uri"])
+    runs = find_runs({"experiment": EXPERIMENT})
+    assert sorted(arm_labels(runs)) == ["dpcn", "kpcn", "kpcn", "resnet"]  # kpcn: two seeds, one arm
+    legends = []
+    original = matplotlib.axes.Axes.legend
+    monkeypatch.setattr(
+        matplotlib.axes.Axes, "legend", lambda self, *a, **k: legends.append(k) or original(self, *a, **k)
+    )
+    assert learning_curves(runs, tmp_path / "curves.png").is_file()
+    (legend,) = legends
+    labels = [h.get_label() for h in legend["handles"]]
+    assert labels[:3] == ["kpcn (2 seeds)", "dpcn", "resnet"] and labels[3:] == ["per step", "train", "val"]
+    assert legend["bbox_to_anchor"][0] > 1  # beside the panels, never over an axis label

@@ -63,24 +63,51 @@ def _output_kind(kinds: set[str]) -> str | None:
     return next((k for k in OUTPUT_KINDS if k in kinds), None)
 
 
-def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
-    """One label per run: its axis values joined by `/` (`key=value` for an axis other than a name, e.g.
-    `whiten=True`), plus `seed=N` where labels would repeat."""
+def arm_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
+    """One label per run naming its arm: its axis values joined by `/` (`key=value` for an axis other
+    than a name, e.g. `whiten=True`); the seeds of one arm share it."""
     axes = list(axes or DEFAULT_AXES)
-    base = []
+    out = []
     for _, run in runs.iterrows():
         parts = []
         for axis in axes:
             v = run.get(param_column(axis))
             text = MISSING if v is None or (isinstance(v, float) and np.isnan(v)) else str(v)  # unlogged axis
             parts.append(text if axis.endswith(".name") else f"{axis.rsplit('.', 1)[-1]}={text}")
-        base.append("/".join(parts))
+        out.append("/".join(parts))
+    return out
+
+
+def run_labels(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> list[str]:
+    """One label per run: its arm (`arm_labels`), plus `seed=N` where labels would repeat."""
+    base = arm_labels(runs, axes)
     counts = pd.Series(base).value_counts()
     out = []
     for label, (_, run) in zip(base, runs.iterrows(), strict=True):
         seed = run.get("params.seed")  # a run without a logged seed gets no suffix (its label may repeat)
         out.append(f"{label} seed={seed}" if counts[label] > 1 and isinstance(seed, str) else label)
     return out
+
+
+def arm_curve(series: Sequence[tuple[Sequence[int], Sequence[float]]]) -> tuple[np.ndarray, ...]:
+    """(steps, mean, low, high) of one curve over an arm's seeds (`series`: each seed's steps and values):
+    the steps every seed logged (all steps when they share none), the mean over seeds and the band from
+    the lowest to the highest seed at each step."""
+    columns = [pd.Series(list(ys), index=list(xs)).groupby(level=0).last() for xs, ys in series]
+    frame = pd.concat(columns, axis=1).sort_index()
+    shared = frame.dropna()
+    frame = shared if len(shared) else frame
+    return (
+        frame.index.to_numpy(),
+        frame.mean(axis=1).to_numpy(),
+        frame.min(axis=1).to_numpy(),
+        frame.max(axis=1).to_numpy(),
+    )
+
+
+def component_title(component: str) -> str:
+    """A loss panel's title: "diffuse loss"; a component already named a loss keeps its name ("loss")."""
+    return component if component.endswith("loss") else f"{component} loss"
 
 
 def _history(client: MlflowClient, run_id: str, key: str) -> tuple[list[int], list[float]]:
@@ -110,45 +137,70 @@ def curve_series(client: MlflowClient, run_id: str, component: str) -> list[tupl
 def learning_curves(
     runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] | None = None
 ) -> Path | None:
-    """Per-step (faint), train (solid) and validation (dashed) losses per run (`CURVES`), against the
-    optimiser step, one subplot per component, log-scale y. None when no run logged any of them."""
+    """Per arm (the seeds of one compared setting, `arm_labels`), one colour: the mean over its seeds of
+    the per-step (faint), train (solid) and validation (dashed) losses (`CURVES`) against the optimiser
+    step, with a band from its lowest to its highest seed; one panel per component, log-scale y; the
+    legend beside the panels (one entry per arm, then the line styles). None when no run logged any."""
     components = loss_components(runs)
     if not components:
         log.info("report: no run logged train_loss_*/val_loss_* histories; no learning curves")
         return None
     client = MlflowClient()
-    labels = run_labels(runs, axes)
+    arms: dict[str, list[str]] = {}
+    for label, run_id in zip(arm_labels(runs, axes), runs["run_id"], strict=True):
+        arms.setdefault(label, []).append(run_id)
     fig, panels = plt.subplots(1, len(components), figsize=(5 * len(components), 3.8), squeeze=False)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    drawn = 0
-    for i, (label, run_id) in enumerate(zip(labels, runs["run_id"], strict=True)):
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = plt.get_cmap("tab20").colors if len(arms) > len(cycle) else cycle
+    handles = []
+    for i, (label, run_ids) in enumerate(arms.items()):
         color = colors[i % len(colors)]
-        for ax, component in zip(panels[0], components, strict=True):
-            for name, xs, ys in curve_series(client, run_id, component):
-                _, style, alpha, suffix = next(c for c in CURVES if c[0] == name)
-                marker = "." if len(xs) < 30 and alpha == 1.0 else None
-                ax.plot(xs, ys, style, color=color, alpha=alpha, marker=marker, label=f"{label} {suffix}")
-                drawn += 1
-    if drawn == 0:
+        drawn = _draw_arm(client, panels[0], components, run_ids, color)
+        if drawn:
+            seeds = f" ({len(run_ids)} seeds)" if len(run_ids) > 1 else ""
+            handles.append(plt.Line2D([], [], color=color, lw=2, label=f"{label}{seeds}"))
+    if not handles:
         plt.close(fig)
         log.info("report: no run logged train_loss_*/val_loss_* histories; no learning curves")
         return None
     for ax, component in zip(panels[0], components, strict=True):
         ax.set_yscale("log")
-        ax.set_title(f"{component} loss")
+        ax.set_title(component_title(component))
         ax.set_xlabel("optimiser step")
         ax.grid(True, which="both", alpha=0.3)
-    panels[0][0].set_ylabel("loss (faint: per step, solid: train, dashed: validation)")
-    handles, names = panels[0][-1].get_legend_handles_labels()
-    if not handles:
-        handles, names = panels[0][0].get_legend_handles_labels()
-    fig.legend(handles, names, loc="lower center", ncol=min(len(names), 4), fontsize="small", frameon=False)
-    fig.tight_layout(rect=(0, 0.08 + 0.03 * (len(names) // 4), 1, 1))
+    panels[0][0].set_ylabel("loss (mean over seeds; band: lowest to highest seed)")
+    handles += [
+        plt.Line2D([], [], color="#555", ls=style, alpha=alpha, label=suffix)
+        for _, style, alpha, suffix in CURVES
+    ]
+    panels[0][-1].legend(
+        handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", frameon=False
+    )
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")  # no label cut at the canvas edge
     plt.close(fig)
     return out_png
+
+
+def _draw_arm(client: MlflowClient, axes, components: Sequence[str], run_ids: Sequence[str], color) -> int:
+    """One arm's curves (mean line and min-max band over its runs) on each component's axes; returns
+    how many curves were drawn."""
+    drawn = 0
+    for ax, component in zip(axes, components, strict=True):
+        by_curve: dict[str, list] = {}
+        for run_id in run_ids:
+            for name, xs, ys in curve_series(client, run_id, component):
+                by_curve.setdefault(name, []).append((xs, ys))
+        for name, series in by_curve.items():
+            _, style, alpha, _ = next(c for c in CURVES if c[0] == name)
+            steps, mean, low, high = arm_curve(series)
+            marker = "." if len(steps) < 30 and alpha == 1.0 else None
+            ax.plot(steps, mean, style, color=color, alpha=alpha, marker=marker)
+            if len(series) > 1:
+                ax.fill_between(steps, low, high, color=color, alpha=0.15 * alpha, lw=0)
+            drawn += 1
+    return drawn
 
 
 SEARCH_METRIC = "search_best"
