@@ -380,8 +380,9 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     assert losses.loc["resnet", "val diffuse"] == pytest.approx(2 / 31)
 
     with Image.open(out / "image_grid.png") as grid:
-        # 2 images: (noisy + 3 models + reference) columns, full row and a 4x zoomed 16-px crop row
-        assert grid.width >= 5 * 24 and grid.height >= 2 * (16 + 4 * 16)
+        # 2 images of 16 x 24 px: (noisy + 3 models + reference) columns; each tile enlarged 16x (its short
+        # side to report.min_tile_px = 256) with its whole-image crop below at 1x: 16 * 16 + 16 * 16 rows
+        assert grid.width >= 5 * 24 * 16 and grid.height >= 2 * (256 + 256)
 
     page = (out / "index.html").read_text()
     # the store by its file name, never this machine's path to it
@@ -665,3 +666,20 @@ def test_the_learning_curves_draw_one_colour_per_arm_not_per_seed(store, tmp_pat
     labels = [h.get_label() for h in legend["handles"]]
     assert labels[:3] == ["kpcn (2 seeds)", "dpcn", "resnet"] and labels[3:] == ["per step", "train", "val"]
     assert legend["bbox_to_anchor"][0] > 1  # beside the panels, never over an axis label
+
+
+def test_small_tiles_are_enlarged_by_a_whole_factor_pixel_for_pixel():
+    from src.report.figures import upscale_factor, upscaled
+
+    assert upscale_factor((16, 24), 256) == 16 and upscale_factor((300, 400), 256) == 1
+    assert upscale_factor((100, 200), 256) == 3  # 2.56 -> 3: the short side reaches 300
+    image = np.arange(2 * 3 * 3, dtype=np.uint8).reshape(2, 3, 3)
+    big = upscaled(image, 4)
+    assert big.shape == (8, 12, 3) and (big[4:8, 8:12] == image[1, 2]).all()  # each pixel a 4 x 4 block
+    assert upscaled(image, 1) is image
+
+
+def test_the_grids_minimum_tile_is_read_from_the_report_config(store, tmp_path):
+    build_report(_cfg(store, tmp_path, min_tile_px=48))  # 16 x 24 tiles: 3x, crop at ceil(4 / 3) = 2x
+    with Image.open(tmp_path / "denoise" / "image_grid.png") as grid:
+        assert grid.width < 5 * 24 * 16 and grid.width >= 5 * 24 * 3

@@ -65,6 +65,7 @@ from src.report.collect import (
 from src.report.cost_card import with_peak_fraction
 from src.report.figures import (
     DEFAULT_CROP,
+    DEFAULT_MIN_TILE,
     GRID_HEADINGS,
     image_grid,
     learning_curves,
@@ -317,7 +318,8 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
     curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
     n_images = int(config_value(rc, "images", DEFAULT_IMAGES))
     grid_runs = _first_value_only(runs, columns_by)
-    grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom)
+    min_tile = int(config_value(rc, "min_tile_px", DEFAULT_MIN_TILE))
+    grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom, min_tile)
     return curves, grid
 
 

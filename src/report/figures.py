@@ -9,6 +9,7 @@ report over baseline-only runs (no training curves) or runs without images still
 from __future__ import annotations
 
 import logging
+import math
 import re
 import tempfile
 from collections.abc import Sequence
@@ -299,6 +300,20 @@ class Grid(NamedTuple):
     heading: str
 
 
+#: The image grid's smallest tile side in pixels when the report config has none (`report.min_tile_px`).
+DEFAULT_MIN_TILE = 256
+
+
+def upscale_factor(shape: tuple[int, int], min_tile: int) -> int:
+    """The whole factor that brings an (h, w) tile's short side to at least `min_tile` (1: already)."""
+    return max(1, math.ceil(min_tile / max(1, min(shape))))
+
+
+def upscaled(image: np.ndarray, k: int) -> np.ndarray:
+    """`image` (H, W, C) enlarged k times by repeating each pixel (nearest neighbour)."""
+    return image if k == 1 else np.repeat(np.repeat(image, k, axis=0), k, axis=1)
+
+
 def tile_psnr(tile: np.ndarray, reference: np.ndarray) -> float:
     """PSNR (dB) of a grid tile against the reference tile, on the 8-bit tone-mapped PNGs the grid shows
     (peak 1 after /255: src/metrics/image.py::psnr's formula, 10 log10(1 / MSE), here in numpy so the
@@ -318,13 +333,17 @@ def image_grid(
     axes: Sequence[str] | None = None,
     crop_size: int = DEFAULT_CROP[0],
     zoom: int = DEFAULT_CROP[1],
+    min_tile: int = DEFAULT_MIN_TILE,
 ) -> Grid | None:
     """For up to `max_images` test images: noisy (when logged) | each compared row's denoised image |
     reference, or, for rendered views, reference | each row's view, with a zoomed crop row (around the
     largest first-vs-last panel error), one strip per image stacked vertically; every tile but the
     reference labelled with its PSNR (`tile_psnr`). One run per distinct label (the first, e.g. the lowest
-    seed). Runs without the `eval/png` artifacts are left out (logged); None when no run has them, else
-    the PNG's path and its heading (`GRID_HEADINGS`)."""
+    seed). Tiles smaller than `min_tile` pixels on their short side are enlarged by a whole factor k,
+    nearest neighbour (a pixel stays a block, never a blur), the crop then covering the same region
+    (crop_size * k) at a zoom of at least `zoom`: a run's report and a sweep's show the same tiles. Runs
+    without the `eval/png` artifacts are left out (logged); None when no run has them, else the PNG's
+    path and its heading (`GRID_HEADINGS`)."""
     chosen = _runs_with_images(runs, axes)
     if not chosen:
         log.info("report: no run has %s artifacts; no image grid", PNG_DIR)
@@ -342,7 +361,9 @@ def image_grid(
             if len({p[1].shape for p in panels}) != 1:
                 log.warning("report: %s differs in size across runs; left out of the image grid", name)
                 continue
-            strips.append(comparison_strip(panels, crop_size, zoom))
+            k = upscale_factor(panels[0][1].shape[:2], min_tile)
+            panels = [(label, upscaled(image, k)) for label, image in panels]
+            strips.append(comparison_strip(panels, crop_size * k, max(1, math.ceil(zoom / k))))
             kinds.add(_output_kind(first_names[name]))
     if not strips:
         return None

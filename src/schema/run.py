@@ -102,6 +102,7 @@ class Report(Schema):
     metrics: list[str] | None
     keep: Literal["latest", "all"]
     images: NonNegativeInt
+    min_tile_px: PositiveInt = 256
     site: bool
     committed_ledger: str | None = None
 
