@@ -1,7 +1,8 @@
 """Check the report site in a real browser: open `<reports>/index.html` in headless Chromium, follow every
 link to a local page (breadth first, each page once), and fail on a linked page that does not exist, an
-image that did not load (`naturalWidth == 0`), a console error (or an uncaught exception), or a page wider
-than a 1280 px window (a wide table must scroll inside the page).
+image that did not load (`naturalWidth == 0`) or whose longer side is below 256 px (a thumbnail no one can
+read), a table without a row, text cut by a box that hides its overflow, a console error (or an uncaught
+exception), or a page wider than a 1280 px window (a wide table must scroll inside the page).
 
     python scripts/check_site.py reports [--screenshots DIR]
 
@@ -30,6 +31,25 @@ IMAGE_COUNT = "() => document.images.length"
 #: How far the page reaches past the window's right edge: a table that does not fit must scroll in its box.
 OVERFLOW = "() => document.documentElement.scrollWidth - window.innerWidth"
 WIDTH = 1280
+#: The smallest figure a reader can look at: an image whose longer side is below it is a thumbnail.
+MIN_IMAGE_PX = 256
+SMALL_IMAGES = f"""() => Array.from(document.images)
+    .filter(img => img.complete && img.naturalWidth > 0
+                   && Math.max(img.naturalWidth, img.naturalHeight) < {MIN_IMAGE_PX})
+    .map(img => (img.getAttribute('alt') || img.getAttribute('src') || '').slice(0, 80)
+                + ' (' + img.naturalWidth + 'x' + img.naturalHeight + ' px)')"""
+#: Tables without a body row: a page never shows an empty table (it says why there is none instead).
+EMPTY_TABLES = """() => Array.from(document.querySelectorAll('table'))
+    .filter(t => t.querySelectorAll('tbody tr').length === 0)
+    .map(t => (t.querySelector('thead') || t).innerText.replace(/\\s+/g, ' ').slice(0, 80))"""
+#: Text cut by its box: an element that hides its overflow (CSS overflow hidden or clip) while its content
+#: is wider or taller than it (a box that scrolls, like the tables' `.scroll`, shows all of it).
+CLIPPED = """() => Array.from(document.querySelectorAll('body *'))
+    .filter(el => { const s = getComputedStyle(el);
+                    const hides = v => v === 'hidden' || v === 'clip';
+                    return (hides(s.overflowX) && el.scrollWidth > el.clientWidth + 1)
+                        || (hides(s.overflowY) && el.scrollHeight > el.clientHeight + 1); })
+    .map(el => el.tagName.toLowerCase() + ': ' + (el.innerText || '').replace(/\\s+/g, ' ').slice(0, 60))"""
 
 
 def local_path(url: str, root: Path) -> Path | None:
@@ -72,6 +92,11 @@ def check_site(root: Path, screenshots: Path | None = None) -> tuple[list[str], 
             problems += [f"{name}: console error: {text}" for text in errors]
             if (overflow := page.evaluate(OVERFLOW)) > 0:
                 problems.append(f"{name}: page {overflow} px wider than a {WIDTH} px window")
+            problems += [
+                f"{name}: image below {MIN_IMAGE_PX} px: {text}" for text in page.evaluate(SMALL_IMAGES)
+            ]
+            problems += [f"{name}: empty table: {text}" for text in page.evaluate(EMPTY_TABLES)]
+            problems += [f"{name}: clipped text: {text}" for text in page.evaluate(CLIPPED)]
             if screenshots is not None and (path == start or (not shot_report and path.parent != root)):
                 screenshots.mkdir(parents=True, exist_ok=True)
                 target = "index.png" if path == start else "report.png"

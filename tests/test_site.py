@@ -208,8 +208,33 @@ def test_the_site_loads_in_chromium_and_a_broken_image_or_link_fails_the_check(s
     (broken / "methods" / "resnet.html").unlink()
     ledger = broken / "ledger.html"
     ledger.write_text(ledger.read_text() + '<div style="width: 3000px">a table that does not scroll</div>')
+    # a thumbnail, a table without rows and a label its box cuts, on a page of their own (linked)
+    import base64
+    import io
+
+    from PIL import Image
+
+    def png(width: int, height: int) -> str:
+        buffer = io.BytesIO()
+        Image.new("RGB", (width, height)).save(buffer, format="PNG")
+        return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode()
+
+    (broken / "bad.html").write_text(
+        f'<!DOCTYPE html><html><body><img alt="small grid" src="{png(148, 136)}">'
+        f'<img alt="wide enough" src="{png(300, 100)}">'
+        "<table><thead><tr><th>claim</th></tr></thead><tbody></tbody></table>"
+        "<table><tbody><tr><td>a row</td></tr></tbody></table>"
+        '<div style="width: 40px; overflow: hidden; white-space: nowrap">reference image</div>'
+        '<div style="width: 40px; overflow: auto; white-space: nowrap">scrolls: shown</div></body></html>'
+    )
+    index = broken / "index.html"
+    index.write_text(index.read_text().replace("</body>", '<a href="bad.html">bad</a></body>'))
     result = _check(broken)
     assert result.returncode == 1, result.stdout
+    assert "bad.html: image below 256 px: small grid (148x136 px)" in result.stdout
+    assert "wide enough" not in result.stdout  # its longer side is 300 px
+    assert result.stdout.count("bad.html: empty table") == 1 and "empty table: claim" in result.stdout
+    assert result.stdout.count("bad.html: clipped text") == 1 and "div: reference image" in result.stdout
     assert "ledger.html: page " in result.stdout and "px wider than a 1280 px window" in result.stdout
     assert "denoise/index.html: image did not load: missing.png" in result.stdout
     assert "link to a missing page: methods/resnet.html" in result.stdout
