@@ -390,9 +390,10 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     # a legend line under each table for the columns a reader could misread
     assert '<p class="legend">runs: the runs (training seeds) a row averages;' in page
     pngs = _embedded_pngs(page)
-    assert len(pngs) == 2
-    assert pngs[0] == (out / "learning_curves.png").read_bytes()
-    assert pngs[1] == (out / "image_grid.png").read_bytes()
+    assert len(pngs) == 3
+    assert pngs[0] == (out / "quality_by_spp.png").read_bytes()  # the per-spp table drawn
+    assert pngs[1] == (out / "learning_curves.png").read_bytes()
+    assert pngs[2] == (out / "image_grid.png").read_bytes()
     for data in pngs:
         assert Image.open(io.BytesIO(data)).format == "PNG"
     assert "<b>32.00</b>" in page and "abc1234" in page
@@ -683,3 +684,25 @@ def test_the_grids_minimum_tile_is_read_from_the_report_config(store, tmp_path):
     build_report(_cfg(store, tmp_path, min_tile_px=48))  # 16 x 24 tiles: 3x, crop at ceil(4 / 3) = 2x
     with Image.open(tmp_path / "denoise" / "image_grid.png") as grid:
         assert grid.width < 5 * 24 * 16 and grid.width >= 5 * 24 * 3
+
+
+def test_the_per_spp_table_becomes_one_series_per_metric_and_row_in_sample_order():
+    from src.report.figures import quality_by_spp, spp_series
+
+    table = pd.DataFrame(
+        {
+            "PSNR 8spp": [31.0, 29.0],
+            "PSNR 8spp std": [0.5, np.nan],
+            "PSNR 2spp": [25.0, np.nan],
+            "PSNR 2spp std": [0.1, np.nan],
+            "SSIM 4spp": [0.9, 0.8],
+            "runs": [2, 1],
+        },
+        index=pd.Index(["kpcn", "dpcn"], name="model"),
+    )
+    series = spp_series(table)
+    assert list(series) == ["PSNR", "SSIM"]
+    assert series["PSNR"]["kpcn"] == ([2, 8], [25.0, 31.0], [0.1, 0.5])  # by count, not column order
+    assert series["PSNR"]["dpcn"] == ([8], [29.0], [0.0])  # its missing count left out, no std: 0
+    assert series["SSIM"]["dpcn"] == ([4], [0.8], [0.0])
+    assert spp_series(table[["runs"]]) == {} and quality_by_spp(table[["runs"]], "unused.png") is None

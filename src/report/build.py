@@ -69,6 +69,7 @@ from src.report.figures import (
     GRID_HEADINGS,
     image_grid,
     learning_curves,
+    quality_by_spp,
     run_labels,
     search_curves,
 )
@@ -155,6 +156,10 @@ DEFAULT_OUT_DIR = "reports"
 DEFAULT_IMAGES = 3
 
 
+#: The per-spp table drawn (quality against the noisy sample count): readable where the table runs wide.
+SPP_HEADING = "Quality against sample count (mean over seeds, bars: their std)"
+
+
 def _crop(cfg: Any) -> tuple[int, int]:
     """Crop size and zoom of the grid: `task.eval.crop_size` / `crop_zoom` when the config has both, else
     `DEFAULT_CROP` (logged). A value that is not an integer is an error, not a silent default."""
@@ -234,7 +239,12 @@ def build_report(cfg: Any) -> dict[str, Any]:
         files |= write_table_with_notes(TIME_STEM, time_table, out_dir, warnings, time_table.attrs["notes"])
         files[time_png.name] = time_png
     grid_heading = grid.heading if grid is not None else GRID_HEADING
+    per_spp = tables.get("comparison_per_spp")
+    spp_png = quality_by_spp(per_spp, out_dir / "quality_by_spp.png") if per_spp is not None else None
+    if spp_png is not None:
+        files[spp_png.name] = spp_png
     figures = {
+        SPP_HEADING: spp_png,
         "Learning curves": curves,
         TIME_HEADING: time_png,
         SEARCH_HEADING: search,

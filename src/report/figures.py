@@ -204,6 +204,67 @@ def _draw_arm(client: MlflowClient, axes, components: Sequence[str], run_ids: Se
     return drawn
 
 
+_PER_SPP_COLUMN = re.compile(r"^(?P<label>.+) (?P<spp>\d+)spp$")
+
+
+def spp_series(table: pd.DataFrame) -> dict[str, dict[str, tuple[list[int], list[float], list[float]]]]:
+    """{metric label: {row label: (spp counts, means, stds)}} of a per-spp quality table (columns
+    `<label> <N>spp` and `<label> <N>spp std`, rows the compared arms), counts ascending; a row's missing
+    values are left out."""
+    out: dict[str, dict[str, tuple[list[int], list[float], list[float]]]] = {}
+    for column in table.columns:
+        match = _PER_SPP_COLUMN.match(str(column))
+        if match is None:
+            continue
+        label, spp = match["label"], int(match["spp"])
+        for index, value in table[column].items():
+            if pd.isna(value):
+                continue
+            row = "/".join(map(str, index)) if isinstance(index, tuple) else str(index)
+            std = table.get(f"{column} std", pd.Series(dtype=float)).get(index, np.nan)
+            xs, ys, es = out.setdefault(label, {}).setdefault(row, ([], [], []))
+            xs.append(spp), ys.append(float(value)), es.append(0.0 if pd.isna(std) else float(std))
+    for rows in out.values():
+        for row, (xs, ys, es) in rows.items():
+            order = np.argsort(xs)
+            rows[row] = ([xs[i] for i in order], [ys[i] for i in order], [es[i] for i in order])
+    return out
+
+
+def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
+    """The per-spp quality table as a figure: one panel per metric, the noisy sample count on a log2
+    axis, one line per compared row (mean over its seeds, bars: their std), the legend beside the
+    panels. None without per-spp columns."""
+    series = spp_series(table)
+    if not series:
+        return None
+    fig, panels = plt.subplots(1, len(series), figsize=(4.2 * len(series), 3.6), squeeze=False)
+    rows = list(dict.fromkeys(row for by_row in series.values() for row in by_row))
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = plt.get_cmap("tab20").colors if len(rows) > len(cycle) else cycle
+    for ax, (label, by_row) in zip(panels[0], series.items(), strict=True):
+        for row, (xs, ys, es) in by_row.items():
+            color = colors[rows.index(row) % len(colors)]
+            ax.errorbar(xs, ys, yerr=es, color=color, marker="o", ms=4, capsize=2, label=row)
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("noisy samples per pixel")
+        ax.set_title(label)
+        ax.grid(True, which="both", alpha=0.3)
+    handles, names = panels[0][0].get_legend_handles_labels()
+    seen = dict(zip(names, handles, strict=True))
+    for ax in panels[0][1:]:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(name, handle)
+    panels[0][-1].legend(
+        seen.values(), seen.keys(), loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False
+    )
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return out_png
+
+
 SEARCH_METRIC = "search_best"
 
 
