@@ -115,3 +115,40 @@ def test_save_comparison_strip(tmp_path):
     path = save_comparison_strip(tmp_path / "strip.png", panels, 8, 3)
     with Image.open(path) as png:
         np.testing.assert_array_equal(np.asarray(png), comparison_strip(panels, 8, 3))
+
+
+def test_a_temporal_strip_follows_one_crop_through_every_frame_of_every_row():
+    from src.io.images import SEPARATOR_PX, temporal_strip
+
+    rng = np.random.default_rng(0)
+    reference = [rng.integers(0, 200, (20, 30, 3), dtype=np.uint8) for _ in range(3)]
+    noisy = [r.copy() for r in reference]
+    noisy[1][10:14, 20:24] = 255  # the middle frame differs most from the reference there
+    denoised = [r // 2 for r in reference]
+    strip = temporal_strip([("noisy", noisy), ("kpcn", denoised), ("reference", reference)], 4, 3)
+    cell = 4 * 3
+    assert strip.shape == (3 * cell + 2 * SEPARATOR_PX, 3 * cell + 2 * SEPARATOR_PX, 3)
+    for r, frames in enumerate((noisy, denoised, reference)):
+        for c, frame in enumerate(frames):
+            if r == 0 or c == 0:
+                continue  # labelled cells: text drawn on them
+            top, left = r * (cell + SEPARATOR_PX), c * (cell + SEPARATOR_PX)
+            want = np.repeat(np.repeat(frame[10:14, 20:24], 3, axis=0), 3, axis=1)  # the same window
+            assert np.array_equal(strip[top : top + cell, left : left + cell], want), (r, c)
+    with pytest.raises(DataError, match="same frames"):
+        temporal_strip([("a", noisy), ("b", noisy[:2])], 4, 3)
+
+
+def test_the_sequence_shown_is_the_first_with_two_frames_at_its_lowest_count():
+    from src.report.figures import sequence_frames
+
+    names = [
+        "b-f0001-00004spp",
+        "b-f0000-00004spp",
+        "a-f0000-00008spp",  # one frame at 8 spp: not a sequence to follow
+        "a-f0002-00016spp",
+        "a-f0000-00016spp",
+        "still-00004spp",
+    ]
+    assert sequence_frames(names) == ["a-f0000-00016spp", "a-f0002-00016spp"]
+    assert sequence_frames(["still-00004spp", "lego-r_0"]) == []

@@ -276,9 +276,45 @@ def test_grid_tiles_carry_their_psnr_and_radiance_fields_start_at_the_reference(
         expected = psnr(ids[model][1] / 255.0, reference / 255.0)
         assert label == f"{model} {expected:.2f} dB"
         assert np.array_equal(image, ids[model][1])
-    grid = image_grid(runs, tmp_path / "grid.png", 1, ["model.name"], 4, 2)
+    grid = image_grid(runs, tmp_path / "grid.png", 1, ["model.name"], 4, 2, min_tile=1)  # pixel for pixel
     assert grid.heading == GRID_HEADINGS["rendered"] and "reference | rendered" in grid.heading
     with Image.open(grid.path) as image:
         first = np.asarray(image.convert("RGB"))[:12, :16]  # the first tile, its crop box drawn on it
     same = (first == reference).all(axis=-1).mean()
     assert same > 0.5 and (first == ids["nerf"][1]).all(axis=-1).mean() < 0.2
+
+
+def test_a_sequence_frame_in_the_grid_says_which_frame_and_the_report_follows_a_crop_through_time(
+    store,  # noqa: F811
+    tmp_path,
+):
+    import numpy as np
+    from PIL import Image
+
+    from src.report.figures import _panels, temporal_grid
+
+    client = MlflowClient()
+    experiment = client.create_experiment("sequence-grid", artifact_location=(tmp_path / "art").as_uri())
+    run_id = client.create_run(experiment).info.run_id
+    client.log_batch(run_id, params=[Param("model.name", "unet_kpcn"), Param("seed", "0")])
+    folder = tmp_path / "png"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for frame in range(3):
+        for kind in ("noisy", "denoised", "reference"):
+            image = rng.integers(0, 256, (20, 24, 3), dtype=np.uint8)
+            Image.fromarray(image).save(folder / f"cloud-f{frame:04d}-00004spp-{kind}.png")
+    client.log_artifacts(run_id, str(folder), "eval/png")
+    client.set_terminated(run_id, "FINISHED")
+    chosen = {
+        "unet_kpcn": (
+            run_id,
+            {f"cloud-f{f:04d}-00004spp": {"noisy", "denoised", "reference"} for f in range(3)},
+        )
+    }
+    panels = _panels("cloud-f0002-00004spp", chosen, tmp_path / "dl")
+    assert panels[-1][0] == "reference, frame 2"
+    runs = pd.DataFrame({"run_id": [run_id], "params.model.name": ["unet_kpcn"], "params.seed": ["0"]})
+    strip = temporal_grid(runs, tmp_path / "temporal.png", ["model.name"], crop_size=8, zoom=2)
+    with Image.open(strip) as image:  # rows noisy, unet_kpcn, reference; a column per frame; 16-px cells
+        assert image.size == (3 * 16 + 2 * 2, 3 * 16 + 2 * 2)

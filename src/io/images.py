@@ -149,6 +149,45 @@ def comparison_strip(
     return np.asarray(canvas, dtype=np.uint8).copy()
 
 
+def temporal_strip(rows: Sequence[tuple[str, Sequence[np.ndarray]]], crop_size: int, zoom: int) -> np.ndarray:
+    """uint8 strip of one crop through time: a row per `(label, frames)` (noisy, each method, reference;
+    each row's frames the same sequence, all (H, W, 3) of one size), a column per frame, each cell the
+    same crop_size window enlarged `zoom` times (nearest neighbour). The window is centred where the first
+    row's middle frame differs most from the last row's (`max_error_center`): flicker there is what a
+    temporal loss is meant to remove. The first cell of a row carries its label, the top row its frame."""
+    if zoom < 1:
+        raise DataError(f"temporal_strip: zoom must be >= 1, got {zoom}")
+    frames = [[to_uint8(f) for f in row_frames] for _, row_frames in rows]
+    counts = {len(f) for f in frames}
+    shapes = {f.shape for row_frames in frames for f in row_frames}
+    if not frames or len(counts) != 1 or not counts.pop() or len(shapes) != 1:
+        raise DataError(f"temporal_strip: rows need the same frames of one size, got {sorted(shapes)}")
+    h, w, _ = frames[0][0].shape
+    middle = len(frames[0]) // 2
+    y0, x0, ch, cw = crop_box(
+        max_error_center(frames[0][middle], frames[-1][middle], crop_size), crop_size, h, w
+    )
+    cell_h, cell_w = zoom * ch, zoom * cw
+    n_cols, n_rows = len(frames[0]), len(frames)
+    canvas = Image.new(
+        "RGB",
+        (n_cols * cell_w + (n_cols - 1) * SEPARATOR_PX, n_rows * cell_h + (n_rows - 1) * SEPARATOR_PX),
+        SEPARATOR_RGB,
+    )
+    for r, ((label, _), row_frames) in enumerate(zip(rows, frames, strict=True)):
+        for c, frame in enumerate(row_frames):
+            crop = frame[y0 : y0 + ch, x0 : x0 + cw]
+            cell = Image.fromarray(
+                np.ascontiguousarray(np.repeat(np.repeat(crop, zoom, axis=0), zoom, axis=1))
+            )
+            text = [label] if c == 0 else []
+            text += [f"frame {c}"] if r == 0 else []
+            if text:
+                _draw_label(ImageDraw.Draw(cell), ", ".join(text))
+            canvas.paste(cell, (c * (cell_w + SEPARATOR_PX), r * (cell_h + SEPARATOR_PX)))
+    return np.asarray(canvas, dtype=np.uint8).copy()
+
+
 def save_comparison_strip(
     path: str | os.PathLike[str],
     panels: Sequence[Panel],

@@ -67,11 +67,13 @@ from src.report.figures import (
     DEFAULT_CROP,
     DEFAULT_MIN_TILE,
     GRID_HEADINGS,
+    TEMPORAL_HEADING,
     image_grid,
     learning_curves,
     quality_by_spp,
     run_labels,
     search_curves,
+    temporal_grid,
 )
 from src.report.html import render_html
 from src.report.noisebase_table import HEADING as NOISEBASE_HEADING
@@ -228,9 +230,9 @@ def build_report(cfg: Any) -> dict[str, Any]:
             out_dir / "best_expressions.md", _expressions_markdown(expressions)
         )
         sections[EXPRESSIONS_HEADING] = _expressions_html(expressions)
-    curves, grid = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
+    curves, grid, temporal = _write_figures(cfg, runs, out_dir, axes, row_keys, columns_by)
     search = search_curves(runs, out_dir / "search_curves.png", axes)
-    for path in (curves, search, grid and grid.path):
+    for path in (curves, search, grid and grid.path, temporal):
         if path is not None:
             files[path.name] = path
     time_png, time_table = quality_against_time(runs, out_dir / f"{TIME_STEM}.png", axes)
@@ -249,6 +251,7 @@ def build_report(cfg: Any) -> dict[str, Any]:
         TIME_HEADING: time_png,
         SEARCH_HEADING: search,
         grid_heading: grid and grid.path,
+        TEMPORAL_HEADING: temporal,
     }
     root = Path(str(config_value(rc, "out_dir", DEFAULT_OUT_DIR))).expanduser()
     manifest = report_manifest(name, runs, axes, tables, config_value(rc, "experiment"), section_tables)
@@ -322,7 +325,8 @@ def _write_tables(tables: dict[str, Any], out_dir: Path, warnings: list[str]) ->
 
 
 def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: list[str], columns_by):
-    """The learning curves and the image grid (of one `columns_by` value); each None when not drawn."""
+    """The learning curves, the image grid and, for sequences, the crop through time (of one `columns_by`
+    value); each None when not drawn."""
     rc = cfg.report
     crop_size, zoom = _crop(cfg)
     curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
@@ -330,7 +334,8 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
     grid_runs = _first_value_only(runs, columns_by)
     min_tile = int(config_value(rc, "min_tile_px", DEFAULT_MIN_TILE))
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom, min_tile)
-    return curves, grid
+    temporal = temporal_grid(grid_runs, out_dir / "temporal_strip.png", axes, crop_size, zoom)
+    return curves, grid, temporal
 
 
 def _page(

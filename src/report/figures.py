@@ -29,7 +29,13 @@ from mlflow.tracking import MlflowClient  # noqa: E402
 from PIL import Image  # noqa: E402
 
 from src.io.atomic import atomic_path  # noqa: E402
-from src.io.images import SEPARATOR_PX, SEPARATOR_RGB, comparison_strip, write_png  # noqa: E402
+from src.io.images import (  # noqa: E402
+    SEPARATOR_PX,
+    SEPARATOR_RGB,
+    comparison_strip,
+    temporal_strip,
+    write_png,
+)
 from src.report.collect import param_column  # noqa: E402
 from src.report.tables import DEFAULT_AXES, MISSING  # noqa: E402
 
@@ -469,9 +475,60 @@ def _panels(
     for short, (run_id, names) in chosen.items():
         output = _load(run_id, f"{name}-{_output_kind(names[name])}.png", tmp / run_id)
         panels.append((_with_psnr(short, tile_psnr(output, reference)), output))
+    frame = _SEQUENCE_NAME.match(name)
+    label = f"reference, frame {int(frame['frame'])}" if frame else "reference"  # which frame of a sequence
     if _output_kind(first_names[name]) == "rendered":
-        return [("reference", reference), *panels]
-    return [*panels, ("reference", reference)]
+        return [(label, reference), *panels]
+    return [*panels, (label, reference)]
+
+
+#: A sequence frame's image name: `<scene>-f<FFFF>-<NNNNN>spp` (src/eval/denoise_eval.py).
+_SEQUENCE_NAME = re.compile(r"^(?P<scene>.+)-f(?P<frame>\d{4})-(?P<spp>\d+)spp$")
+TEMPORAL_HEADING = "A crop through time (rows: noisy, each method, reference; columns: frames)"
+
+
+def sequence_frames(names: Sequence[str]) -> list[str]:
+    """The frame names of the first sequence (by scene, lowest sample count) with two frames or more, in
+    frame order; [] when `names` hold no sequence."""
+    groups: dict[tuple[str, int], list[tuple[int, str]]] = {}
+    for name in names:
+        if match := _SEQUENCE_NAME.match(name):
+            groups.setdefault((match["scene"], int(match["spp"])), []).append((int(match["frame"]), name))
+    for key in sorted(groups):
+        if len(groups[key]) > 1:
+            return [name for _, name in sorted(groups[key])]
+    return []
+
+
+def temporal_grid(
+    runs: pd.DataFrame,
+    out_png: str | Path,
+    axes: Sequence[str] | None = None,
+    crop_size: int = DEFAULT_CROP[0],
+    zoom: int = DEFAULT_CROP[1],
+) -> Path | None:
+    """For sequence evaluations: one crop followed through the frames of the first held-out sequence
+    (`src.io.images.temporal_strip`), a row for the noisy input, each compared row's output and the
+    reference; None for still images or without PNGs."""
+    chosen = _runs_with_images(runs, axes)
+    if not chosen:
+        return None
+    common = set.intersection(*(set(names) for _, names in chosen.values()))
+    first_id, first_names = next(iter(chosen.values()))
+    frames = sequence_frames(sorted(n for n in common if "reference" in first_names[n]))
+    if not frames:
+        return None
+    with tempfile.TemporaryDirectory(prefix="nrbench-report-") as tmp:
+        tmp = Path(tmp)
+        rows = []
+        if all("noisy" in first_names[n] for n in frames):
+            rows.append(("noisy", [_load(first_id, f"{n}-noisy.png", tmp / "n") for n in frames]))
+        for short, (run_id, names) in chosen.items():
+            rows.append(
+                (short, [_load(run_id, f"{n}-{_output_kind(names[n])}.png", tmp / run_id) for n in frames])
+            )
+        rows.append(("reference", [_load(first_id, f"{n}-reference.png", tmp / "r") for n in frames]))
+    return write_png(out_png, temporal_strip(rows, crop_size, zoom))
 
 
 def _stack_strips(strips: list[np.ndarray]) -> np.ndarray:
