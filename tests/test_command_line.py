@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from src.errors import ConfigError
-from src.schema.command_line import CONF_DIR, check_command_line, groups, key_error, split_argv
+from src.schema.command_line import CONF_DIR, check_command_line, key_error, split_argv
 from src.schema.run import check_method_fits_task, method_class, task_methods
 from tests.conftest import ROOT, compose_config, one_line_cli_error, one_line_error
 
@@ -69,16 +69,21 @@ def test_commands_that_compose_pass_untouched(argv):
 
 
 def test_the_flags_are_not_overrides():
-    assert split_argv(["-m", "--config-name", "config", "seed=1"]) == (["seed=1"], True, True)
-    assert split_argv(["--cfg", "job", "seed=1"]) == (["seed=1"], False, True)
+    assert split_argv(["-m", "--cfg", "job", "seed=1"]) == (["seed=1"], True, True)
     assert split_argv(["seed=1", "--help"]) == ([], False, False)  # nothing runs: nothing to check
+    assert split_argv(["--config-dir", "mine", "seed=1"]) == ([], False, False)  # not conf/: stand aside
 
 
-def test_the_groups_are_the_folders_of_conf_with_their_options():
-    known = groups()
-    assert known["model"] == MODELS and "kpcn" in known["model"]
-    assert "sweep" in known and "denoisers" in known["sweep"]
-    assert not any(g.startswith("hydra") for g in known)  # Hydra's groups have options from Hydra too
+def test_a_users_own_config_folder_on_the_searchpath_adds_its_options():
+    # docs/extending.md: a user's model YAML outside conf/ (tests/conf/model/toy.yaml)
+    user = "hydra.searchpath=[file://tests/conf]"
+    check_command_line(["model=toy", user])
+    check_command_line(["-m", "model=dpcn,toy", user])
+    with pytest.raises(ConfigError, match="model=toy: no such model"):
+        check_command_line(["model=toy"])  # without the folder there is no such model
+    check_command_line(["hydra/launcher=basic"])  # Hydra's own groups have Hydra's options
+    with pytest.raises(ConfigError, match="hydra/launcher=basc: no such hydra/launcher; did you mean basic"):
+        check_command_line(["hydra/launcher=basc"])
 
 
 def test_a_key_error_names_the_deepest_part_that_exists():

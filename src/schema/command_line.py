@@ -25,20 +25,9 @@ CONFIG_NAME = "config"
 #: Command-line flags after which nothing is run (help, shell completion): no check.
 NO_JOB_FLAGS = ("--help", "-h", "--hydra-help", "--info", "-i", "--shell-completion", "-sc")
 #: Flags that take a value (the next argument is not an override).
-FLAGS_WITH_VALUE = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd", "--cfg", "-c")
-
-
-def groups(conf_dir: Path = CONF_DIR) -> dict[str, list[str]]:
-    """Every config group of the project (a folder of conf/, nested ones as `encoding`) with its options
-    (YAML stems). Hydra's own groups (`hydra/launcher`, ...) are left out: their options also come from
-    Hydra and its plugins (`basic`, `optuna`), so conf/hydra/ does not list them all."""
-    out = {}
-    for folder in sorted(p for p in conf_dir.rglob("*") if p.is_dir()):
-        name = folder.relative_to(conf_dir).as_posix()
-        options = sorted(p.stem for p in folder.glob("*.yaml"))
-        if options and name.split("/")[0] != "hydra":
-            out[name] = options
-    return out
+FLAGS_WITH_VALUE = ("--cfg", "-c", "--package", "-p")
+#: Flags that point Hydra at other config files: the check, which composes conf/, stands aside.
+OTHER_CONFIG_FLAGS = ("--config-path", "-cp", "--config-name", "-cn", "--config-dir", "-cd")
 
 
 def closest(word: str, names: Iterable[str], n: int = 3) -> list[str]:
@@ -47,14 +36,16 @@ def closest(word: str, names: Iterable[str], n: int = 3) -> list[str]:
 
 
 def split_argv(argv: Sequence[str]) -> tuple[list[str], bool, bool]:
-    """(the overrides, multirun, whether a job would run at all) of a `python -m src.run` command line."""
+    """(the overrides, multirun, whether this check applies) of a `python -m src.run` command line: not
+    when nothing runs (help, shell completion) or another config folder or name is given (the check
+    composes the project's conf/)."""
     overrides, multirun, skip = [], False, False
     for arg in argv:
         if skip:
             skip = False
         elif arg in ("-m", "--multirun"):
             multirun = True
-        elif arg in NO_JOB_FLAGS or arg.startswith("--shell-completion"):
+        elif arg in NO_JOB_FLAGS or arg.startswith("--shell-completion") or arg in OTHER_CONFIG_FLAGS:
             return [], multirun, False
         elif arg in FLAGS_WITH_VALUE:
             skip = True
@@ -70,17 +61,18 @@ def option_error(group: str, value: str, options: Sequence[str]) -> ConfigError:
     return ConfigError(f"{group}={value}: no such {group}; {hint}(options: {', '.join(options)})")
 
 
-def check_options(parsed, known: dict[str, list[str]]) -> None:
-    """Each override of a config group (`model=...`, `+sweep=...`, a sweep's `model=a,b`) names an option
-    of that group; a ConfigError names the first that does not."""
+def check_options(parsed, options) -> None:
+    """Each override of a config group (`model=...`, `+sweep=...`, a sweep's `model=a,b`, `hydra/launcher=`)
+    names an option of that group (`options(group)`: Hydra's list, user folders on `hydra.searchpath`
+    included; empty for a key that is no group); a ConfigError names the first that does not."""
     for override in parsed:
-        group = override.key_or_group
-        if group not in known or override.is_delete():
+        known = options(override.key_or_group)
+        if not known or override.is_delete():
             continue
         values = override.sweep_string_iterator() if override.is_sweep_override() else [override.value()]
         for value in values:
-            if value is not None and str(value) not in known[group]:
-                raise option_error(group, str(value), known[group])
+            if value is not None and str(value) not in known:
+                raise option_error(override.key_or_group, str(value), known)
 
 
 def leaf_keys(cfg, prefix: str = "") -> list[str]:
@@ -119,21 +111,21 @@ def key_error(key: str, keys: Sequence[str]) -> ConfigError:
     return ConfigError(f"{key}: no such config key; {hint}")
 
 
-def check_keys(parsed, overrides: Sequence[str], known: dict[str, list[str]]) -> None:
-    """Compose the config with the group choices of `overrides` and check that every other changed key
-    exists in it (a `+key` adds one; `~key` deletes: both are left to Hydra and the schema)."""
-    from hydra import compose, initialize_config_dir
+def check_keys(parsed, options, searchpath: Sequence[str]) -> None:
+    """Compose the config with the group choices of the command line (and its `hydra.searchpath`) and
+    check that every other changed key exists in it (a `+key` adds one; `~key` deletes: both are left to
+    Hydra and the schema). A composition this check cannot explain is left to Hydra's own error."""
+    from hydra import compose
 
-    choices = [o.input_line for o in parsed if o.key_or_group in known]
+    choices = [o.input_line for o in parsed if options(o.key_or_group)]
     try:
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            base = compose(CONFIG_NAME, overrides=choices)
-    except Exception:  # noqa: BLE001 - a composition this check cannot explain: Hydra's own error follows
+        base = compose(CONFIG_NAME, overrides=[*choices, *searchpath])
+    except Exception:  # noqa: BLE001 - Hydra's own error follows when the job starts
         return
     keys = leaf_keys(base)
     for override in parsed:
         key = override.key_or_group
-        if key in known or key.split(".")[0].split("/")[0] == "hydra" or "/" in key:
+        if options(key) or key.split(".")[0].split("/")[0] == "hydra" or "/" in key:
             continue  # a group choice (checked above) or Hydra's own settings
         if override.is_add() or override.is_delete():
             continue
@@ -159,17 +151,29 @@ def has_key(cfg, key: str) -> bool:
 
 def check_command_line(argv: Sequence[str]) -> None:
     """Raise a one-line ConfigError for the first misspelt group option or unknown key of `argv`."""
+    from functools import cache
+
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.object_type import ObjectType
     from hydra.core.override_parser.overrides_parser import OverridesParser
     from hydra.errors import OverrideParseException
 
-    overrides, multirun, runs = split_argv(argv)
-    if not runs:
+    overrides, multirun, applies = split_argv(argv)
+    if not applies:
         return
     try:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as err:
         raise ConfigError(f"command line: {' '.join(str(err).split())}") from None
-    known = groups()
-    check_options(parsed, known)
-    if not multirun and not any(o.is_sweep_override() for o in parsed):
-        check_keys(parsed, overrides, known)
+    searchpath = [o.input_line for o in parsed if o.key_or_group == "hydra.searchpath"]
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        loader = GlobalHydra.instance().config_loader()
+
+        @cache
+        def options(group: str) -> list[str]:
+            return loader.get_group_options(group, ObjectType.CONFIG, CONFIG_NAME, searchpath)
+
+        check_options(parsed, options)
+        if not multirun and not any(o.is_sweep_override() for o in parsed):
+            check_keys(parsed, options, searchpath)
