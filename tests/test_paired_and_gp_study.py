@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from src.errors import DataError
-from src.report.paired import paired_difference
+from src.report.paired import Paired, paired_difference
 from tests.conftest import ROOT, one_line_error
 
 spec = importlib.util.spec_from_file_location("gp_study", ROOT / "scripts" / "gp_study.py")
@@ -243,7 +243,43 @@ def test_paired_table_compares_sequences_on_their_flicker_and_temporal_psnr():
     table = paired_table(study, ["model.name"])
     assert table.loc[("A",), "Flicker vs truth"] == "best"
     assert table.loc[("B",), "Flicker vs truth vs best (difference)"] == pytest.approx(0.03)
+    from src.report.table_writers import cells
+
+    header, _, rows = cells(table)
+    b_row = {h: text for h, (text, _, _) in zip(header, rows[1], strict=True)}
+    assert b_row["Flicker vs truth vs best (difference)"] == "+0.03"  # a positive difference keeps its sign
     assert table.loc[("B",), "Flicker vs truth"] == "significant (n = 6)"  # 6 of 6 pairs one way
     assert pd.isna(table.loc[("C",), "Flicker vs truth vs best (difference)"])  # C has no flicker scores
     assert table.loc[("B",), "tPSNR vs best (difference)"] == pytest.approx(-2.0)
     assert table.loc[("B",), "tPSNR"] == "not significant (n = 5)"  # 5 pairs left: the smallest p is 0.0625
+
+
+def test_the_paired_rules_at_their_boundaries():
+    # two pairs are enough for a test (p = 0.5, the smallest two-sided p with n = 2), one is not
+    assert paired_difference([2.0, 3.0], [1.0, 1.0]).p_value == pytest.approx(0.5)
+    assert math.isnan(paired_difference([2.0], [1.0]).p_value)
+    # a tie counts for neither arm
+    tied = paired_difference([2.0, 1.0, 0.5], [1.0, 1.0, 1.0])
+    assert (tied.a_higher, tied.b_higher) == (1, 1)
+    # p exactly at the level is not significant: "below alpha"
+    at_level = Paired(6, 1.0, 6, 0, 0.05, False)
+    assert not at_level.shown(0.05) and at_level.shown(0.0500001)
+    assert at_level.verdict(0.05) == "not significant (n = 6)"
+    # a log comparison refuses a zero in either arm
+    for a, b in (([1.0, 2.0], [0.0, 1.0]), ([0.0, 2.0], [1.0, 1.0])):
+        with pytest.raises(DataError, match="<= 0"):
+            paired_difference(a, b, log=True)
+
+
+def test_the_paired_tables_cells_print_ratios_differences_and_p_at_their_own_digits():
+    from src.report.paired import paired_table
+    from src.report.table_writers import cells
+
+    table = paired_table(_study(), ["model.name"])
+    header, _, rows = cells(table)
+    b_row = {h: text for h, (text, _, _) in zip(header, rows[1], strict=True)}
+    assert b_row["model"] == "B" and b_row["relMSE / noisy vs best (ratio)"] == "2"
+    assert b_row["PSNR vs best (difference)"] == "-1"  # signed: its direction is visible beside the verdict
+    assert b_row["relMSE / noisy p"] == "0.0312" and b_row["pairs"] == "6"
+    assert table.attrs["axes"] == ["model"]
+    assert table.loc[("A",), "PSNR vs best (difference)"] == 0.0  # the best row against itself
