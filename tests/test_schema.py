@@ -78,7 +78,7 @@ HG_RANGE = Bound(float, lo=-0.99, hi=0.99, shape="range")
 BOUNDED: dict[Bound, str] = {
     POSITIVE_INT: """
         run.Ssim.win_size run.Export.spp run.Export.frames dataset.PatchCounts.train dataset.PatchCounts.val
-        denoise.Preprocess.patch_size
+        denoise.Preprocess.patch_size run.Report.min_tile_px
         dataset.StillPreprocess.patches_per_image dataset.SequencePreprocess.sequence_frames
         dataset.SequencePreprocess.patches_per_sequence dataset.FeatureSelection.max_size
         dataset.FeatureSelection.val_batches denoise.Train.batch_size denoise.Train.epochs
