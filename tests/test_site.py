@@ -315,6 +315,9 @@ def test_a_sequence_frame_in_the_grid_says_which_frame_and_the_report_follows_a_
     panels = _panels("cloud-f0002-00004spp", chosen, tmp_path / "dl")
     assert panels[-1][0] == "reference, frame 2"
     runs = pd.DataFrame({"run_id": [run_id], "params.model.name": ["unet_kpcn"], "params.seed": ["0"]})
-    strip = temporal_grid(runs, tmp_path / "temporal.png", ["model.name"], crop_size=8, zoom=2)
+    strip = temporal_grid(runs, tmp_path / "temporal.png", ["model.name"], crop_size=8, zoom=2, min_tile=8)
     with Image.open(strip) as image:  # rows noisy, unet_kpcn, reference; a column per frame; 16-px cells
         assert image.size == (3 * 16 + 2 * 2, 3 * 16 + 2 * 2)
+    # by default a cell is at least half a grid tile: an 8-px crop is enlarged 16x, to 128 px
+    with Image.open(temporal_grid(runs, tmp_path / "t2.png", ["model.name"], crop_size=8, zoom=2)) as image:
+        assert image.size == (3 * 128 + 2 * 2, 3 * 128 + 2 * 2)

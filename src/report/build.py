@@ -334,7 +334,7 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
     grid_runs = _first_value_only(runs, columns_by)
     min_tile = int(config_value(rc, "min_tile_px", DEFAULT_MIN_TILE))
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom, min_tile)
-    temporal = temporal_grid(grid_runs, out_dir / "temporal_strip.png", axes, crop_size, zoom)
+    temporal = temporal_grid(grid_runs, out_dir / "temporal_strip.png", axes, crop_size, zoom, min_tile)
     return curves, grid, temporal
 
 

@@ -34,6 +34,7 @@ from src.io.images import (  # noqa: E402
     SEPARATOR_RGB,
     comparison_strip,
     temporal_strip,
+    window_size,
     write_png,
 )
 from src.report.collect import param_column  # noqa: E402
@@ -506,10 +507,12 @@ def temporal_grid(
     axes: Sequence[str] | None = None,
     crop_size: int = DEFAULT_CROP[0],
     zoom: int = DEFAULT_CROP[1],
+    min_tile: int = DEFAULT_MIN_TILE,
 ) -> Path | None:
     """For sequence evaluations: one crop followed through the frames of the first held-out sequence
     (`src.io.images.temporal_strip`), a row for the noisy input, each compared row's output and the
-    reference; None for still images or without PNGs."""
+    reference, each cell at least `min_tile / 2` pixels (the zoom raised for a small crop); None for still
+    images or without PNGs."""
     chosen = _runs_with_images(runs, axes)
     if not chosen:
         return None
@@ -528,6 +531,9 @@ def temporal_grid(
                 (short, [_load(run_id, f"{n}-{_output_kind(names[n])}.png", tmp / run_id) for n in frames])
             )
         rows.append(("reference", [_load(first_id, f"{n}-reference.png", tmp / "r") for n in frames]))
+    # a cell at least half a grid tile (`min_tile`): a small image's crop is enlarged further
+    ch, cw = window_size(crop_size, *rows[0][1][0].shape[:2])
+    zoom = max(zoom, math.ceil(min_tile / 2 / min(ch, cw)))
     return write_png(out_png, temporal_strip(rows, crop_size, zoom))
 
 
