@@ -388,7 +388,7 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     # the store by its file name, never this machine's path to it
     assert "runs (cpu profile) from sqlite:///mlflow.db," in page and str(store["tmp"]) not in page
     # a legend line under each table for the columns a reader could misread
-    assert '<p class="legend">runs: the runs (training seeds) a row averages;' in page
+    assert '<div class="legend">runs: the runs (training seeds) a row averages;' in page
     pngs = _embedded_pngs(page)
     assert len(pngs) == 3
     assert pngs[0] == (out / "quality_by_spp.png").read_bytes()  # the per-spp table drawn

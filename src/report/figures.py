@@ -211,6 +211,8 @@ def _draw_arm(client: MlflowClient, axes, components: Sequence[str], run_ids: Se
     return drawn
 
 
+#: Panels per row of the quality-against-sample-count figure.
+SPP_PANELS_PER_ROW = 3
 _PER_SPP_COLUMN = re.compile(r"^(?P<label>.+) (?P<spp>\d+)spp$")
 
 
@@ -245,7 +247,12 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     series = spp_series(table)
     if not series:
         return None
-    fig, panels = plt.subplots(1, len(series), figsize=(4.2 * len(series), 3.6), squeeze=False)
+    n_cols = min(len(series), SPP_PANELS_PER_ROW)  # rows of panels, never a strip too wide to read
+    n_rows = math.ceil(len(series) / n_cols)
+    fig, grid = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.4 * n_rows), squeeze=False)
+    for ax in grid.flat[len(series) :]:
+        ax.set_visible(False)
+    panels = [list(grid.flat[: len(series)])]
     rows = list(dict.fromkeys(row for by_row in series.values() for row in by_row))
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors = plt.get_cmap("tab20").colors if len(rows) > len(cycle) else cycle
@@ -262,9 +269,10 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     for ax in panels[0][1:]:
         for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
             seen.setdefault(name, handle)
-    panels[0][-1].legend(
+    grid[0][-1].legend(
         seen.values(), seen.keys(), loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False
     )
+    fig.tight_layout()
     out_png = Path(out_png)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")

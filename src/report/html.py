@@ -26,7 +26,7 @@ th, td { padding: 0.3em 0.8em; border-bottom: 1px solid #ddd; text-align: right;
 th { border-bottom: 2px solid #444; } td.key, th.key { text-align: left; }
 .warning { background: #fff3cd; border: 1px solid #e0c060; padding: 0.6em 1em; margin: 1em 0; }
 img { max-width: 100%; border: 1px solid #ccc; } code { font-size: 0.9em; }
-.legend { font-size: 0.85em; color: #444; margin: -1em 0 0.4em; }
+.legend { font-size: 0.85em; color: #444; margin: -1.2em 0 1.5em; line-height: 1.35; }
 """
 
 
@@ -54,7 +54,7 @@ def table_html(table: pd.DataFrame) -> str:
 def legend_html(table: pd.DataFrame) -> str:
     """One line under the table for each column a reader could misread (`tables.column_legend`)."""
     lines = column_legend([*table.columns, RUNS_COLUMN])
-    return "".join(f'<p class="legend">{html.escape(line)}</p>' for line in lines)
+    return f'<div class="legend">{"<br>".join(html.escape(line) for line in lines)}</div>' if lines else ""
 
 
 def _img(path: Path, alt: str) -> str:
