@@ -127,9 +127,10 @@ _HYDRA_FILES = {".hydra", "run.log", "main.log"}
 
 
 def _remove_rejected_run_dir() -> None:
-    """Delete this job's output folder (and its date folder, when that is left empty) when it holds only
-    what Hydra wrote: a command rejected at job start leaves no `outputs/<date>/<time>/`. A folder with
-    anything else (a resumed job's checkpoints, a user's own `hydra.run.dir`) is kept."""
+    """Delete this job's output folder when it holds only what Hydra wrote, and Hydra's date folder above
+    it when that is left empty: a command rejected at job start leaves no `outputs/<date>/<time>/`. A
+    folder with anything else (a resumed job's checkpoints, what an earlier job wrote) is kept, and so is
+    the folder above a `hydra.run.dir` given on the command line."""
     import shutil
 
     from hydra.core.hydra_config import HydraConfig
@@ -146,8 +147,9 @@ def _remove_rejected_run_dir() -> None:
         return
     logging.shutdown()  # the log file handler closes before its file goes
     shutil.rmtree(folder, ignore_errors=True)
-    with contextlib.suppress(OSError):
-        folder.parent.rmdir()  # the date folder, when this was its only job
+    if not any(o.startswith("hydra.run.dir=") for o in hydra_cfg.overrides.hydra):
+        with contextlib.suppress(OSError):
+            folder.parent.rmdir()  # Hydra's date folder, when this was its only job
 
 
 def _check_command_line() -> None:

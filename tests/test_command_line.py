@@ -2,6 +2,7 @@
 src/schema/run.py::check_method_fits_task at job start and in stage=config), and the commands that must
 still pass untouched."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -126,8 +127,14 @@ def test_a_model_runs_only_under_the_task_of_its_kind(model, task):
 
 
 def _cli(args, cwd=ROOT):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}  # from another folder too
     return subprocess.run(
-        [sys.executable, "-m", "src.run", *args], cwd=cwd, capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "src.run", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
 
 
@@ -136,11 +143,16 @@ def test_the_cli_rejects_a_mistake_in_one_line_with_status_2_and_leaves_no_folde
     result = _cli(["task.train.epoch=3", f"hydra.run.dir={run_dir}"])
     one_line_cli_error(result, "task.train.epoch: no such config key; did you mean task.train.epochs?")
     assert not (tmp_path / "outputs").exists()
-    # found at job start (the model's kind), also by stage=config: the folder Hydra made is removed again,
-    # with its date folder
+    # found at job start (the model's kind), also by stage=config: the folder Hydra made is removed again;
+    # the folder above a given hydra.run.dir stays
     result = _cli(["profile=smoke", "model=nerf", "stage=config", f"hydra.run.dir={run_dir}"])
     one_line_cli_error(result, "model=nerf: a NeRF, not a Denoiser", "task=denoise runs; add task=nerf")
-    assert not run_dir.exists() and not run_dir.parent.exists() and (tmp_path / "outputs").is_dir()
+    assert not run_dir.exists() and run_dir.parent.is_dir()
+    # Hydra's own outputs/<date>/<time>/: both go
+    (tmp_path / "elsewhere").mkdir()
+    result = _cli(["profile=smoke", "model=nerf", "stage=config"], cwd=tmp_path / "elsewhere")
+    one_line_cli_error(result, "model=nerf: a NeRF, not a Denoiser")
+    assert list((tmp_path / "elsewhere" / "outputs").iterdir()) == []
 
 
 def test_a_rejected_job_keeps_a_folder_that_holds_more_than_hydras_files(tmp_path):
