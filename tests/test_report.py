@@ -390,10 +390,11 @@ def test_build_report_writes_all_outputs(store, tmp_path, caplog):
     # a legend line under each table for the columns a reader could misread
     assert '<div class="legend">runs: the runs (training seeds) a row averages;' in page
     pngs = _embedded_pngs(page)
-    assert len(pngs) == 3
+    assert len(pngs) == 4
     assert pngs[0] == (out / "quality_by_spp.png").read_bytes()  # the per-spp table drawn
-    assert pngs[1] == (out / "learning_curves.png").read_bytes()
-    assert pngs[2] == (out / "image_grid.png").read_bytes()
+    assert pngs[1] == (out / "quality_cost.png").read_bytes()  # quality against evaluation time
+    assert pngs[2] == (out / "learning_curves.png").read_bytes()
+    assert pngs[3] == (out / "image_grid.png").read_bytes()
     for data in pngs:
         assert Image.open(io.BytesIO(data)).format == "PNG"
     assert "<b>32.00</b>" in page and "abc1234" in page
@@ -706,3 +707,21 @@ def test_the_per_spp_table_becomes_one_series_per_metric_and_row_in_sample_order
     assert series["PSNR"]["dpcn"] == ([8], [29.0], [0.0])  # its missing count left out, no std: 0
     assert series["SSIM"]["dpcn"] == ([4], [0.8], [0.0])
     assert spp_series(table[["runs"]]) == {} and quality_by_spp(table[["runs"]], "unused.png") is None
+
+
+def test_quality_against_cost_pairs_each_rows_quality_with_its_time():
+    from src.report.figures import cost_points, quality_against_cost
+
+    index = pd.Index(["noisy input", "kpcn", "dpcn"], name="model")
+    comparison = pd.DataFrame(
+        {"PSNR": [25.0, 30.0, 28.0], "PSNR std": [np.nan, 0.5, np.nan], "LPIPS": [0.1, 0.05, 0.07]},
+        index=index,
+    )
+    cost = pd.DataFrame({"ms / image": [np.nan, 12.0, 3.0]}, index=index)
+    points = cost_points(comparison, cost)
+    assert list(points) == ["PSNR"]  # LPIPS is not among the drawn columns; SSIM is absent
+    psnr = points["PSNR"]
+    assert list(psnr.index) == ["kpcn", "dpcn"]  # the noisy input has no time
+    assert psnr.loc["kpcn"].tolist()[:2] == [12.0, 30.0] and psnr.loc["kpcn", "std"] == 0.5
+    assert cost_points(comparison, cost.rename(columns={"ms / image": "other"})) == {}
+    assert quality_against_cost(comparison[["LPIPS"]], cost, "unused.png") is None

@@ -70,6 +70,7 @@ from src.report.figures import (
     TEMPORAL_HEADING,
     image_grid,
     learning_curves,
+    quality_against_cost,
     quality_by_spp,
     run_labels,
     search_curves,
@@ -160,6 +161,8 @@ DEFAULT_IMAGES = 3
 
 #: The per-spp table drawn (quality against the noisy sample count): readable where the table runs wide.
 SPP_HEADING = "Quality against sample count (mean over seeds, bars: their std)"
+#: The quality and cost tables drawn together: what each method's quality costs in evaluation time.
+COST_HEADING = "Quality against evaluation time per image (mean over seeds, bars: their std)"
 
 
 def _crop(cfg: Any) -> tuple[int, int]:
@@ -245,8 +248,12 @@ def build_report(cfg: Any) -> dict[str, Any]:
     spp_png = quality_by_spp(per_spp, out_dir / "quality_by_spp.png") if per_spp is not None else None
     if spp_png is not None:
         files[spp_png.name] = spp_png
+    cost_png = quality_against_cost(tables["comparison"], tables["cost"], out_dir / "quality_cost.png")
+    if cost_png is not None:
+        files[cost_png.name] = cost_png
     figures = {
         SPP_HEADING: spp_png,
+        COST_HEADING: cost_png,
         "Learning curves": curves,
         TIME_HEADING: time_png,
         SEARCH_HEADING: search,

@@ -280,6 +280,52 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     return out_png
 
 
+#: The cost axis of the quality-against-cost figure (a column of the cost table) and the quality columns
+#: drawn against it, those of the comparison table that are present.
+COST_AXIS = "ms / image"
+COST_QUALITY = ("PSNR", "relMSE / noisy", "SSIM")
+
+
+def cost_points(comparison: pd.DataFrame, cost: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """{quality label: rows with columns cost, value, std} for each `COST_QUALITY` label of the comparison
+    table, over the rows that have both a quality and a `COST_AXIS` value (the noisy input has no time)."""
+    if COST_AXIS not in cost:
+        return {}
+    out = {}
+    for label in COST_QUALITY:
+        if label not in comparison:
+            continue
+        std = comparison.get(f"{label} std", pd.Series(np.nan, index=comparison.index))
+        frame = pd.DataFrame({"value": comparison[label], "std": std}).join(cost[COST_AXIS].rename("cost"))
+        frame = frame.dropna(subset=["value", "cost"])
+        if len(frame):
+            out[label] = frame[["cost", "value", "std"]]
+    return out
+
+
+def quality_against_cost(comparison: pd.DataFrame, cost: pd.DataFrame, out_png: str | Path) -> Path | None:
+    """Each compared row's quality (mean over seeds, bars: std) against its evaluation time per image,
+    one panel per quality metric, each point named; None when no row has both."""
+    points = cost_points(comparison, cost)
+    if not points:
+        return None
+    fig, axes = plt.subplots(1, len(points), figsize=(4.6 * len(points), 3.6), squeeze=False)
+    for ax, (label, frame) in zip(axes[0], points.items(), strict=True):
+        ax.errorbar(frame["cost"], frame["value"], yerr=frame["std"].fillna(0), fmt="o", capsize=2)
+        for row, point in frame.iterrows():
+            name = "/".join(map(str, row)) if isinstance(row, tuple) else str(row)
+            ax.annotate(name, (point["cost"], point["value"]), textcoords="offset points", xytext=(4, 4))
+        ax.set_xscale("log")
+        ax.set_xlabel(f"{COST_AXIS} (log)")
+        ax.set_title(label)
+        ax.grid(True, which="both", alpha=0.3)
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return out_png
+
+
 SEARCH_METRIC = "search_best"
 
 
