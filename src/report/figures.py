@@ -47,6 +47,21 @@ COMPONENT_ORDER = ("diffuse", "specular", "color", "coarse", "fine")
 _LOSS_COLUMN = re.compile(r"^metrics\.(?:train|val)_loss_(?P<component>.+)$")
 
 
+def save_figure(fig, out_png: str | Path) -> Path:
+    """`fig` written atomically as a PNG at 110 dpi with a tight box (no label cut at the canvas edge),
+    then closed; returns the path."""
+    out_png = Path(out_png)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return out_png
+
+
+def row_name(index) -> str:
+    """A table row's label: its index values joined by `/` (one value as it is)."""
+    return "/".join(map(str, index)) if isinstance(index, tuple) else str(index)
+
+
 def loss_components(runs: pd.DataFrame) -> list[str]:
     """The `<c>` of every `train_loss_<c>` / `val_loss_<c>` metric the runs logged, in display order."""
     found = {m["component"] for c in runs.columns if (m := _LOSS_COLUMN.match(c))}
@@ -184,11 +199,7 @@ def learning_curves(
     panels[0][-1].legend(
         handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", frameon=False
     )
-    out_png = Path(out_png)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")  # no label cut at the canvas edge
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
 
 
 def _draw_arm(client: MlflowClient, axes, components: Sequence[str], run_ids: Sequence[str], color) -> int:
@@ -229,7 +240,7 @@ def spp_series(table: pd.DataFrame) -> dict[str, dict[str, tuple[list[int], list
         for index, value in table[column].items():
             if pd.isna(value):
                 continue
-            row = "/".join(map(str, index)) if isinstance(index, tuple) else str(index)
+            row = row_name(index)
             std = table.get(f"{column} std", pd.Series(dtype=float)).get(index, np.nan)
             xs, ys, es = out.setdefault(label, {}).setdefault(row, ([], [], []))
             xs.append(spp), ys.append(float(value)), es.append(0.0 if pd.isna(std) else float(std))
@@ -273,11 +284,7 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
         seen.values(), seen.keys(), loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False
     )
     fig.tight_layout()
-    out_png = Path(out_png)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
 
 
 #: The cost axis of the quality-against-cost figure (a column of the cost table) and the quality columns
@@ -313,17 +320,14 @@ def quality_against_cost(comparison: pd.DataFrame, cost: pd.DataFrame, out_png: 
     for ax, (label, frame) in zip(axes[0], points.items(), strict=True):
         ax.errorbar(frame["cost"], frame["value"], yerr=frame["std"].fillna(0), fmt="o", capsize=2)
         for row, point in frame.iterrows():
-            name = "/".join(map(str, row)) if isinstance(row, tuple) else str(row)
-            ax.annotate(name, (point["cost"], point["value"]), textcoords="offset points", xytext=(4, 4))
+            ax.annotate(
+                row_name(row), (point["cost"], point["value"]), textcoords="offset points", xytext=(4, 4)
+            )
         ax.set_xscale("log")
         ax.set_xlabel(f"{COST_AXIS} (log)")
         ax.set_title(label)
         ax.grid(True, which="both", alpha=0.3)
-    out_png = Path(out_png)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
 
 
 SEARCH_METRIC = "search_best"
@@ -362,11 +366,7 @@ def search_curves(runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] |
     ax.grid(True, which="both", alpha=0.3)
     # Beside the axes, not on them: a sweep's dozen long run labels would hide the curves.
     ax.legend(fontsize="small", frameon=False, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    out_png = Path(out_png)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
 
 
 def _png_names(client: MlflowClient, run_id: str) -> dict[str, set[str]]:

@@ -329,13 +329,17 @@ def _not_run_list(part: pd.DataFrame) -> list[str]:
 
 
 def document_sections(
-    frame: pd.DataFrame, study_href=None, items_href=None, columns: Sequence[str] = SHOWN_BY_DOCUMENT
+    frame: pd.DataFrame,
+    study_href=None,
+    items_href=None,
+    columns: Sequence[str] = SHOWN_BY_DOCUMENT,
+    heading: str = "h2",
 ) -> list[str]:
     """Per source document: a heading, its claims that ran (status coloured, details folded; targets and
     set-up checks marked by their category, never counted in the headline) and its claims not run, folded.
     A document whose claims all did not run gets no table, only the folded list: never an empty table.
     `study_href(source)`: the link of a "from" cell, `items_href(items_csv)` of a claim's per-replicate
-    differences (`ShownLedger.items_href`), each None for no link."""
+    differences (`ShownLedger.items_href`), each None for no link; `heading` the documents' heading tag."""
     sections: list[str] = []
     if frame.empty:
         return sections
@@ -346,7 +350,7 @@ def document_sections(
         order = {c: i for i, c in enumerate(CATEGORIES)}
         ran = ran.iloc[sorted(range(len(ran)), key=lambda i: order.get(ran["category"].iloc[i], len(order)))]
         counts = status_counts(part)
-        sections.append(f"<h2>{html.escape(str(document))}</h2>")
+        sections.append(f"<{heading}>{html.escape(str(document))}</{heading}>")
         sections.append(f"<p>{html.escape(counts)} (findings and readings)</p>")
         if len(ran):
             sections += _ran_table(ran, columns, study_href, items_href)

@@ -435,10 +435,7 @@ def _ledger_section(out_dir: Path, committed: Path | None) -> list[str]:
         f'<p class="origin">{html.escape(shown.label)}</p>',
         f"<p><b>{html.escape(status_counts(shown.frame))}</b> (findings and readings).</p>",
         *ledger_figures(shown.frame),
-        *(
-            s.replace("<h2>", "<h3>").replace("</h2>", "</h3>")
-            for s in document_sections(shown.frame, study_href, shown.items_href(out_dir), SHOWN_ON_INDEX)
-        ),
+        *document_sections(shown.frame, study_href, shown.items_href(out_dir), SHOWN_ON_INDEX, heading="h3"),
     ]
     history = out_dir / "ledger_history.csv"
     if history.is_file():
