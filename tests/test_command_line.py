@@ -39,6 +39,15 @@ MODELS = sorted(p.stem for p in (CONF_DIR / "model").glob("*.yaml"))
         (["model=dpcn", "model.kernel_size=5"], "model.kernel_size: no such config key; keys under model: "),
         (["foo=1"], "foo: no such config key; keys under the root: auto_resume, compare,"),
         (["seed=[1,2"], "command line: "),  # a syntax error: Hydra's parser message, on one line
+        (["model=kpcn,dpcn"], "model=kpcn,dpcn: a sweep runs one job per value only as a multirun; add -m"),
+        (["seed=range(3)"], "seed=range(3): a sweep runs one job per value only as a multirun; add -m"),
+        (["model=null"], "model=null: a config group takes one of its options: cross_bilateral, dpcn,"),
+        (["-m", "model=null"], "model=null: a config group takes one of its options:"),
+        (["+seed=3"], "+seed=3: seed is already in the config; set it without the +: seed=3"),
+        (
+            ["model=dpcn", "+model.conv_kernel=5"],  # the key exists once the model is chosen
+            "+model.conv_kernel=5: model.conv_kernel is already in the config; set it without the +",
+        ),
     ],
 )
 def test_each_mistake_is_one_line_with_the_nearest_names(argv, message):
@@ -48,7 +57,8 @@ def test_each_mistake_is_one_line_with_the_nearest_names(argv, message):
     assert "\n" not in text
     if message is not None:
         assert text.startswith(message), text
-    assert "+" not in text.split(";")[0] or argv[0].startswith("+")  # never Hydra's "+key" advice
+    # never Hydra's "+key" advice
+    assert "+" not in text.split(";")[0] or any(a.startswith("+") for a in argv)
 
 
 @pytest.mark.parametrize(
@@ -60,6 +70,9 @@ def test_each_mistake_is_one_line_with_the_nearest_names(argv, message):
         ["task.train.epochs=3", "dataset.noisy_spp=[4,8]", "metrics.lpips.enabled=false"],
         ["model=dpcn", "model.conv_kernel=3"],  # a key the chosen model has
         ["+task.train.new_key=1", "~seed"],  # additions and deletions are Hydra's and the schema's
+        ["++seed=3", "++task.train.epochs=2"],  # ++ adds or overrides: Hydra's
+        ["+model.new_key=1"],  # a + on a key that only another model has
+        ["seed='0,1'"],  # a quoted value with a comma is one value, not a sweep
         ["hydra.run.dir=/tmp/somewhere", "hydra/launcher=basic"],
         ["-m", "+sweep=denoisers", "seed=0,1"],
         ["--cfg", "job", "stage=config"],

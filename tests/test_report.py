@@ -466,6 +466,21 @@ def test_grid_crop_comes_from_task_eval_else_the_named_default():
         _crop(OmegaConf.create({"task": {"eval": {"crop_size": "big", "crop_zoom": 4}}}))
 
 
+def test_grid_crop_comes_from_what_the_drawn_runs_logged_first():
+    """A sweep's report composes its own profile: the runs' logged crop wins over it (the most common value
+    where runs differ), each key on its own; runs that logged none fall back to the report's config."""
+    from src.report.build import _crop
+
+    cfg = compose_config(["profile=smoke"])  # its own task.eval: 8 px at x4
+    runs = pd.DataFrame(
+        {"params.task.eval.crop_size": ["48", "48", "16"], "params.task.eval.crop_zoom": ["3"] * 3}
+    )
+    assert _crop(cfg, runs) == (48, 3)
+    assert _crop(cfg, runs.drop(columns="params.task.eval.crop_zoom")) == (48, 4)
+    assert _crop(cfg, pd.DataFrame({"params.task.eval.crop_size": [None, None]})) == (8, 4)
+    assert _crop(cfg, pd.DataFrame({"params.model.name": ["kpcn"]})) == (8, 4)
+
+
 def test_a_table_without_its_metric_specs_is_an_error_not_a_table_without_metrics():
     table = pd.DataFrame({"PSNR": [30.0], "runs": [1]}, index=pd.Index(["kpcn"], name="model"))
     with pytest.raises(ValueError, match="attrs"):

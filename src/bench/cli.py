@@ -5,11 +5,11 @@
 ``python -m src.bench volpath [--width 128 --height 128 --spp 16 --repeats 3 --max-depth 8 --variant auto]``
 and ``python -m src.bench filter [--width 512 --height 512 --islands 4 --population 100 --radius 10
 --sample 8 --device auto]`` or ``python -m src.bench filter --table41 [--resolutions 32,128,256,512
---population 50 ...]``.
+--population 50 ...]`` and ``python -m src.bench startup [--cases all --rounds 5 --warmup 1 --before DIR]``.
 
 The command line: the subcommands' arguments and their checks; a bad argument, config value or model
 name is one line on stderr and exit status 2. What each subcommand measures: `src.bench.denoise`,
-`src.bench.nerf`, `src.bench.volpath`.
+`src.bench.nerf`, `src.bench.volpath`, `src.bench.filter`, `src.bench.startup`.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from hydra.errors import HydraException
 from src.bench.denoise import AUTOCAST_DTYPES, CPU_TILE, MIN_ROUNDS, run_denoise
 from src.bench.filter import THESIS_ISLANDS, THESIS_POPULATION, THESIS_TABLE41, run_filter
 from src.bench.nerf import NERF_AUTOCAST_DTYPES, run_nerf
+from src.bench.startup import run_startup
 from src.bench.volpath import run_volpath
 from src.errors import NrbenchError, one_line
 
@@ -84,6 +85,12 @@ def _check_filter(args: argparse.Namespace) -> str | None:
         )
     if args.radius < 0:
         return "--radius must be >= 0"
+    return None
+
+
+def _check_startup(args: argparse.Namespace) -> str | None:
+    if args.rounds < 1 or args.warmup < 0:
+        return "--rounds must be >= 1, --warmup >= 0"
     return None
 
 
@@ -222,6 +229,17 @@ def _parser() -> argparse.ArgumentParser:
         help="';'-separated published names or expressions to time on one frame ('': none)",
     )
     f.set_defaults(run=run_filter, check=_check_filter)
+
+    s = commands.add_parser(
+        "startup", help="seconds from a src.run command to its answer: the common mistakes"
+    )
+    s.add_argument(
+        "--cases", default="all", help="comma-separated ids of src.bench.startup.CASES (default all)"
+    )
+    s.add_argument("--rounds", type=int, default=5, help="timed rounds, each running every command once")
+    s.add_argument("--warmup", type=int, default=1, help="untimed runs of each command first (file cache)")
+    s.add_argument("--before", metavar="DIR", default=None, help="also time a checkout in DIR (same rounds)")
+    s.set_defaults(run=run_startup, check=_check_startup)
     return parser
 
 

@@ -45,7 +45,6 @@ import numpy as np
 import torch
 
 from src.errors import ConfigError, DataError
-from src.metrics.image import tonemap
 from src.metrics.own_modules import import_own, package_dir
 
 #: The package (PyPI name) whose code computes the number, recorded beside it.
@@ -106,6 +105,10 @@ def display_encoded(frames: np.ndarray, method: str, gamma: float) -> np.ndarray
         raise DataError(f"cvvdp: expected frames of shape (F, H, W, 3), got {frames.shape}")
     if not np.isfinite(frames).all():
         raise DataError(f"cvvdp: the frames have {np.count_nonzero(~np.isfinite(frames))} NaN/Inf values")
+    # Imported here: the job-start check of metrics.cvvdp.display imports this module, and
+    # src.metrics.image brings LPIPS and torchvision (about 1 s) that the check does not need.
+    from src.metrics.image import tonemap
+
     out = np.empty(frames.shape, dtype=np.float32)
     for f, frame in enumerate(frames):
         out[f] = tonemap(frame, method, gamma)

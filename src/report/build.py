@@ -165,15 +165,29 @@ SPP_HEADING = "Quality against sample count (mean over seeds, bars: their std)"
 COST_HEADING = "Quality against evaluation time per image (mean over seeds, bars: their std)"
 
 
-def _crop(cfg: Any) -> tuple[int, int]:
-    """Crop size and zoom of the grid: `task.eval.crop_size` / `crop_zoom` when the config has both, else
-    `DEFAULT_CROP` (logged). A value that is not an integer is an error, not a silent default."""
+def _crop(cfg: Any, runs=None) -> tuple[int, int]:
+    """Crop size and zoom of the grid: what the drawn runs logged as `task.eval.crop_size` / `crop_zoom`
+    (their evaluation's strips; the most common value where they differ), so that a job's report and a
+    sweep's report, whatever profile the report itself composes, crop alike; else the config's
+    `task.eval`; else `DEFAULT_CROP` (logged). A value that is not an integer is an error, not a silent
+    default."""
     e = config_value(config_value(cfg, "task"), "eval")
-    size, zoom = config_value(e, "crop_size"), config_value(e, "crop_zoom")
-    if size is None or zoom is None:
-        log.info("report: no task.eval.crop_size/crop_zoom; the image grid crops %d px at x%d", *DEFAULT_CROP)
-        return DEFAULT_CROP
-    return int(size), int(zoom)
+    crop = []
+    for key, default in zip(("crop_size", "crop_zoom"), DEFAULT_CROP, strict=True):
+        value = _most_logged(runs, f"task.eval.{key}")
+        value = config_value(e, key) if value is None else value
+        if value is None:
+            log.info("report: no task.eval.%s logged or configured; the image grid's is %d", key, default)
+        crop.append(default if value is None else int(value))
+    return crop[0], crop[1]
+
+
+def _most_logged(runs, key: str) -> str | None:
+    """The value the runs logged most often for config key `key` (a param), None when none logged it."""
+    column = param_column(key)
+    if runs is None or column not in runs or runs[column].isna().all():
+        return None
+    return str(runs[column].dropna().astype(str).value_counts().index[0])
 
 
 def _first_value_only(runs, columns_by: str | None):
@@ -335,10 +349,10 @@ def _write_figures(cfg: Any, runs, out_dir: Path, axes: list[str], row_keys: lis
     """The learning curves, the image grid and, for sequences, the crop through time (of one `columns_by`
     value); each None when not drawn."""
     rc = cfg.report
-    crop_size, zoom = _crop(cfg)
     curves = learning_curves(runs, out_dir / "learning_curves.png", row_keys)
     n_images = int(config_value(rc, "images", DEFAULT_IMAGES))
     grid_runs = _first_value_only(runs, columns_by)
+    crop_size, zoom = _crop(cfg, grid_runs)
     min_tile = int(config_value(rc, "min_tile_px", DEFAULT_MIN_TILE))
     grid = image_grid(grid_runs, out_dir / "image_grid.png", n_images, axes, crop_size, zoom, min_tile)
     temporal = temporal_grid(grid_runs, out_dir / "temporal_strip.png", axes, crop_size, zoom, min_tile)

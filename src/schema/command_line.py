@@ -9,7 +9,9 @@ config with Hydra's Compose API (the same files and defaults as the job; `diffli
 only explains a failure; a command that composes goes on to Hydra unchanged.
 
 Only single jobs are composed: a multirun's sweep values (`seed=0,1,2`) are checked option by option for
-the config groups, the rest is left to Hydra.
+the config groups, the rest is left to Hydra. Three more mistakes Hydra answers with a traceback or with
+advice that hides the fix: a sweep without `-m` (`model=kpcn,dpcn`), a config group set to `null`
+(`model=null`, a traceback), and `+key=...` for a key the config already has (`+seed=3`).
 """
 
 from __future__ import annotations
@@ -59,6 +61,24 @@ def option_error(group: str, value: str, options: Sequence[str]) -> ConfigError:
     near = closest(value, options)
     hint = f"did you mean {' or '.join(near)}? " if near else ""
     return ConfigError(f"{group}={value}: no such {group}; {hint}(options: {', '.join(options)})")
+
+
+def check_sweeps_and_nulls(parsed, options, multirun: bool) -> None:
+    """A sweep (`model=kpcn,dpcn`, `seed=range(3)`) on a command line without `-m`, and a config group set
+    to `null`: each a ConfigError naming the override and the fix."""
+    for override in parsed:
+        if override.is_sweep_override() and not multirun:
+            key, _, value = override.input_line.partition("=")
+            raise ConfigError(
+                f"{override.input_line}: a sweep runs one job per value only as a multirun; add -m "
+                f"(or, for one value with a comma in it, quote it: {key}='{value}')"
+            )
+        known = options(override.key_or_group)
+        single = not override.is_delete() and not override.is_sweep_override()
+        if known and single and override.value() is None:
+            raise ConfigError(
+                f"{override.input_line}: a config group takes one of its options: {', '.join(known)}"
+            )
 
 
 def check_options(parsed, options) -> None:
@@ -113,8 +133,9 @@ def key_error(key: str, keys: Sequence[str]) -> ConfigError:
 
 def check_keys(parsed, options, searchpath: Sequence[str]) -> None:
     """Compose the config with the group choices of the command line (and its `hydra.searchpath`) and
-    check that every other changed key exists in it (a `+key` adds one; `~key` deletes: both are left to
-    Hydra and the schema). A composition this check cannot explain is left to Hydra's own error."""
+    check that every other changed key exists in it, and that a `+key` (which adds one) does not (`~key`
+    and `++key` are left to Hydra and the schema). A composition this check cannot explain is left to
+    Hydra's own error."""
     from hydra import compose
 
     choices = [o.input_line for o in parsed if options(o.key_or_group)]
@@ -127,7 +148,14 @@ def check_keys(parsed, options, searchpath: Sequence[str]) -> None:
         key = override.key_or_group
         if options(key) or key.split(".")[0].split("/")[0] == "hydra" or "/" in key:
             continue  # a group choice (checked above) or Hydra's own settings
-        if override.is_add() or override.is_delete():
+        if override.is_delete() or override.is_force_add():
+            continue
+        if override.is_add():
+            if has_key(base, key):  # Hydra's answer: "add a second +", which hides that the key exists
+                raise ConfigError(
+                    f"{override.input_line}: {key} is already in the config; set it without the +: "
+                    f"{override.input_line[1:]}"
+                )
             continue
         if not has_key(base, key):
             raise key_error(key, keys)
@@ -150,7 +178,8 @@ def has_key(cfg, key: str) -> bool:
 
 
 def check_command_line(argv: Sequence[str]) -> None:
-    """Raise a one-line ConfigError for the first misspelt group option or unknown key of `argv`."""
+    """Raise a one-line ConfigError for the first mistake of `argv`: a sweep without -m, a group set to
+    null, a misspelt group option, an unknown key or a `+` on a key that exists."""
     from functools import cache
 
     from hydra import initialize_config_dir
@@ -174,6 +203,7 @@ def check_command_line(argv: Sequence[str]) -> None:
         def options(group: str) -> list[str]:
             return loader.get_group_options(group, ObjectType.CONFIG, CONFIG_NAME, searchpath)
 
+        check_sweeps_and_nulls(parsed, options, multirun)
         check_options(parsed, options)
         if not multirun and not any(o.is_sweep_override() for o in parsed):
             check_keys(parsed, options, searchpath)
