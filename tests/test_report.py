@@ -702,6 +702,32 @@ def test_the_grids_minimum_tile_is_read_from_the_report_config(store, tmp_path):
         assert grid.width < 5 * 24 * 16 and grid.width >= 5 * 24 * 3
 
 
+def test_no_text_of_a_report_figure_is_drawn_over_another_or_cut(store, gp_runs, tmp_path, monkeypatch):
+    """Every figure the report saves (learning curves of three arms over three loss panels, quality against
+    spp and against cost, a filter search's curves) is checked as drawn: no two labels overlap and none
+    is cut by its clip box (tests/figure_text.py)."""
+    from src.report import figures
+    from tests.figure_text import unreadable_texts
+
+    checked, save = {}, figures.save_figure
+
+    def check_then_save(fig, out_png):
+        checked[Path(out_png).name] = unreadable_texts(fig)
+        return save(fig, out_png)
+
+    monkeypatch.setattr(figures, "save_figure", check_then_save)
+    build_report(_cfg(store, tmp_path))
+    axes = ["task.search.replication", "task.search.crossover", "task.search.mutation"]
+    build_report(_cfg(gp_runs, tmp_path, name="gp", experiment=GP_EXPERIMENT, axes=axes))
+    assert set(checked) == {
+        "learning_curves.png",
+        "quality_by_spp.png",
+        "quality_cost.png",
+        "search_curves.png",
+    }
+    assert all(problems == [] for problems in checked.values()), checked
+
+
 def test_the_per_spp_table_becomes_one_series_per_metric_and_row_in_sample_order():
     from src.report.figures import quality_by_spp, spp_series
 
@@ -740,3 +766,63 @@ def test_quality_against_cost_pairs_each_rows_quality_with_its_time():
     assert psnr.loc["kpcn"].tolist()[:2] == [12.0, 30.0] and psnr.loc["kpcn", "std"] == 0.5
     assert cost_points(comparison, cost.rename(columns={"ms / image": "other"})) == {}
     assert quality_against_cost(comparison[["LPIPS"]], cost, "unused.png") is None
+
+
+def test_quality_against_cost_names_crowded_points_in_a_legend_not_over_each_other(tmp_path, monkeypatch):
+    """Six methods at nearly one cost and quality (a sweep of seeds of one setting, say): each gets its own
+    colour and marker, named once in a legend beside the panels; no name is written over another."""
+    from src.report import figures
+    from tests.figure_text import unreadable_texts
+
+    index = pd.Index([f"kpcn lr={lr}" for lr in (1, 2, 3, 4, 5, 6)], name="model")
+    comparison = pd.DataFrame({"PSNR": 30 + 0.01 * np.arange(6), "SSIM": [0.9] * 6}, index=index)
+    cost = pd.DataFrame({"ms / image": 12 + 0.01 * np.arange(6)}, index=index)
+    drawn, save = {}, figures.save_figure
+
+    def check_then_save(fig, out_png):
+        legend = fig.axes[-1].get_legend()
+        drawn["legend"] = [t.get_text() for t in legend.get_texts()]
+        drawn["styles"] = {(h.get_color(), h.get_marker()) for h in legend.legend_handles}
+        drawn["problems"] = unreadable_texts(fig)
+        drawn["scale"] = fig.axes[0].get_xscale()
+        return save(fig, out_png)
+
+    monkeypatch.setattr(figures, "save_figure", check_then_save)
+    assert figures.quality_against_cost(comparison, cost, tmp_path / "q.png") == tmp_path / "q.png"
+    assert drawn["legend"] == list(index) and len(drawn["styles"]) == 6
+    assert drawn["problems"] == [] and drawn["scale"] == "linear"  # 12 to 12.05 ms: a log axis crowds
+    # the cost axis turns logarithmic only above COST_LOG_RATIO (10) between the slowest and the fastest
+    for slowest, scale in (
+        (120.0, "linear"),
+        (120.5, "log"),
+        (1200.0, "log"),
+        (1300.0, "log"),
+        (12000.0, "log"),
+    ):
+        cost["ms / image"] = np.linspace(12.0, slowest, 6)
+        figures.quality_against_cost(comparison, cost, tmp_path / "q.png")
+        assert drawn["scale"] == scale and drawn["problems"] == [], (slowest, drawn)
+
+
+def test_unreadable_texts_finds_overlapping_and_cut_labels_and_passes_apart_ones():
+    """The check the figure tests rely on, on both sides: two names at one point overlap, the same names
+    far apart do not; a name clipped to its axes and running out of them is cut; tick labels beyond the
+    view limits (kept, not drawn) are not counted."""
+    import matplotlib.pyplot as plt
+
+    from tests.figure_text import unreadable_texts
+
+    def figure(second_at, clip=False):
+        fig, ax = plt.subplots(figsize=(4, 3))
+        ax.set_xlim(0, 10)
+        ax.set_ylim(0, 10)
+        ax.text(2, 2, "first method")
+        ax.text(*second_at, "second method", clip_on=clip)
+        return fig
+
+    crowded, apart, cut = figure((2.2, 2.1)), figure((2, 8)), figure((9.5, 8), clip=True)
+    assert unreadable_texts(crowded) == ["'first method' over 'second method'"]
+    assert unreadable_texts(apart) == []
+    assert unreadable_texts(cut) == ["'second method' cut by its clip box"]
+    for fig in (crowded, apart, cut):
+        plt.close(fig)

@@ -186,6 +186,27 @@ def test_the_forest_rows_are_the_claims_with_an_interval_factor_first():
     assert forest_plot(pd.DataFrame([_row("x", "reproduced")]).drop(columns=["scale"])) is None  # old CSV
 
 
+def test_no_text_of_the_ledger_figures_is_drawn_over_another(monkeypatch):
+    """The status chart and the forest plot, with a few claims and with thirty: no two labels overlap
+    (claim names, axis labels, the legend beside the panels, the title) and none is cut."""
+    from src.report import ledger_figures
+    from tests.figure_text import unreadable_texts
+
+    found, to_bytes = [], ledger_figures.png_bytes
+
+    def check_then_save(fig):
+        found.append(unreadable_texts(fig))
+        return to_bytes(fig)
+
+    monkeypatch.setattr(ledger_figures, "png_bytes", check_then_save)
+    more = pd.DataFrame(
+        [_row(f"c{i}", "reproduced", estimate="1", low="0.5", high="2", scale="factor") for i in range(30)]
+    )
+    for frame in (pd.DataFrame(RAN), more):
+        assert status_chart(frame) is not None and forest_plot(frame) is not None
+    assert found == [[]] * 4
+
+
 def test_the_figures_are_pngs_that_fit_the_page():
     frame = pd.DataFrame(RAN)
     for png in (status_chart(frame), forest_plot(frame)):

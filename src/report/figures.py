@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mlflow  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 from PIL import Image  # noqa: E402
 
@@ -172,7 +172,9 @@ def learning_curves(
     arms: dict[str, list[str]] = {}
     for label, run_id in zip(arm_labels(runs, axes), runs["run_id"], strict=True):
         arms.setdefault(label, []).append(run_id)
-    fig, panels = plt.subplots(1, len(components), figsize=(5 * len(components), 3.8), squeeze=False)
+    fig, panels = plt.subplots(
+        1, len(components), figsize=(5 * len(components), 3.8), squeeze=False, layout="constrained"
+    )
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors = plt.get_cmap("tab20").colors if len(arms) > len(cycle) else cycle
     handles = []
@@ -260,7 +262,9 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
         return None
     n_cols = min(len(series), SPP_PANELS_PER_ROW)  # rows of panels, never a strip too wide to read
     n_rows = math.ceil(len(series) / n_cols)
-    fig, grid = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.4 * n_rows), squeeze=False)
+    fig, grid = plt.subplots(
+        n_rows, n_cols, figsize=(4.2 * n_cols, 3.4 * n_rows), squeeze=False, layout="constrained"
+    )
     for ax in grid.flat[len(series) :]:
         ax.set_visible(False)
     panels = [list(grid.flat[: len(series)])]
@@ -283,7 +287,6 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     grid[0][-1].legend(
         seen.values(), seen.keys(), loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False
     )
-    fig.tight_layout()
     return save_figure(fig, out_png)
 
 
@@ -291,6 +294,13 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
 #: drawn against it, those of the comparison table that are present.
 COST_AXIS = "ms / image"
 COST_QUALITY = ("PSNR", "relMSE / noisy", "SSIM")
+
+
+#: Markers of the quality-against-cost points, with the colour telling rows apart where markers repeat.
+COST_MARKERS = ("o", "s", "D", "^", "v", "P", "X")
+#: Above this ratio of the slowest to the fastest time, the cost axis is logarithmic. On a narrower range a
+#: log axis labels its minor ticks (12, 12.01, 12.02 ...) over each other.
+COST_LOG_RATIO = 10
 
 
 def cost_points(comparison: pd.DataFrame, cost: pd.DataFrame) -> dict[str, pd.DataFrame]:
@@ -312,21 +322,50 @@ def cost_points(comparison: pd.DataFrame, cost: pd.DataFrame) -> dict[str, pd.Da
 
 def quality_against_cost(comparison: pd.DataFrame, cost: pd.DataFrame, out_png: str | Path) -> Path | None:
     """Each compared row's quality (mean over seeds, bars: std) against its evaluation time per image,
-    one panel per quality metric, each point named; None when no row has both."""
+    one panel per quality metric; a colour and marker per row, named in one legend beside the panels (names
+    written at the points would cover each other where two methods cost and score alike). None when no
+    row has both."""
     points = cost_points(comparison, cost)
     if not points:
         return None
-    fig, axes = plt.subplots(1, len(points), figsize=(4.6 * len(points), 3.6), squeeze=False)
+    fig, axes = plt.subplots(
+        1, len(points), figsize=(4.6 * len(points), 3.6), squeeze=False, layout="constrained"
+    )
+    rows = list(dict.fromkeys(row for frame in points.values() for row in frame.index))
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = plt.get_cmap("tab20").colors if len(rows) > len(cycle) else cycle
+    style = {
+        row: (colors[i % len(colors)], COST_MARKERS[i % len(COST_MARKERS)]) for i, row in enumerate(rows)
+    }
     for ax, (label, frame) in zip(axes[0], points.items(), strict=True):
-        ax.errorbar(frame["cost"], frame["value"], yerr=frame["std"].fillna(0), fmt="o", capsize=2)
         for row, point in frame.iterrows():
-            ax.annotate(
-                row_name(row), (point["cost"], point["value"]), textcoords="offset points", xytext=(4, 4)
+            color, marker = style[row]
+            ax.errorbar(
+                point["cost"],
+                point["value"],
+                yerr=0 if pd.isna(point["std"]) else point["std"],
+                fmt=marker,
+                color=color,
+                capsize=2,
+                label=row_name(row),
             )
-        ax.set_xscale("log")
-        ax.set_xlabel(f"{COST_AXIS} (log)")
+        logarithmic = frame["cost"].max() / frame["cost"].min() > COST_LOG_RATIO
+        if logarithmic:  # methods from a filter to a network span decades; a narrow range stays linear
+            ax.set_xscale("log")
+            # Plain numbers at 1, 2 and 5 per decade over up to two decades, else at the powers of ten:
+            # the default labels minor ticks over each other on a range of about one decade.
+            decades = np.log10(frame["cost"].max() / frame["cost"].min())
+            ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0) if decades <= 2 else (1.0,)))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel(f"{COST_AXIS} (log)" if logarithmic else COST_AXIS)
         ax.set_title(label)
         ax.grid(True, which="both", alpha=0.3)
+    handles = [
+        plt.Line2D([], [], ls="", color=color, marker=marker, label=row_name(row))
+        for row, (color, marker) in style.items()
+    ]
+    axes[0][-1].legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
     return save_figure(fig, out_png)
 
 
@@ -342,7 +381,7 @@ def search_curves(runs: pd.DataFrame, out_png: str | Path, axes: Sequence[str] |
         log.info("report: no run logged %s; no search curves", SEARCH_METRIC)
         return None
     client = MlflowClient()
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
     # 20 distinct colours: a sweep's 12 runs (4 settings x 3 seeds) must not share one.
     cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colors = plt.get_cmap("tab20").colors if len(runs) > len(cycle) else cycle

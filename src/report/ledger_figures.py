@@ -53,7 +53,8 @@ WIDTH_IN = 11.0  # 1,100 px at DPI: inside the site's 1,200-px column
 ROW_IN = 0.26  # height per claim row of the forest plot
 
 
-def _png(fig) -> bytes:
+def png_bytes(fig) -> bytes:
+    """`fig` as PNG bytes with a tight box (no label cut at the canvas edge), then closed."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI, bbox_inches="tight")
     plt.close(fig)
@@ -90,7 +91,7 @@ def status_chart(frame: pd.DataFrame) -> bytes | None:
     ax.set_title("Status of each source document's claims")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, title="status")
     ax.spines[["top", "right"]].set_visible(False)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def _finite(value) -> float:
@@ -166,4 +167,4 @@ def forest_plot(frame: pd.DataFrame) -> bytes | None:
         fontsize=10,
     )
     fig.tight_layout()
-    return _png(fig)
+    return png_bytes(fig)

@@ -35,8 +35,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
-from src.io.atomic import atomic_path  # noqa: E402
 from src.report.collect import DEFAULT_AXES  # noqa: E402
+from src.report.figures import save_figure  # noqa: E402
 from src.report.tables import MetricSpec, aggregate, axis_keys  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
@@ -168,7 +168,7 @@ def time_table(
 
 
 def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Path) -> Path:
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, arm in enumerate(dict.fromkeys(arm_of.values())):
         members = [curves[r] for r, a in arm_of.items() if a == arm]
@@ -184,8 +184,4 @@ def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Pat
     ax.set_title("median over seeds; band: their min to max", fontsize="small")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", frameon=False)
-    fig.tight_layout()
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
