@@ -113,6 +113,7 @@ def test_a_key_error_names_the_deepest_part_that_exists():
 
 #: Written out by hand (not derived from the code it checks): which task runs each shipped model.
 RADIANCE_FIELDS = {"nerf", "mipnerf", "refnerf"}
+GP_FILTERS = {"gp_filter", "gp_expr1", "gp_expr2", "gp_expr3"}  # what the filter search evaluates
 TASKS = {"denoise", "filter_search", "nerf"}
 
 
@@ -129,13 +130,21 @@ def test_a_model_runs_only_under_the_task_of_its_kind(model, task):
     from src.stages import task_of
 
     cfg = compose_config([f"task={task}", f"model={model}", "profile=smoke"])
-    fits = (model in RADIANCE_FIELDS) == (task == "nerf")
+    fits = {"nerf": model in RADIANCE_FIELDS, "filter_search": model in GP_FILTERS}.get(
+        task, model not in RADIANCE_FIELDS
+    )
     if fits:
         check_method_fits_task(cfg, task_of(cfg))
         return
     with pytest.raises(ConfigError) as excinfo:
         check_method_fits_task(cfg, task_of(cfg))
-    add = "add task=nerf" if model in RADIANCE_FIELDS else "add task=denoise or task=filter_search"
+    add = (
+        "add task=nerf"
+        if model in RADIANCE_FIELDS
+        else "add task=denoise or task=filter_search"
+        if model in GP_FILTERS
+        else "add task=denoise"
+    )
     one_line_error(excinfo, f"model={model}: a ", f"the kind of method task={task} runs; {add}")
 
 

@@ -23,6 +23,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 
 from src.errors import ConfigError, DataError
+from src.models.filters.gp_filter import GPFilter
 from src.schema.filter_search import FilterSearchTaskSchema
 from src.tasks.denoise import DenoiseTask
 
@@ -204,6 +205,8 @@ def best_expressions(state, cfg: DictConfig) -> list[dict[str, Any]]:
 
 class FilterSearchTask(DenoiseTask):
     schema = FilterSearchTaskSchema
+    # Its evaluation runs each island's best expression as the model (`_with_expression`): a GP filter.
+    methods = GPFilter
 
     def inputs(self, stage: str, cfg: DictConfig) -> dict[Path, str]:
         prepared, preprocessed = Path(cfg.paths.prepared), "stage=preprocess (or dvc repro)"
