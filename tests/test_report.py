@@ -750,6 +750,50 @@ def test_the_per_spp_table_becomes_one_series_per_metric_and_row_in_sample_order
     assert spp_series(table[["runs"]]) == {} and quality_by_spp(table[["runs"]], "unused.png") is None
 
 
+def test_quality_plots_give_each_row_one_colour_in_every_figure_and_skip_a_constant_metric(
+    tmp_path, monkeypatch
+):
+    """The per-spp and the cost figures colour a method alike (the noisy input black, outside the methods'
+    cycle, so that kpcn is the first colour in both, as it is the first arm of the learning curves); a
+    metric with one value everywhere (Undefined: 0) gets no panel, one with a spread over seeds does."""
+    from matplotlib.colors import to_hex
+
+    from src.report import figures
+
+    index = pd.Index(["noisy input", "kpcn", "dpcn"], name="model")
+    table = pd.DataFrame(
+        {"PSNR 4spp": [20.0, 30.0, 28.0], "Undefined 4spp": [0.0] * 3, "Energy 4spp": [1.0] * 3,
+         "Energy 4spp std": [0.0, 0.1, 0.0]},
+        index=index,
+    )  # fmt: skip
+    drawn, save = [], figures.save_figure
+
+    def colours_then_save(fig, out_png):
+        legend = next(ax.get_legend() for ax in fig.axes if ax.get_legend())
+        handles = [h[0] if isinstance(h, tuple) else h for h in legend.legend_handles]
+        names = [t.get_text() for t in legend.get_texts()]
+        colours = {n: to_hex(h.get_color()) for n, h in zip(names, handles, strict=True)}
+        drawn.append(({ax.get_title() for ax in fig.axes if ax.get_visible()}, colours))
+        return save(fig, out_png)
+
+    monkeypatch.setattr(figures, "save_figure", colours_then_save)
+    figures.quality_by_spp(table, tmp_path / "spp.png")
+    cost = pd.DataFrame({"ms / image": [np.nan, 12.0, 3.0]}, index=index)
+    figures.quality_against_cost(table.rename(columns={"PSNR 4spp": "PSNR"}), cost, tmp_path / "cost.png")
+    (spp_titles, spp_colours), (_, cost_colours) = drawn
+    assert spp_titles == {"PSNR", "Energy"}  # Undefined: 0 everywhere, no panel
+    import matplotlib.pyplot as plt
+
+    first, second = (to_hex(c) for c in plt.rcParams["axes.prop_cycle"].by_key()["color"][:2])
+    assert spp_colours == {"noisy input": figures.NOISY_COLOR, "kpcn": first, "dpcn": second}
+    assert cost_colours == {"kpcn": first, "dpcn": second}
+    assert figures.quality_by_spp(table[["Undefined 4spp"]], tmp_path / "none.png") is None
+    for n in (8, 10, 12):  # the denoisers sweep compares 8 methods: none may share the noisy input's colour
+        colours = figures.row_colors(["noisy input", *(f"m{i}" for i in range(n))])
+        methods = {to_hex(c) for row, c in colours.items() if row != "noisy input"}
+        assert len(methods) == n and to_hex(colours["noisy input"]) not in methods
+
+
 def test_quality_against_cost_pairs_each_rows_quality_with_its_time():
     from src.report.figures import cost_points, quality_against_cost
 

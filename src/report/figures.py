@@ -14,7 +14,7 @@ import re
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import matplotlib
 
@@ -38,7 +38,7 @@ from src.io.images import (  # noqa: E402
     write_png,
 )
 from src.report.collect import param_column  # noqa: E402
-from src.report.tables import DEFAULT_AXES, MISSING  # noqa: E402
+from src.report.tables import DEFAULT_AXES, MISSING, NOISY_ROW  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
 
@@ -55,6 +55,22 @@ def save_figure(fig, out_png: str | Path) -> Path:
         fig.savefig(tmp, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return out_png
+
+
+#: The noisy input's colour in every plot of a report: black (dashed where drawn as a line), outside the
+#: cycle the methods share (tab10's eighth colour is a grey, so a grey would be taken by a method).
+NOISY_COLOR = "#000000"
+
+
+def row_colors(rows: Sequence[str]) -> dict[str, Any]:
+    """One colour per compared row, the same in every plot of a report (quality against sample count and
+    against cost; the learning curves' arms take the cycle in the same order): the noisy input black, the
+    methods the colour cycle in row order (tab20 when they outnumber it)."""
+    methods = [r for r in rows if r != NOISY_ROW]
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colors = plt.get_cmap("tab20").colors if len(methods) > len(cycle) else cycle
+    out: dict[str, Any] = {r: colors[i % len(colors)] for i, r in enumerate(methods)}
+    return out | ({NOISY_ROW: NOISY_COLOR} if NOISY_ROW in rows else {})
 
 
 def row_name(index) -> str:
@@ -253,11 +269,18 @@ def spp_series(table: pd.DataFrame) -> dict[str, dict[str, tuple[list[int], list
     return out
 
 
+def _varies(by_row: dict[str, tuple[list[int], list[float], list[float]]]) -> bool:
+    """Whether a metric's per-spp series hold more than one mean, or any spread over seeds."""
+    means = {y for _, ys, _ in by_row.values() for y in ys}
+    return len(means) > 1 or any(e > 0 for _, _, es in by_row.values() for e in es)
+
+
 def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     """The per-spp quality table as a figure: one panel per metric, the noisy sample count on a log2
     axis, one line per compared row (mean over its seeds, bars: their std), the legend beside the
-    panels. None without per-spp columns."""
-    series = spp_series(table)
+    panels. A metric with one value everywhere (no undefined output at any count: 0) gets no panel; the
+    table shows it. None without per-spp columns."""
+    series = {label: by_row for label, by_row in spp_series(table).items() if _varies(by_row)}
     if not series:
         return None
     n_cols = min(len(series), SPP_PANELS_PER_ROW)  # rows of panels, never a strip too wide to read
@@ -268,13 +291,11 @@ def quality_by_spp(table: pd.DataFrame, out_png: str | Path) -> Path | None:
     for ax in grid.flat[len(series) :]:
         ax.set_visible(False)
     panels = [list(grid.flat[: len(series)])]
-    rows = list(dict.fromkeys(row for by_row in series.values() for row in by_row))
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colors = plt.get_cmap("tab20").colors if len(rows) > len(cycle) else cycle
+    colors = row_colors(list(dict.fromkeys(row for by_row in series.values() for row in by_row)))
     for ax, (label, by_row) in zip(panels[0], series.items(), strict=True):
         for row, (xs, ys, es) in by_row.items():
-            color = colors[rows.index(row) % len(colors)]
-            ax.errorbar(xs, ys, yerr=es, color=color, marker="o", ms=4, capsize=2, label=row)
+            ls = "--" if row == NOISY_ROW else "-"
+            ax.errorbar(xs, ys, yerr=es, color=colors[row], ls=ls, marker="o", ms=4, capsize=2, label=row)
         ax.set_xscale("log", base=2)
         ax.set_xlabel("noisy samples per pixel")
         ax.set_title(label)
@@ -332,11 +353,8 @@ def quality_against_cost(comparison: pd.DataFrame, cost: pd.DataFrame, out_png: 
         1, len(points), figsize=(4.6 * len(points), 3.6), squeeze=False, layout="constrained"
     )
     rows = list(dict.fromkeys(row for frame in points.values() for row in frame.index))
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colors = plt.get_cmap("tab20").colors if len(rows) > len(cycle) else cycle
-    style = {
-        row: (colors[i % len(colors)], COST_MARKERS[i % len(COST_MARKERS)]) for i, row in enumerate(rows)
-    }
+    colors = row_colors(rows)
+    style = {row: (colors[row], COST_MARKERS[i % len(COST_MARKERS)]) for i, row in enumerate(rows)}
     for ax, (label, frame) in zip(axes[0], points.items(), strict=True):
         for row, point in frame.iterrows():
             color, marker = style[row]
