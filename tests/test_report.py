@@ -870,3 +870,38 @@ def test_unreadable_texts_finds_overlapping_and_cut_labels_and_passes_apart_ones
     assert unreadable_texts(cut) == ["'second method' cut by its clip box"]
     for fig in (crowded, apart, cut):
         plt.close(fig)
+
+
+@pytest.mark.parametrize(
+    ("mean", "std", "fmt", "texts"),
+    [
+        (0.1577, 0.03916, "{:.4g}", ("0.158", "0.039")),  # the mean rounded to the std's second digit
+        (0.002647, 7.259e-05, "{:.4g}", ("0.002647", "0.000073")),  # plain decimals, never 7.259e-05
+        (33.5, 0.15, "{:.2f}", ("33.50", "0.15")),  # the format already ends at the std's digit: kept
+        (33.5, 0.015, "{:.2f}", ("33.50", "0.015")),  # a finer std: the mean keeps its format
+        (143.7, 22.7, "{:.1f}", ("144", "23")),
+        (6249.0, 1116.3, "{:.1f}", ("6200", "1100")),  # two significant digits above the decimal point
+        (392498.0, 1234.5, "{:,.0f}", ("392,500", "1,200")),  # thousands separators kept on both
+        (392498.0, 0.0, "{:,.0f}", ("392,498", "0")),  # deterministic: the format, no rounding
+        (35.09, 0.0, "{:.2f}", ("35.09", "0.00")),
+        (1.5e-07, 1e-08, "{:.4g}", ("1.5e-07", "1e-08")),  # scientific means keep their format
+        (float("nan"), 0.1, "{:.4g}", ("-", "0.1")),
+    ],
+)
+def test_mean_and_std_print_without_float_noise(mean, std, fmt, texts):
+    from src.report.table_writers import mean_std_text
+
+    assert mean_std_text(mean, std, fmt) == texts
+
+
+def test_a_tables_cells_print_mean_and_std_through_the_same_rule():
+    from src.report.table_writers import cells
+
+    table = pd.DataFrame(
+        {"relMSE (Bako)": [0.1577, 0.2], "relMSE (Bako) std": [0.03916, 0.01], "runs": [6, 1]},
+        index=pd.Index(["kpcn", "oidn"], name="model"),
+    )
+    table.attrs["metrics"] = {"relMSE (Bako)": ("eval_relmse", False, "{:.4g}")}
+    _, _, rows = cells(table)
+    assert rows[0][1][:2] == ("0.158", "0.039")
+    assert rows[1][1][:2] == ("0.2", None)  # one run: no std, the mean in its own format

@@ -140,6 +140,8 @@ def test_a_method_page_shows_config_size_speed_bench_and_its_table_rows(site):
     assert "12.50" in page  # the benchmark's 0.0125 s per frame, in ms
     # its rows of the comparison table (mean of seeds 0, 1: 30.5 dB), the noisy input beside them
     assert "30.5" in page and "Quality" in page
+    # mean ± std as on the report page: the std to two significant digits (seeds 30 and 31 dB: 0.7071...)
+    assert "30.5 ± 0.71" in page and "0.7071" not in page
     assert SMOKE_NOTE in page  # one of its reports is a smoke run
     dpcn = (site["reports"] / "methods" / "dpcn.html").read_text()
     assert "12.50" not in dpcn and "Benchmark" not in dpcn  # no bench run timed dpcn

@@ -31,6 +31,7 @@ import pandas as pd
 
 from src.io.atomic import atomic_write_text
 from src.report.collect import store_name
+from src.report.table_writers import mean_std_text
 from src.report.tables import NOISY_ROW
 
 log = logging.getLogger("nrbench.report")
@@ -309,16 +310,20 @@ def _table_rows(report_dir: Path, stem: str, model: str) -> pd.DataFrame | None:
     return rows if (rows["model"] == model).any() else None
 
 
+def _value_format(number: float) -> str:
+    """A whole number >= 1000 with thousands separators, other numbers to 4 significant digits."""
+    return "{:,.0f}" if abs(number) >= 1000 and number == int(number) else "{:.4g}"
+
+
 def _value(value: Any) -> str:
-    """A table cell: a whole number >= 1000 with thousands separators, other numbers to 4 significant
-    digits, text as it is, "-" for none."""
+    """A table cell: a number in `_value_format`, text as it is, "-" for none."""
     try:
         number = float(value)
     except (TypeError, ValueError):
         return html.escape(str(value))
     if math.isnan(number):
         return "-"
-    return f"{number:,.0f}" if abs(number) >= 1000 and number == int(number) else f"{number:.4g}"
+    return _value_format(number).format(number)
 
 
 def _mean_std_cells(table: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
@@ -330,9 +335,12 @@ def _mean_std_cells(table: pd.DataFrame) -> tuple[list[str], list[list[str]]]:
         cells = []
         for c in columns:
             text = _value(row[c])
-            std = row.get(f"{c} std")
-            if std is not None and not pd.isna(std) and text != "-":
-                text += f" ± {_value(std)}"
+            std = pd.to_numeric(row.get(f"{c} std"), errors="coerce")
+            if not pd.isna(std) and text != "-":  # as the report's cells: no float noise (mean_std_text)
+                mean = float(row[c])
+                text = " ± ".join(
+                    html.escape(t) for t in mean_std_text(mean, float(std), _value_format(mean))
+                )
             cells.append(text)
         rows.append(cells)
     return [html.escape(str(c)) for c in columns], rows

@@ -36,6 +36,22 @@ def _fmt(value: float, fmt: str) -> str:
     return fmt.format(value)
 
 
+def mean_std_text(mean: float, std: float, fmt: str) -> tuple[str, str]:
+    """`mean ± std` as two texts without float noise: the std to two significant digits, in plain
+    decimals (0.000073, never 7.259e-05), and the mean rounded to the std's last digit where its own
+    format (`fmt`) shows more than the spread supports (0.08885 ± 0.001788 -> 0.0889 ± 0.0018). A std of
+    0 (a deterministic method) and a mean in scientific notation keep `fmt`."""
+    mean_text = _fmt(mean, fmt)
+    if not std > 0 or not math.isfinite(std) or "e" in mean_text or mean_text == MISSING:
+        return mean_text, _fmt(std, fmt)
+    digits = 1 - math.floor(math.log10(std))  # decimals of two significant digits (negative: tens...)
+    spec = f"{',' if ',' in mean_text else ''}.{max(digits, 0)}f"
+    shown = len(mean_text.partition(".")[2])
+    if digits < shown:
+        mean_text = format(round(mean, digits), spec)
+    return mean_text, format(round(std, digits), spec)
+
+
 def cells(
     table: pd.DataFrame, best: Mapping[str, set[int]] | None = None
 ) -> tuple[list[str], list[bool | None], list[list[tuple[str, str | None, bool]]]]:
@@ -52,8 +68,11 @@ def cells(
         line: list[tuple[str, str | None, bool]] = [(str(k), None, False) for k in keys]
         for label, (_, _, fmt) in metrics.items():
             std = row.get(f"{label} std", math.nan)  # a table without std columns shows means only
-            std_text = None if pd.isna(std) or row[RUNS_COLUMN] < 2 else _fmt(float(std), fmt)
-            line.append((_fmt(row[label], fmt), std_text, i in best.get(label, set())))
+            if pd.isna(std) or row[RUNS_COLUMN] < 2:
+                mean_text, std_text = _fmt(row[label], fmt), None
+            else:
+                mean_text, std_text = mean_std_text(row[label], float(std), fmt)
+            line.append((mean_text, std_text, i in best.get(label, set())))
         line.append((str(int(row[RUNS_COLUMN])), None, False))
         rows.append(line)
     return header, directions, rows
