@@ -905,3 +905,27 @@ def test_a_tables_cells_print_mean_and_std_through_the_same_rule():
     _, _, rows = cells(table)
     assert rows[0][1][:2] == ("0.158", "0.039")
     assert rows[1][1][:2] == ("0.2", None)  # one run: no std, the mean in its own format
+
+
+def test_the_losses_table_leaves_out_methods_that_log_no_loss():
+    """A sweep of learned denoisers and filters: the filter (no loss logged) gets no row of dashes; the
+    learned rows keep their mean and std, and the table its metric specs (the writers need them)."""
+    from src.report.tables import loss_table
+
+    runs = pd.DataFrame(
+        {
+            "params.model.name": ["kpcn", "kpcn", "oidn"],
+            "params.seed": ["0", "1", "0"],
+            "metrics.val_loss_color": [0.1, 0.3, np.nan],
+            "metrics.train_loss_color": [0.05, np.nan, np.nan],  # one seed without its train loss
+            "run_id": ["a", "b", "c"],
+        }
+    )
+    table = loss_table(runs)
+    assert list(table.index) == ["kpcn"] and table.loc["kpcn", "val color"] == pytest.approx(0.2)
+    assert table.loc["kpcn", "train color"] == pytest.approx(0.05)
+    assert set(table.attrs["metrics"]) == {"val color", "train color"}
+    # a row with any of the losses stays: the third run (another model) logged its validation loss only
+    some = loss_table(runs.assign(**{"params.model.name": ["kpcn", "kpcn", "resnet"],
+                                     "metrics.val_loss_color": [0.1, 0.3, 0.2]}))  # fmt: skip
+    assert list(some.index) == ["kpcn", "resnet"] and pd.isna(some.loc["resnet", "train color"])

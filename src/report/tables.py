@@ -336,8 +336,15 @@ def loss_metrics(runs: pd.DataFrame) -> dict[str, MetricSpec]:
 
 
 def loss_table(runs: pd.DataFrame, axes: Sequence[str] | None = None) -> pd.DataFrame:
-    """Final validation and training losses per component (`loss_metrics`), mean ± std over seeds."""
-    return aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
+    """Final validation and training losses per component (`loss_metrics`), mean ± std over seeds; rows
+    of methods that train nothing (filters, OIDN: no loss logged) are left out, not shown as dashes."""
+    table = aggregate(runs, list(axes or DEFAULT_AXES), loss_metrics(runs))
+    labels = list(table.attrs.get("metrics", {}))
+    if not labels:
+        return table
+    trained = table[table[labels].notna().any(axis=1)]
+    trained.attrs = table.attrs
+    return trained
 
 
 #: The run tags of the device card (`src.train.device.device_card`, `precision`), in the order stated.
