@@ -929,3 +929,21 @@ def test_the_losses_table_leaves_out_methods_that_log_no_loss():
     some = loss_table(runs.assign(**{"params.model.name": ["kpcn", "kpcn", "resnet"],
                                      "metrics.val_loss_color": [0.1, 0.3, 0.2]}))  # fmt: skip
     assert list(some.index) == ["kpcn", "resnet"] and pd.isna(some.loc["resnet", "train color"])
+
+
+@pytest.mark.parametrize(
+    ("tile_width", "crop_side", "zoom", "k", "expected"),
+    [
+        (256, 128, 4, 4, 2),  # the denoisers sweep: 64 px images x4, a 32 px crop: twice, to fill the tile
+        (256, 256, 4, 1, 4),  # the configured zoom when it is more than filling needs
+        (72, 72, 4, 3, 2),  # ceil(4 / 3): the crop already spans the tile
+        (256, 40, 4, 8, 6),  # filling: 6 x 40 = 240 <= 256, 7 x 40 would overflow
+        (10, 0, 1, 1, 10),  # a degenerate window never divides by zero
+    ],
+)
+def test_the_grids_crop_fills_its_tiles_width_at_least_at_the_configured_zoom(
+    tile_width, crop_side, zoom, k, expected
+):
+    from src.report.figures import crop_zoom
+
+    assert crop_zoom(tile_width, crop_side, zoom, k) == expected

@@ -249,6 +249,7 @@ def test_grid_tiles_carry_their_psnr_and_radiance_fields_start_at_the_reference(
     import numpy as np
     from PIL import Image
 
+    from src.io.images import SEPARATOR_PX
     from src.metrics.image import psnr
     from src.report.figures import GRID_HEADINGS, _panels, image_grid
 
@@ -281,6 +282,8 @@ def test_grid_tiles_carry_their_psnr_and_radiance_fields_start_at_the_reference(
     grid = image_grid(runs, tmp_path / "grid.png", 1, ["model.name"], 4, 2, min_tile=1)  # pixel for pixel
     assert grid.heading == GRID_HEADINGS["rendered"] and "reference | rendered" in grid.heading
     with Image.open(grid.path) as image:
+        # the 4 px crop at 16 // 4 = 4x (not the configured 2x): as wide as its 16 px tile, below a separator
+        assert image.size == (3 * 16 + 2 * SEPARATOR_PX, 12 + SEPARATOR_PX + 4 * 4)
         first = np.asarray(image.convert("RGB"))[:12, :16]  # the first tile, its crop box drawn on it
     same = (first == reference).all(axis=-1).mean()
     assert same > 0.5 and (first == ids["nerf"][1]).all(axis=-1).mean() < 0.2

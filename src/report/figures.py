@@ -493,6 +493,13 @@ def upscaled(image: np.ndarray, k: int) -> np.ndarray:
     return image if k == 1 else np.repeat(np.repeat(image, k, axis=0), k, axis=1)
 
 
+def crop_zoom(tile_width: int, crop_side: int, zoom: int, k: int) -> int:
+    """The zoom of a grid's crop row, its tiles enlarged k times: at least the configured `zoom` of the
+    original pixels (ceil(zoom / k) on the enlarged tile), and enough for the crop to fill its tile's
+    width (a crop half as wide as its tile left the other half of the row blank)."""
+    return max(1, math.ceil(zoom / k), tile_width // max(crop_side, 1))
+
+
 def tile_psnr(tile: np.ndarray, reference: np.ndarray) -> float:
     """PSNR (dB) of a grid tile against the reference tile, on the 8-bit tone-mapped PNGs the grid shows
     (peak 1 after /255: src/metrics/image.py::psnr's formula, 10 log10(1 / MSE), here in numpy so the
@@ -520,7 +527,8 @@ def image_grid(
     reference labelled with its PSNR (`tile_psnr`). One run per distinct label (the first, e.g. the lowest
     seed). Tiles smaller than `min_tile` pixels on their short side are enlarged by a whole factor k,
     nearest neighbour (a pixel stays a block, never a blur), the crop then covering the same region
-    (crop_size * k) at a zoom of at least `zoom`: a run's report and a sweep's show the same tiles. Runs
+    (crop_size * k) at a zoom of at least `zoom`, and as wide as its tile (`crop_zoom`): a run's report and
+    a sweep's show the same tiles. Runs
     without the `eval/png` artifacts are left out (logged); None when no run has them, else the PNG's
     path and its heading (`GRID_HEADINGS`)."""
     chosen = _runs_with_images(runs, axes)
@@ -542,7 +550,9 @@ def image_grid(
                 continue
             k = upscale_factor(panels[0][1].shape[:2], min_tile)
             panels = [(label, upscaled(image, k)) for label, image in panels]
-            strips.append(comparison_strip(panels, crop_size * k, max(1, math.ceil(zoom / k))))
+            h, w = panels[0][1].shape[:2]
+            side = min(crop_size * k, h, w)  # the crop window, clamped to the image as comparison_strip does
+            strips.append(comparison_strip(panels, crop_size * k, crop_zoom(w, side, zoom, k)))
             kinds.add(_output_kind(first_names[name]))
     if not strips:
         return None
