@@ -249,6 +249,9 @@ def test_run_budget_lists_each_logged_keys_values_in_numeric_order():
     assert run_budget(runs, ["e", "b", "absent"]) == "e 8, 16, 100; b x"  # null, as logged: left out
     assert run_budget(runs.assign(**{"params.b": "None"}), ["b"]) == ""
     assert run_budget(runs, []) == "" and run_budget(runs, ["absent"]) == ""
+    # numbers first, in numeric order, then text in its own order (a key logged as a number and as "auto")
+    mixed = pd.DataFrame({"params.n": ["auto", "16", "-1", "8", "all"]})
+    assert run_budget(mixed, ["n"]) == "n -1, 8, 16, all, auto"
 
 
 def test_the_claims_reader_keeps_what_the_file_says(tmp_path):
@@ -332,6 +335,10 @@ def test_an_arm_scored_twice_on_one_item_counts_its_mean_once():
     )
     values = arm_values(scores, {"model.name": "kpcn"}, "params.", ["params.seed", "scene"])
     assert values.to_dict() == {("0", "-"): 2.0, ("1", "-"): 5.0}
+    # a bench's rounds select an arm by their own column (prefix ""), not by a run's params
+    rounds = pd.DataFrame({"model": ["kpcn", "kpcn", "oidn"], "round": [0, 1, 0], "value": [1.0, 3.0, 9.0]})
+    assert arm_values(rounds, {"model": "kpcn"}, "", ["round"]).to_dict() == {"0": 1.0, "1": 3.0}
+    assert arm_values(rounds, {"model": "kpcn"}, "params.", ["round"]).empty  # no params.model column
 
 
 # --- the ledger from logged runs -----------------------------------------------------------------------
@@ -792,3 +799,30 @@ def test_a_ledger_without_any_counted_run_still_writes_its_items_folder(tmp_path
     index = pd.read_csv(tmp_path / "items" / "index.csv")
     assert list(index.columns) == ["claim", "file", "replicates"] and index.empty
     assert paths["csv"].is_file()
+
+
+def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_level(ledger_store, tmp_path):
+    """`report.committed_ledger` reaches the ledger page: a store where no claim ran shows the committed
+    snapshot, labelled so; without that key it shows its own not-run rows. The page's account of the
+    numbers states the intervals of the configured level (alpha 0.1: 90 %)."""
+    import shutil
+
+    committed = tmp_path / "snapshot" / "ledger.csv"
+    committed.parent.mkdir()
+    shutil.copy(ROOT / "docs" / "results" / "ledger.csv", committed)
+    # at paper and cpu this study has no run; it ran at smoke only (the reason names both)
+    claims = "claims:" + CLAIM.format(id="never_ran").replace("study: denoisers", "study: smoke_only")
+    cfg = _ledger_cfg(ledger_store, tmp_path, claims)
+    cfg.ledger.alpha = 0.1
+    cfg.report = {"site": False, "committed_ledger": str(committed)}
+    paths = build_ledger(cfg)["paths"]
+    reason = pd.read_csv(paths["csv"]).set_index("claim").loc["never_ran", "numbers"]
+    assert reason.startswith(
+        "no runs at paper or cpu; runs at smoke only, where it is not meaningful; to run (cheapest first): "
+    ), reason
+    page = paths["html"].read_text()
+    assert "Committed snapshot" in page and "this store&#x27;s ledger has no status yet" in page
+    assert "90% intervals" in paths["md"].read_text() and "95% intervals" not in paths["md"].read_text()
+    cfg.report = {"site": False}
+    page = build_ledger(cfg)["paths"]["html"].read_text()
+    assert "Committed snapshot" not in page and "no claim has runs yet" in page

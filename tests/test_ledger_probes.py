@@ -662,3 +662,59 @@ def test_the_gp_generation_and_feature_claims_read_two_measures_of_the_same_runs
     feature = rows["gp_normal_is_the_most_used_feature_cpu"]
     assert feature.verdict.status == status, feature.verdict.numbers
     assert feature.replicates.difference.to_numpy() == pytest.approx(np.array(normal) - np.array(rival))
+
+
+def test_a_family_adjustment_that_lifts_p_over_alpha_changes_the_status(probe_store, tmp_path):
+    """Benjamini-Hochberg over a family: a claim significant alone (p = 2/2^6 = 0.031) beside one with
+    p = 0.5 gets p_adjusted = min(2 x 0.031, 0.5) = 0.0625 > 0.05, and its status is judged again on that
+    p; alone in its family its p and status stay. (A re-judged status must replace the row's, not only its
+    printed p.)"""
+    from dataclasses import replace
+
+    from src.report.ledger import adjust_families
+
+    claim = _claim(
+        "budgets", "{model.name: kpcn}", "{model.name: dpcn}", extra=", ratio: {task.train.epochs: 0.5}"
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.verdict.status == REPRODUCED and row.verdict.p_value == pytest.approx(2 / 64)
+    other = replace(row, verdict=replace(row.verdict, p_value=0.5))  # a second test of the same study
+    alone, pair = adjust_families([row], 0.05), adjust_families([row, other], 0.05)
+    assert alone[0].verdict.status == REPRODUCED and alone[0].p_adjusted == pytest.approx(2 / 64)
+    assert alone[0].family == "study budgets at cpu (1 tests)"
+    assert pair[0].p_adjusted == pytest.approx(4 / 64) and pair[0].family == "study budgets at cpu (2 tests)"
+    assert pair[0].verdict.status != REPRODUCED  # 0.0625 > alpha: no longer a finding
+    assert pair[0].verdict.p_value == pytest.approx(2 / 64)  # the raw p is kept beside the adjusted one
+    assert adjust_families([row, other], 0.1)[0].verdict.status == REPRODUCED  # the level that arrives
+
+
+def test_the_ledger_settings_read_every_ledger_key_away_from_its_default():
+    """`settings_from`: each `ledger.*` value arrives as set (not the dataclass default), the profiles are
+    the conf folder's beside the claims file, and the budget and recipe keys are read from that folder."""
+    from omegaconf import OmegaConf
+
+    from src.report.ledger import settings_from
+    from src.report.matched_arms import model_keys
+
+    conf = Path(CONF_DIR)
+    cfg = OmegaConf.create(
+        {
+            "ledger": {
+                "alpha": 0.1,
+                "equivalent_commits": [["aaaa111", "bbbb222"], [123, "cccc333"]],
+                "budget_shown": ["task.train.epochs", "seed"],
+                "profile_order": ["paper", "smoke"],
+            }
+        }
+    )
+    settings = settings_from(cfg, conf / "claims.yaml")
+    assert settings.alpha == 0.1
+    assert settings.equivalent_commits == (("aaaa111", "bbbb222"), ("123", "cccc333"))  # as text
+    assert settings.budget_shown == ("task.train.epochs", "seed")
+    assert settings.profile_order == ("paper", "smoke")
+    assert settings.all_profiles == ("bako", "cpu", "paper", "smoke", "thesis")  # conf/profile/*.yaml
+    assert settings.budget_keys == profile_keys(conf) and "task.train.epochs" in settings.budget_keys
+    assert settings.model_keys == model_keys(conf) and settings.model_keys
+    bare = settings_from(OmegaConf.create({"ledger": {"alpha": 0.05}}), conf / "claims.yaml")
+    assert bare.equivalent_commits == () and bare.budget_shown == ()
+    assert bare.profile_order == ("smoke", "cpu", "paper", "thesis", "bako")  # the default order
