@@ -846,5 +846,6 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
 # - _bench_rounds 4, 12: artifact_csv reads into a temporary folder of its own without one, and an
 #   absent artifact is None either way before the caller's emptiness check.
 # - build_ledger 25-27, 30-39: the case or the fallback text of the page's prose (the commit is always
-#   known in a checkout); build_ledger 56, 75, 76: the record and the page's path key, which no caller
-#   reads under another name.
+#   known in a checkout); build_ledger 75, 76: the page's path key, which no caller reads.
+# - build_ledger 56 (no paths to _record): they are read only with ledger.snapshot, which
+#   tests/test_ledger_history.py builds (outside this group's files).
