@@ -161,6 +161,27 @@ def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch)
     one_line_error(excinfo, "task.eval.baseline", "learned")
 
 
+@pytest.mark.parametrize(("frames", "middle"), [(5, 2), (4, 2), (1, 0)])
+def test_the_strip_is_the_middle_frames_for_odd_and_even_lengths(frames, middle, tmp_path, monkeypatch):
+    """Of F frames, frame F // 2 alone gets the comparison strip: 2 of 5, 2 of 4, the only one of 1."""
+    from types import SimpleNamespace
+
+    from omegaconf import OmegaConf
+
+    from src.eval import denoise_eval
+
+    saved = {}
+    monkeypatch.setattr(
+        denoise_eval, "_save_images", lambda out, item, images, e, m: saved.update({item["scene"]: e.strips})
+    )
+    evaluation = object.__new__(denoise_eval.DenoiseEvaluation)  # only what save_outputs reads
+    evaluation.cfg = OmegaConf.create({"task": {"eval": {"strips": True}}, "metrics": {}})
+    evaluation.kind, evaluation.out_dir = SimpleNamespace(temporal=True), tmp_path
+    images = {k: np.zeros((frames, 2, 2, 3)) for k in ("noisy", "denoised", "reference")}
+    evaluation.save_outputs({"item": {"scene": "s", "spp": 4}}, images)
+    assert saved == {f"s-f{f:04d}": f == middle for f in range(frames)}
+
+
 # Mutation testing (scripts/mutation.sh denoise_eval): the mutants left alive, against this group's files
 # (this one, tests/test_ladder.py, tests/test_flicker_metrics.py):
 # - equivalent: `nan_to_num` without `nan=0.0` (numpy's default), `device=None` / `.to(None)` (the CPU),
@@ -174,5 +195,5 @@ def test_a_learned_baseline_is_a_one_line_error(vol_data, tmp_path, monkeypatch)
 #   (the stills' evaluations in tests/test_ladder.py and tests/test_report.py);
 # - the FLOPs probe without input channels: that branch is gone (the run schema requires
 #   `dataset.input_channels`, so it could not be reached);
-# - not tested, and not equivalent: `f == frames / 2` for `frames // 2`, which differs only for an odd
-#   frame count (the stub's sequences have 4 frames): an odd-length sequence would then get no strip.
+# - `f == frames / 2` for `frames // 2` (an odd-length sequence then got no strip): now killed by
+#   test_the_strip_is_the_middle_frames_for_odd_and_even_lengths.
