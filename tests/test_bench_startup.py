@@ -57,3 +57,13 @@ def test_a_bad_argument_is_one_line_and_status_2(argv, message, capsys):
     assert main(["startup", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith(message) and err.count("\n") == 1
+
+
+def test_a_command_that_hangs_stops_the_bench_with_one_line(monkeypatch, capsys):
+    from src.bench import startup
+
+    monkeypatch.setattr(startup, "COMMAND_TIMEOUT_S", 0.01)  # no interpreter starts that fast
+    assert main(["startup", "--cases", "model_typo", "--rounds", "1", "--warmup", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bench: python -m src.run model=kpcnn: no answer within 0.01 s in ")
+    assert err.count("\n") == 1

@@ -6,6 +6,7 @@ older commit) in the same rounds, so both columns are measured under the same lo
 
 from __future__ import annotations
 
+import itertools
 import re
 import subprocess
 import sys
@@ -16,7 +17,7 @@ from pathlib import Path
 import torch
 
 from src.bench.timing import Spread, device_name, time_rounds
-from src.errors import ConfigError
+from src.errors import ConfigError, DataError
 from src.provenance import git_commit
 
 REPO = Path(__file__).resolve().parents[2]
@@ -37,7 +38,7 @@ CASES: dict[str, tuple[str, list[str]]] = {
 #: A log line's leading `[2026-11-29 00:24:10,841]`.
 TIME_STAMP = re.compile(r"^\[\d{4}-\d\d-\d\d [\d:,]+\]")
 
-#: Seconds after which one command counts as hung (the bench stops with an error).
+#: Seconds after which one command counts as hung (the bench stops with a one-line error).
 COMMAND_TIMEOUT_S = 300
 
 
@@ -55,19 +56,24 @@ class Outcome:
 def command_runner(checkout: Path, args: list[str], out_dir: Path, outcome: Outcome):
     """A function that runs `python -m src.run *args` in `checkout` (its `src` is the one imported) with
     its output folder under `out_dir`, and records its exit status and what it printed in `outcome`."""
-    runs = iter(range(1_000_000))
+    runs = itertools.count()
 
     def run() -> None:
         folder = out_dir / str(next(runs))
-        done = subprocess.run(
-            [sys.executable, "-m", "src.run", *args, f"hydra.run.dir={folder}"],
-            cwd=checkout,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            timeout=COMMAND_TIMEOUT_S,
-            check=False,
-        )
+        try:
+            done = subprocess.run(
+                [sys.executable, "-m", "src.run", *args, f"hydra.run.dir={folder}"],
+                cwd=checkout,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+                timeout=COMMAND_TIMEOUT_S,
+                check=False,
+            )
+        except subprocess.TimeoutExpired:
+            raise DataError(
+                f"python -m src.run {' '.join(args)}: no answer within {COMMAND_TIMEOUT_S} s in {checkout}"
+            ) from None
         lines = [line for line in done.stdout.splitlines() if line.strip()]
         outcome.status, outcome.lines = done.returncode, len(lines)
         outcome.first_line = TIME_STAMP.sub("", lines[0]) if lines else ""
