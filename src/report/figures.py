@@ -191,11 +191,10 @@ def learning_curves(
     fig, panels = plt.subplots(
         1, len(components), figsize=(5 * len(components), 3.8), squeeze=False, layout="constrained"
     )
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    colors = plt.get_cmap("tab20").colors if len(arms) > len(cycle) else cycle
+    colors = row_colors(list(arms))  # the arms' colours in the quality plots too
     handles = []
-    for i, (label, run_ids) in enumerate(arms.items()):
-        color = colors[i % len(colors)]
+    for label, run_ids in arms.items():
+        color = colors[label]
         drawn = _draw_arm(client, panels[0], components, run_ids, color)
         if drawn:
             seeds = f" ({len(run_ids)} seeds)" if len(run_ids) > 1 else ""
