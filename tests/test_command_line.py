@@ -70,7 +70,8 @@ def test_each_mistake_is_one_line_with_the_nearest_names(argv, message):
         ["task.train.epochs=3", "dataset.noisy_spp=[4,8]", "metrics.lpips.enabled=false"],
         ["model=dpcn", "model.conv_kernel=3"],  # a key the chosen model has
         ["+task.train.new_key=1", "~seed"],  # additions and deletions are Hydra's and the schema's
-        ["++seed=3", "++task.train.epochs=2"],  # ++ adds or overrides: Hydra's
+        ["++seed=3", "++task.train.epochs=2", "++task.train.new_key=1"],  # ++ adds or overrides: Hydra's
+        ["~hydra/job_logging"],  # a group deleted from the defaults: no value, and none is needed
         ["+model.new_key=1"],  # a + on a key that only another model has
         ["seed='0,1'"],  # a quoted value with a comma is one value, not a sweep
         ["hydra.run.dir=/tmp/somewhere", "hydra/launcher=basic"],
