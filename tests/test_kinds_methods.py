@@ -433,6 +433,44 @@ def test_the_stills_colour_space_loss_and_whitening(stills, monkeypatch):
     assert whitening.calls == [((Path(cfg.paths.prepared) / "whitening.json", [0, 2]), {})]
 
 
+def test_the_stills_preprocess_builds_from_the_raw_folder_with_its_loader(
+    stills, tmp_path, monkeypatch, capsys
+):
+    import src.data.kpcn_buffers as kpcn_buffers
+    import src.data.shards as shards
+
+    cfg, kind = stills
+    raw = _raw(tmp_path)
+    cfg.paths.raw, cfg.paths.prepared = str(raw), str(tmp_path / "prepared")
+    loaded = _Recorder(lambda path, repair, buffers: ("image", _Report(1)))
+    monkeypatch.setattr(kpcn_buffers, "load_kpcn_exr", loaded)
+    patches_per_split = {"train": 4, "val": 2}
+    kind.dataset["preprocess"]["patches_per_split"] = patches_per_split
+
+    def build(raw_arg, tmp, **kwargs):
+        assert raw_arg == raw and tmp.parent == tmp_path
+        assert kwargs["patches_per_split"] == patches_per_split
+        kwargs["load_fn"](raw / "a.exr")
+        return {"noisy_images": 6, "patches": 36}
+
+    monkeypatch.setattr(shards, "preprocess_dataset", build)
+    summary = kind.preprocess(cfg)
+    assert summary == {"noisy_images": 6, "patches": 36, "repairs": {"a.exr": "1 repaired"}}
+    assert len(loaded.calls) == 1
+    record = json.loads((tmp_path / "prepared" / PREPROCESS_PROVENANCE).read_text())
+    assert record["cache_key"] == kind.preprocess_key(cfg, raw)
+    assert capsys.readouterr().out.strip() == (
+        f"preprocess: 6 images, 36 patches, repaired 1 files -> {tmp_path / 'prepared'}"
+    )
+    assert kind.preprocess(cfg) == summary  # cached: nothing printed but the line that says so
+    assert capsys.readouterr().out.startswith("preprocess: up to date in")
+
+
+def test_a_stills_model_gets_no_training_summary_line(stills):
+    cfg, kind = stills
+    assert kind.training_summary(object(), cfg) == ""
+
+
 def test_feature_selection_is_refused_on_stills_only(stills):
     cfg, kind = stills
     with pytest.raises(ConfigError) as err:
