@@ -161,6 +161,29 @@ def test_the_branch_check_runs_for_train_eval_and_select_features_only(seq):
     kind.check_stage("preprocess", cfg)
 
 
+def test_an_evaluation_checks_the_held_out_items_against_the_method_once_they_exist(stills, tmp_path):
+    cfg, kind = stills
+    cfg.paths.prepared = str(tmp_path / "prepared")
+    kind.held_out = _Recorder()  # stands in for reading the items and the method's check of them
+    kind.check_stage("eval", cfg)
+    assert kind.held_out.calls == []  # no items yet: the eval stage checks them when it opens them
+    index = tmp_path / "prepared" / "full" / cfg.task.eval.split / "index.json"
+    index.parent.mkdir(parents=True)
+    index.write_text("{}")
+    kind.check_stage("train", cfg)
+    assert kind.held_out.calls == []  # training reads no held-out item
+    kind.check_stage("eval", cfg)
+    (got_cfg, features, method), _ = kind.held_out.calls[0]
+    assert got_cfg is cfg and features == kind.features(cfg) == list(cfg.task.features)
+    assert type(method).__name__ == type(build_method_of(cfg)).__name__
+
+
+def build_method_of(cfg):
+    from src.models.instantiate import build_method
+
+    return build_method(OmegaConf.to_container(cfg.model, resolve=True))
+
+
 def _prepare_cfg(cfg, tmp_path):
     raw = _raw(tmp_path)
     cfg.paths.raw, cfg.paths.prepared = str(raw), str(tmp_path / "prepared")
