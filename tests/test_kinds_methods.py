@@ -94,12 +94,19 @@ def test_cached_preprocess_gives_the_summary_only_for_its_own_key(tmp_path):
     assert cached_preprocess(tmp_path, "k1") is None  # a record without a key is never current
 
 
+class RadianceOnly:
+    """A model class that declares the branch it reads (`model_branches` reads it without building it)."""
+
+    branches = ("radiance",)
+
+
 def test_model_branches_reads_the_key_else_the_class():
     assert denoising.model_branches(OmegaConf.create({"branches": ["a", 2]})) == ["a", "2"]
-    # the U-Net KPCN's class declares the radiance branch; its config has no key
-    unet = OmegaConf.create({"_target_": "src.models.denoise.unet_kpcn.UNetKPCN"})
-    assert denoising.model_branches(unet) == ["radiance"]
-    assert denoising.model_branches(OmegaConf.create({**unet, "branches": None})) == ["radiance"]
+    # a class that declares its branches (as the U-Net KPCN declares the radiance branch); no key
+    declared = OmegaConf.create({"_target_": "tests.test_kinds_methods.RadianceOnly"})
+    assert denoising.model_branches(declared) == ["radiance"]
+    assert denoising.model_branches(OmegaConf.create({**declared, "branches": None})) == ["radiance"]
+    assert denoising.model_branches(OmegaConf.create({**declared, "branches": ["diffuse"]})) == ["diffuse"]
     # a class that declares none reads no branch
     assert denoising.model_branches(OmegaConf.create({"_target_": "builtins.dict"})) == []
 
