@@ -223,6 +223,7 @@ def test_prepare_builds_with_the_repair_policy_then_finds_its_cache(stills, tmp_
         assert load(raw / "a.exr") == "data of a.exr"
         assert load(outside) == "data of reference2.exr"
         assert load(raw / "a.exr", buffers=["albedo"]) == "data of a.exr"  # no repairs: not listed
+        assert load(raw / "reference2" / "a.exr") == "data of a.exr"  # a second reference: its path
         return {"noisy_images": 1}
 
     summary, made = kind.prepare(cfg, "key1", loads, build)
@@ -232,10 +233,17 @@ def test_prepare_builds_with_the_repair_policy_then_finds_its_cache(stills, tmp_
         {"repair": policy, "buffers": None},
         {"repair": policy, "buffers": None},
         {"repair": policy, "buffers": ["albedo"]},
+        {"repair": policy, "buffers": None},
     ]
-    assert [c[0] for c in loads.calls] == [(raw / "a.exr",), (outside,), (raw / "a.exr",)]
+    assert [c[0] for c in loads.calls] == [
+        (raw / "a.exr",),
+        (outside,),
+        (raw / "a.exr",),
+        (raw / "reference2" / "a.exr",),
+    ]
     # repairs by path within the raw folder, else by name
-    want = {"noisy_images": 1, "repairs": {"a.exr": "2 repaired", "reference2.exr": "2 repaired"}}
+    repairs = {"a.exr": "2 repaired", "reference2.exr": "2 repaired", "reference2/a.exr": "2 repaired"}
+    want = {"noisy_images": 1, "repairs": repairs}
     assert summary == want
     record = json.loads((tmp_path / "prepared" / PREPROCESS_PROVENANCE).read_text())
     assert record["summary"] == want and record["cache_key"] == "key1"
@@ -292,7 +300,7 @@ def test_training_data_is_the_shuffled_train_and_the_ordered_val_samples(stills,
     monkeypatch.setattr(kind, "samples", _Recorder(lambda cfg, split, features, shuffle: (split, shuffle)))
     assert kind.training_data(cfg, ["color"]) == (("train", True), ("val", False))
     assert [c[0][2] for c in kind.samples.calls] == [["color"], ["color"]]
-    assert kind.samples.calls[0][0][0] is cfg
+    assert all(c[0][0] is cfg for c in kind.samples.calls)
 
 
 def test_the_denoising_schedule_is_the_tasks(stills):
@@ -793,12 +801,15 @@ def test_the_multiview_kinds_read_this_jobs_scene(tmp_path, monkeypatch, capsys)
     assert "dataset.root=" in blender.producer
 
 
-# Survivor families left (hand-checked against the round-3 survivor list; see docs/development.md):
-# - Equivalent: `bool(p.get("split_by_base", None))` (bool(None) is bool(False)); `self.color_space(None)`
-#   in `loss_terms` and `self.features(None)` in `training_summary` (neither method reads `cfg`).
-# - Message text only: the defaults in `RenderedScenes.render`'s line (`summary.get("scenes_rendered", 0)`:
-#   `render_multiview_dataset` always returns the key) and the wording of the printed lines beyond the ones
-#   compared above.
-# - Stale: mutants of `DenoisingKind.render`'s and `NoisebaseSequences.render`'s ladder lines written
-#   before those lines moved to `print_ladder` (the survivor list predates the move; `print_ladder` is
-#   covered by the render tests above).
+# Survivor families left: the mutmut run of the kinds group with this file (17 of 1014 alive; two of them,
+# `prepare`'s repair key of a file in a raw subfolder and `training_data`'s val cfg, killed by hand since):
+# - Equivalent: `p.get("split_by_base", None)` or `p.get("split_by_base")` under `bool()`, and
+#   `settings.pop("split_by_base")` without a default (the shared `task.preprocess` always has the key);
+#   `self.color_space(None)` in both kinds' `loss_terms` and `self.features(None)` in `training_summary`
+#   (neither method reads `cfg`).
+# - Message text only: the rate in `DenoisingKind.render`'s line divided by 1000001 (a 1e-6 change under
+#   `.2f`), and the defaults in `RenderedScenes.render`'s line (`summary.get("scenes_rendered", 0)`...;
+#   `render_multiview_dataset` always returns those keys, and `or 1` for a None rate prints 0.00 too).
+# - Not tested here: `resolve_at_job_start`'s check of the chosen names (`volume_feature_channels`), which
+#   only a hand-edited selection file with an unknown name reaches (tests/test_feature_selection.py
+#   covers the check itself).
