@@ -1045,3 +1045,27 @@ def test_a_malformed_key_is_named_by_its_full_path(tmp_path, rule, old, new, pat
     assert old in text, old
     msg = _refused(tmp_path, text.replace(old, new, 1))
     assert msg.startswith(path), msg
+
+
+#: ONE_CLAIM's source: its document, where it says so and the quote.
+SOURCE = 'source: {document: Bunjevac 2019, section: "6.2", where: Table 6.3, quote: q, translation: t}'
+PUBLISHED = "published: [{arm: {m: n}, value: 1}]"
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        (PUBLISHED, "published: [31.5]", "claims.c.rule.published[0]: 31.5;"),
+        (PUBLISHED, "published: {value: 1}", "claims.c.rule.published: {'value': 1};"),
+        (SOURCE, "source: 3", "claims.c.source: 3;"),
+        (SOURCE, "source: Bunjevac 2019", "claims.c.source: 'Bunjevac 2019';"),
+    ],
+)
+def test_a_value_where_keys_or_a_list_belong_is_a_one_line_error(tmp_path, old, new, message):
+    """Found by this round: a published value written without its case, or a source written as its
+    document's name, stopped the ledger with Python's TypeError (or a list of the text's letters as
+    unknown keys) instead of naming the key."""
+    text = "claims:" + ONE_CLAIM.format(id="c").replace(ONE, AGREEMENT)
+    assert old in text, old
+    msg = _refused(tmp_path, text.replace(old, new))
+    assert msg.startswith(message) and "expected a" in msg, msg
