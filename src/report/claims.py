@@ -141,7 +141,9 @@ KEYS = {
 }
 
 
-def _known_keys(raw: Mapping, part: str, where: str) -> None:
+def _known_keys(raw: Any, part: str, where: str) -> None:
+    if not isinstance(raw, Mapping):  # a number or a text where keys belong (`source: Bunjevac 2019`)
+        raise ConfigError(f"{where}: {raw!r}; expected a mapping with some of {sorted(KEYS[part])}")
     unknown = sorted(set(raw) - KEYS[part])
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; expected some of {sorted(KEYS[part])}")
@@ -168,6 +170,8 @@ def _rule(raw: Any, where: str) -> Rule:
     kind = _choice(raw.get("kind"), RULE_KINDS, f"{where}.kind")
     if kind == "agreement":
         cases = raw.get("published") or []
+        if not isinstance(cases, list):  # one case written without its list
+            raise ConfigError(f"{where}.published: {cases!r}; expected a list of cases (arm, where, value)")
         if not cases:
             raise ConfigError(f"{where}.published: empty; an agreement rule needs published values")
         for i, c in enumerate(cases):
