@@ -832,10 +832,11 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
 # --- mutation testing: src/report/ledger.py ------------------------------------------------------------
 # The partial report_claims run (277 of ledger.py's 1393 mutants reached, 62 survived) was gone through
 # one by one. Closed by the tests above: the family adjustment's re-judged status and level
-# (adjust_families 36, 41, 49), every ledger.* setting away from its default (settings_from 9, 10, 13, 18,
-# 20-22, 36, 37), report.committed_ledger reaching the page (build_ledger 61, 67-73, 78), the interval level in
-# the page's account (28, 29), the site refreshed without a report.site key (83, 86), numbers before text
-# in a run's budget (_numeric_first 1), a bench's arm selected by its own columns (arm_values 9), the
+# (adjust_families 36, 41, 49), every ledger.* setting away from its default (settings_from 9, 10, 13,
+# 18, 20-22, 36, 37), report.committed_ledger reaching the page (build_ledger 61, 67-73, 78), the
+# interval level in the page's account (28, 29), the site refreshed without a report.site key (83, 86),
+# numbers before text in a run's budget (_numeric_first 1), a bench's arm selected by its own columns
+# (arm_values 9), the
 # not-run reason's separators (_not_run 6, 7, 10, 18). Left, equivalent:
 # - `zip(..., strict=True)` weakened (adjust_families 25, 28, 29): the adjusted p's are one per member.
 # - `OmegaConf.select(..., default=None)` without its default, or `... or []` kept (settings_from 8, 46,
