@@ -836,8 +836,7 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
 # 18, 20-22, 36, 37), report.committed_ledger reaching the page (build_ledger 61, 67-73, 78), the
 # interval level in the page's account (28, 29), the site refreshed without a report.site key (83, 86),
 # numbers before text in a run's budget (_numeric_first 1), a bench's arm selected by its own columns
-# (arm_values 9), the
-# not-run reason's separators (_not_run 6, 7, 10, 18). Left, equivalent:
+# (arm_values 9), the not-run reason's separators (_not_run 6, 7, 10, 18). Left, equivalent:
 # - `zip(..., strict=True)` weakened (adjust_families 25, 28, 29): the adjusted p's are one per member.
 # - `OmegaConf.select(..., default=None)` without its default, or `... or []` kept (settings_from 8, 46,
 #   56; build_ledger 66): None is OmegaConf.select's own default.
