@@ -33,6 +33,7 @@ from src.report.claims import CATEGORIES, ENGLISH_DOCUMENTS, TALLIED, Case, Clai
 from src.report.claims import load_claims as parse_claims_file
 from src.tracking.run_config import flatten_config
 from tests.conftest import ROOT, one_line_error
+from tests.test_ledger import CLAIM
 from tests.test_sweeps import compose_sweep, swept
 
 CONF_DIR = ROOT / "conf"
@@ -756,19 +757,9 @@ def test_every_study_claim_runs_the_seeds_its_test_needs():
 
 
 # --- src.report.claims by value (mutation testing round 3: scripts/mutation.sh report_claims) ---------------
-#: A small claims file of one claim; the tests below edit one key each and read what the parser makes of it.
-ONE_CLAIM = """
-  - id: {id}
-    category: finding
-    source: {{document: Bunjevac 2019, section: "6.2", where: Table 6.3, quote: q, translation: t}}
-    statement: KPCN beats DPCN.
-    profiles: [paper, cpu]
-    runs: {{study: denoisers, experiment: nrbench-denoise}}
-    metric: psnr
-    per: image
-    higher: true
-    rule: {{kind: better, a: {{model.name: kpcn}}, b: {{model.name: dpcn}}}}
-"""
+#: A small claims file of one claim (the ledger tests' own); the tests below edit one key each and read
+#: what the parser makes of it.
+ONE_CLAIM = CLAIM
 
 
 def _parsed(tmp_path, text: str):
