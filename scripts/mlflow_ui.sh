@@ -3,12 +3,10 @@
 #
 # Which view an experiment opens on: MLflow 3.17's UI decides it from the browser's sidebar switch
 # "GenAI | Model training" (kept in the browser's localStorage, GenAI until picked), not from the
-# experiment: a fresh browser opens every experiment on its GenAI overview ("Traces 0"), also one tagged
-# mlflow.experimentKind=custom_model_development, and a URL's ?workflowType=machine_learning is dropped
-# by the first click (the switch then shows "Model training" while the browser still holds GenAI, so
-# picking it does nothing). Hence the plain URL below and the one pick of "Model training" on it; a job's
-# own run URL (printed by the job) opens its run whatever the switch. Checked in headless Chromium with
-# MLflow 3.17: tests/test_mlflow_ui.py.
+# experiment, so in a fresh browser every experiment opened on its GenAI overview ("Traces 0"). Hence
+# MLflow's server with this repo's app plugin (mlflow_plugins/nrbench_runs_view, `--app-name nrbench`):
+# MLflow's own app whose page stores "Model training" in a browser that has not picked a view; a browser
+# that picked GenAI keeps it. Checked in headless Chromium with MLflow 3.17: tests/test_mlflow_ui.py.
 #
 # Start-up on a small machine: `mlflow ui` starts 4 web workers and 7 job-runner processes (GenAI
 # scorers, evaluation, prompt optimisation; none of which this harness uses), each importing MLflow, so on
@@ -24,6 +22,7 @@ workers=$((cores / 4))
 workers=$((workers < 1 ? 1 : workers > 4 ? 4 : workers))
 port=5000
 own_workers=(--workers)   # emptied when the caller passes its own --workers (then named in the line below)
+own_app=(--app-name nrbench)   # emptied when the caller names an app
 args=("$@")
 for ((i = 0; i < ${#args[@]}; i++)); do
   case "${args[i]}" in
@@ -31,11 +30,14 @@ for ((i = 0; i < ${#args[@]}; i++)); do
     --port=*) port="${args[i]#--port=}" ;;
     --workers | -w) if ((i + 1 < ${#args[@]})); then workers="${args[i + 1]}"; fi; own_workers=() ;;
     --workers=*) workers="${args[i]#--workers=}"; own_workers=() ;;
+    --app-name | --app-name=*) own_app=() ;;
   esac
 done
 if ((${#own_workers[@]})); then own_workers+=("$workers"); fi
 echo "mlflow ui: $uri, $workers worker(s) for $cores core(s), job runner" \
   "$([[ $MLFLOW_SERVER_ENABLE_JOB_EXECUTION == false ]] && echo off || echo on) -> open http://127.0.0.1:$port/#/experiments"
-echo "  once per browser, pick 'Model training' in the sidebar's GenAI | Model training switch on that page:" \
-  "MLflow 3.17 opens every experiment on its GenAI view (Traces) until then; a job's run URL opens its run directly"
-exec .venv/bin/mlflow ui --backend-store-uri "$uri" --host 127.0.0.1 --port "$port" "${own_workers[@]}" "$@"
+echo "  $([[ ${#own_app[@]} -gt 0 ]] && echo "experiments open on their runs (the sidebar's" \
+  "GenAI | Model training switch: Model training until picked)" || echo "the caller's app: MLflow opens" \
+  "experiments on the sidebar's GenAI | Model training switch, GenAI until picked"); a job's run URL opens its run"
+exec .venv/bin/mlflow ui --backend-store-uri "$uri" --host 127.0.0.1 --port "$port" "${own_workers[@]}" \
+  "${own_app[@]}" "$@"

@@ -3,6 +3,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-.venv/bin/ruff check src tests hydra_plugins
-.venv/bin/ruff format --check src tests hydra_plugins
+.venv/bin/ruff check src tests hydra_plugins mlflow_plugins
+.venv/bin/ruff format --check src tests hydra_plugins mlflow_plugins
 .venv/bin/pytest "$@"

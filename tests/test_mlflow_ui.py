@@ -1,6 +1,7 @@
-"""`bash scripts/mlflow_ui.sh`: MLflow's UI on the project's store, with web workers fitted to the cores and
-MLflow's GenAI job runner off, at a URL where one pick of "Model training" makes every experiment open on
-its runs (MLflow 3.17 decides an experiment's view from that browser setting, not from the experiment)."""
+"""`bash scripts/mlflow_ui.sh`: MLflow's UI on the project's store, with web workers fitted to the cores,
+MLflow's GenAI job runner off, and experiments opening on their runs in a fresh browser (MLflow 3.17
+decides an experiment's view from a browser setting, not from the experiment; the app plugin
+mlflow_plugins/nrbench_runs_view sets it where the browser has none: tests/test_runs_view.py)."""
 
 import os
 import shutil
@@ -11,6 +12,7 @@ import urllib.request
 
 import pytest
 from mlflow.tracking import MlflowClient
+from nrbench_runs_view import default_view_script
 
 from src.tracking.experiment import run_url_line
 from tests.conftest import ROOT
@@ -49,10 +51,37 @@ def test_the_script_prints_the_experiments_url_and_what_makes_them_open_on_their
         f"mlflow ui: sqlite:///{tmp_path}/m.db, 1 worker(s) for 2 core(s), job runner off -> open "
         "http://127.0.0.1:5123/#/experiments"
     )
-    # not ?workflowType=machine_learning: the first click drops it, and on that page the switch already
-    # shows "Model training", so picking it stores nothing (test below)
     assert _url(first) == "http://127.0.0.1:5123/#/experiments"
-    assert "pick 'Model training'" in second and "a job's run URL opens its run directly" in second
+    assert second.strip() == (
+        "experiments open on their runs (the sidebar's GenAI | Model training switch: Model training until "
+        "picked); a job's run URL opens its run"
+    )
+
+
+def test_the_script_starts_the_runs_view_app_unless_the_caller_names_one(tmp_path, monkeypatch):
+    """The mlflow command the script ends in (a stand-in `mlflow` in a copy of the script's folder layout
+    prints its arguments)."""
+    root = tmp_path / "repo"
+    (root / "scripts").mkdir(parents=True)
+    shutil.copy(SCRIPT, root / "scripts" / "mlflow_ui.sh")
+    (root / ".venv" / "bin").mkdir(parents=True)
+    (root / ".venv" / "bin" / "mlflow").write_text('#!/bin/sh\necho "$@"\n')
+    (root / ".venv" / "bin" / "mlflow").chmod(0o755)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:///m.db")
+
+    def run(*args):
+        script = str(root / "scripts" / "mlflow_ui.sh")
+        out = subprocess.run(["bash", script, *args], capture_output=True, text=True)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.splitlines()
+
+    workers = min(max(len(os.sched_getaffinity(0)) // 4, 1), 4)
+    _, ours, command = run("--port", "5123")
+    start = f"ui --backend-store-uri sqlite:///m.db --host 127.0.0.1 --port 5123 --workers {workers}"
+    assert command == f"{start} --app-name nrbench --port 5123"
+    _, theirs, command = run("--port", "5123", "--app-name", "basic-auth")
+    assert command == f"{start} --port 5123 --app-name basic-auth"
+    assert "open on their runs" in ours and "the caller's app" in theirs and "GenAI until picked" in theirs
 
 
 @pytest.mark.parametrize(("cores", "workers"), [(7, 1), (8, 2), (64, 4)])
@@ -80,10 +109,11 @@ def _processes(root_pid: int) -> list[str]:
 
 
 @pytest.mark.slow
-def test_an_experiment_opens_on_its_runs_once_model_training_is_picked(tmp_path, browser):
-    """~1 min on 2 cores. A fresh browser opens the experiment on MLflow's GenAI overview, even one tagged
-    mlflow.experimentKind=custom_model_development; after one pick of "Model training" on the printed page,
-    clicking the experiment shows its runs; a job's printed run URL opens the run in a fresh browser."""
+def test_an_experiment_opens_on_its_runs_in_a_fresh_browser(tmp_path, browser):
+    """~1 min on 2 cores. Clicking an experiment on the printed page shows its runs in a fresh browser, also
+    in a browser where the page's script is cut out of the response (MLflow's own page): there the
+    GenAI overview. A browser that picked GenAI keeps it after a reload; a job's printed run URL opens the
+    run."""
     from playwright.sync_api import sync_playwright
 
     uri = f"sqlite:///{tmp_path}/m.db"
@@ -110,21 +140,42 @@ def test_an_experiment_opens_on_its_runs_once_model_training_is_picked(tmp_path,
         server = [p for p in _processes(ui.pid) if "uvicorn" in p]
         cores = len(os.sched_getaffinity(0))
         assert len(server) == 1 and f"--workers {min(max(cores // 4, 1), 4)} " in server[0]
+        assert server[0].endswith(" nrbench_runs_view:app")
         assert not [p for p in _processes(ui.pid) if "huey" in p or "_job_runner" in p]  # job runner off
         with sync_playwright() as p:
             chromium = p.chromium.launch(executable_path=shutil.which("chromium"))
+
+            def open_experiment(page):
+                page.get_by_role("link", name="nrbench-denoise", exact=True).first.click()
+
             fresh = chromium.new_context().new_page()
             fresh.goto(url)
-            fresh.get_by_role("link", name="nrbench-denoise", exact=True).first.click()
+            open_experiment(fresh)
+            fresh.get_by_text("kpcn-cpu").first.wait_for(timeout=30_000)  # the runs table
+            assert f"#/experiments/{experiment}/runs?" in fresh.url
+
+            plain = chromium.new_context().new_page()  # MLflow's page: the response without the script
+
+            def without_script(route):
+                response = route.fetch()
+                route.fulfill(response=response, body=response.body().replace(default_view_script(), b""))
+
+            plain.route(f"http://127.0.0.1:{port}/", without_script)
+            plain.goto(url)
+            open_experiment(plain)
             # MLflow's default: the GenAI overview (its Usage / Quality / Tool calls tabs), no runs table
-            fresh.get_by_text("Tool calls", exact=True).wait_for(timeout=30_000)
-            assert fresh.get_by_text("kpcn-cpu").count() == 0
-            picked = chromium.new_context().new_page()
-            picked.goto(url)
-            picked.get_by_text("Model training", exact=True).click()
-            picked.get_by_role("link", name="nrbench-denoise", exact=True).first.click()
-            picked.get_by_text("kpcn-cpu").first.wait_for(timeout=30_000)  # the runs table
-            assert f"#/experiments/{experiment}/runs?" in picked.url
+            plain.get_by_text("Tool calls", exact=True).wait_for(timeout=30_000)
+            assert plain.get_by_text("kpcn-cpu").count() == 0
+
+            genai = chromium.new_context().new_page()
+            genai.goto(url)
+            genai.get_by_text("GenAI", exact=True).first.click()
+            genai.goto("about:blank")
+            genai.goto(url)  # the page's script runs again and keeps the pick
+            open_experiment(genai)
+            genai.get_by_text("Tool calls", exact=True).wait_for(timeout=30_000)
+            assert genai.get_by_text("kpcn-cpu").count() == 0
+
             line = run_url_line(uri, experiment, run_id)
             run_page = line.split()[2].replace(":5000/", f":{port}/")
             direct = chromium.new_context().new_page()
