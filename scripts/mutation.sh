@@ -9,6 +9,9 @@
 # .mutation/ (survivors with their diffs in .mutation/<group>-survivors.txt), then a per-module table of
 # killed / total. Work dir: mutants/ (recreated per group). Both are git-ignored. Not part of
 # scripts/test.sh or the default pytest run. MUTATION_JOBS (default 1) sets mutmut's parallel workers.
+# MUTATION_MUTANTS (space-separated mutmut names, globs allowed, e.g.
+# 'src.report.ledger.x_build_ledger__mutmut_*') runs only those mutants of one group; the others count as
+# "not checked". A group too long for one sitting can so be split over worktrees running side by side.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -98,7 +101,8 @@ cfg.pytest_add_cli_args_test_selection = list(spec["tests"])
 for test in spec.get("deselect", []):
     cfg.pytest_add_cli_args_test_selection += ["--deselect", test]
 module_globs = [p[: -len(".py")].replace("/", ".") + ".*" for p in spec["mutate"]]
-mm._run(module_globs, int(os.environ.get("MUTATION_JOBS", "1")))
+chosen = os.environ.get("MUTATION_MUTANTS", "").split()
+mm._run(chosen or module_globs, int(os.environ.get("MUTATION_JOBS", "1")))
 
 
 def source_line(path, diff):
