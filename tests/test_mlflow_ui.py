@@ -24,10 +24,21 @@ def _url(line: str) -> str:
     return line.split("open ", 1)[1].strip()
 
 
-def _script_help(tmp_path, *args, cores=None, jobs=None):
-    """The script's first two lines (then `mlflow ui --help` runs instead of a server); `cores`: what a
-    stand-in `nproc` on the PATH answers."""
-    env = {**os.environ, "MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path}/m.db"}
+def _script(tmp_path, *args, cores=None, jobs=None):
+    """(first line, second line, the mlflow command line, its MLFLOW_SERVER_ENABLE_JOB_EXECUTION) of the
+    script run from a copy of its folder layout whose `.venv/bin/mlflow` is a stand-in printing those;
+    `cores`: what a stand-in `nproc` on the PATH answers. (`mlflow` itself starts in ~3 s; that it takes
+    these arguments: the help test below and the slow browser test.)"""
+    root = tmp_path / "repo"
+    if not root.exists():
+        (root / "scripts").mkdir(parents=True)
+        shutil.copy(SCRIPT, root / "scripts" / "mlflow_ui.sh")
+        (root / ".venv" / "bin").mkdir(parents=True)
+        (root / ".venv" / "bin" / "mlflow").write_text(
+            '#!/bin/sh\necho "$@"\necho "$MLFLOW_SERVER_ENABLE_JOB_EXECUTION"\n'
+        )
+        (root / ".venv" / "bin" / "mlflow").chmod(0o755)
+    env = {**os.environ, "MLFLOW_TRACKING_URI": "sqlite:///m.db"}
     env.pop("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", None)
     if jobs is not None:
         env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] = jobs
@@ -37,18 +48,18 @@ def _script_help(tmp_path, *args, cores=None, jobs=None):
         (bin_dir / "nproc").write_text(f"#!/bin/sh\necho {cores}\n")
         (bin_dir / "nproc").chmod(0o755)
         env["PATH"] = f"{bin_dir}:{env['PATH']}"
-    command = ["bash", SCRIPT, *args, "--help"]
-    out = subprocess.run(command, capture_output=True, text=True, env=env, timeout=120)
+    out = subprocess.run(
+        ["bash", str(root / "scripts" / "mlflow_ui.sh"), *args], capture_output=True, text=True, env=env
+    )
     assert out.returncode == 0, out.stderr[-2000:]
-    first, second, *rest = out.stdout.splitlines()
-    assert any("--backend-store-uri" in line for line in rest)  # the rest is mlflow ui's own help
-    return first, second
+    first, second, command, job_runner = out.stdout.splitlines()
+    return first, second, command, job_runner
 
 
 def test_the_script_prints_the_experiments_url_and_what_makes_them_open_on_their_runs(tmp_path):
-    first, second = _script_help(tmp_path, "--port", "5123", cores=2)
+    first, second, _, _ = _script(tmp_path, "--port", "5123", cores=2)
     assert first == (
-        f"mlflow ui: sqlite:///{tmp_path}/m.db, 1 worker(s) for 2 core(s), job runner off -> open "
+        "mlflow ui: sqlite:///m.db, 1 worker(s) for 2 core(s), job runner off -> open "
         "http://127.0.0.1:5123/#/experiments"
     )
     assert _url(first) == "http://127.0.0.1:5123/#/experiments"
@@ -58,42 +69,43 @@ def test_the_script_prints_the_experiments_url_and_what_makes_them_open_on_their
     )
 
 
-def test_the_script_starts_the_runs_view_app_unless_the_caller_names_one(tmp_path, monkeypatch):
-    """The mlflow command the script ends in (a stand-in `mlflow` in a copy of the script's folder layout
-    prints its arguments)."""
-    root = tmp_path / "repo"
-    (root / "scripts").mkdir(parents=True)
-    shutil.copy(SCRIPT, root / "scripts" / "mlflow_ui.sh")
-    (root / ".venv" / "bin").mkdir(parents=True)
-    (root / ".venv" / "bin" / "mlflow").write_text('#!/bin/sh\necho "$@"\n')
-    (root / ".venv" / "bin" / "mlflow").chmod(0o755)
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", "sqlite:///m.db")
-
-    def run(*args):
-        script = str(root / "scripts" / "mlflow_ui.sh")
-        out = subprocess.run(["bash", script, *args], capture_output=True, text=True)
-        assert out.returncode == 0, out.stderr
-        return out.stdout.splitlines()
-
-    workers = min(max(len(os.sched_getaffinity(0)) // 4, 1), 4)
-    _, ours, command = run("--port", "5123")
-    start = f"ui --backend-store-uri sqlite:///m.db --host 127.0.0.1 --port 5123 --workers {workers}"
-    assert command == f"{start} --app-name nrbench --port 5123"
-    _, theirs, command = run("--port", "5123", "--app-name", "basic-auth")
+def test_the_script_starts_the_runs_view_app_unless_the_caller_names_one(tmp_path):
+    _, ours, command, job_runner = _script(tmp_path, "--port", "5123", cores=2)
+    start = "ui --backend-store-uri sqlite:///m.db --host 127.0.0.1 --port 5123 --workers 1"
+    assert (command, job_runner) == (f"{start} --app-name nrbench --port 5123", "false")
+    _, theirs, command, _ = _script(tmp_path, "--port", "5123", "--app-name", "basic-auth", cores=2)
     assert command == f"{start} --port 5123 --app-name basic-auth"
+    assert _script(tmp_path, "--port", "5123", "--app-name=basic-auth", cores=2)[2] == (
+        f"{start} --port 5123 --app-name=basic-auth"
+    )
     assert "open on their runs" in ours and "the caller's app" in theirs and "GenAI until picked" in theirs
 
 
-@pytest.mark.parametrize(("cores", "workers"), [(7, 1), (8, 2), (64, 4)])
+def test_mlflows_cli_offers_the_runs_view_app_and_the_options_the_script_passes():
+    out = subprocess.run(
+        [str(ROOT / ".venv" / "bin" / "mlflow"), "ui", "--help"], capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "--app-name [nrbench|basic-auth]" in out.stdout
+    assert all(f"{flag} " in out.stdout for flag in ("--backend-store-uri", "--host", "--port", "--workers"))
+
+
+@pytest.mark.parametrize(("cores", "workers"), [(2, 1), (7, 1), (8, 2), (15, 3), (64, 4)])
 def test_one_web_worker_per_four_cores_from_one_to_four(tmp_path, cores, workers):
-    first, _ = _script_help(tmp_path, cores=cores)
+    first, _, command, _ = _script(tmp_path, cores=cores)
     assert f", {workers} worker(s) for {cores} core(s)," in first
+    assert f" --workers {workers} --app-name nrbench" in command
 
 
 def test_the_callers_workers_and_job_runner_win(tmp_path):
-    assert ", 3 worker(s) for 2 core(s), job runner off " in _script_help(tmp_path, "-w", "3", cores=2)[0]
-    assert ", 6 worker(s) " in _script_help(tmp_path, "--workers=6", cores=2)[0]
-    assert ", job runner on " in _script_help(tmp_path, cores=2, jobs="true")[0]
+    start = "ui --backend-store-uri sqlite:///m.db --host 127.0.0.1 --port 5000 --app-name nrbench"
+    first, _, command, _ = _script(tmp_path, "-w", "3", cores=2)
+    assert ", 3 worker(s) for 2 core(s), job runner off " in first
+    assert command == f"{start} -w 3"  # the caller's flag alone
+    first, _, command, _ = _script(tmp_path, "--workers=6", cores=2)
+    assert ", 6 worker(s) " in first and command == f"{start} --workers=6"
+    first, _, _, job_runner = _script(tmp_path, cores=2, jobs="true")
+    assert ", job runner on " in first and job_runner == "true"
 
 
 def _free_port() -> int:

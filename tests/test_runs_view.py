@@ -72,6 +72,7 @@ def test_the_script_goes_first_in_the_head_and_a_page_without_a_head_is_left_alo
     page = b"<!doctype html><html><head><script src=main.js></script></head><body></body></html>"
     assert with_default_view(page) == page.replace(b"<head>", b"<head>" + default_view_script())
     assert with_default_view(b"<html><body>no head</body></html>") == b"<html><body>no head</body></html>"
+    assert with_default_view(b"<head></head>") == b"<head>" + default_view_script() + b"</head>"  # at 0
 
 
 def test_mlflows_page_gets_the_script_with_its_length_and_without_its_validators():
@@ -95,15 +96,28 @@ def test_every_other_request_is_mlflows_answer_unchanged(path, method):
 
 
 def _stub(status, content_type, chunks, extra_headers=()):
-    """An ASGI app answering every request with `chunks` as a streamed body."""
+    """An ASGI app answering every request with `chunks` as a streamed body (its last message without
+    `more_body`, which ASGI then reads as false)."""
 
     async def inner(scope, receive, send):
         headers = [(b"content-type", content_type), (b"etag", b'"v1"'), *extra_headers]
         await send({"type": "http.response.start", "status": status, "headers": headers})
-        for i, chunk in enumerate(chunks):
-            await send({"type": "http.response.body", "body": chunk, "more_body": i < len(chunks) - 1})
+        for chunk in chunks[:-1]:
+            await send({"type": "http.response.body", "body": chunk, "more_body": True})
+        await send({"type": "http.response.body", "body": chunks[-1]})
 
     return inner
+
+
+def test_a_scope_other_than_http_goes_to_mlflows_app_untouched():
+    seen = []
+
+    async def inner(scope, receive, send):
+        seen.append(scope)
+
+    lifespan = {"type": "lifespan", "asgi": {"version": "3.0"}}
+    asyncio.run(RunsViewApp(inner)(lifespan, None, None))
+    assert seen == [lifespan]
 
 
 def test_a_streamed_page_is_joined_before_the_rewrite():
@@ -113,8 +127,32 @@ def test_a_streamed_page_is_joined_before_the_rewrite():
     assert headers["content-length"] == str(len(body)) and "etag" not in headers
 
 
+def test_a_message_after_the_body_passes_after_the_rewritten_page():
+    async def with_trailers(scope, receive, send):
+        await send(
+            {"type": "http.response.start", "status": 200, "headers": [(b"content-type", b"text/html")]}
+        )
+        await send({"type": "http.response.body", "body": b"<head>"})
+        await send({"type": "http.response.trailers", "headers": [], "more_trailers": False})
+
+    sent = []
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {"type": "http", "path": "/", "method": "GET"}
+    asyncio.run(RunsViewApp(with_trailers)(scope, None, send))
+    assert [m["type"] for m in sent] == [
+        "http.response.start",
+        "http.response.body",
+        "http.response.trailers",
+    ]
+    assert sent[1]["body"] == b"<head>" + default_view_script()
+
+
 @pytest.mark.parametrize(
-    ("status", "content_type"), [(304, b"text/html"), (403, b"text/html"), (200, b"application/json")]
+    ("status", "content_type"),
+    [(304, b"text/html"), (403, b"text/html"), (200, b"application/json"), (200, b"text/plain")],
 )
 def test_a_response_that_is_not_the_page_passes_with_its_headers(status, content_type):
     got = _request(RunsViewApp(_stub(status, content_type, [b"<head>", b"x"], [(b"content-length", b"7")])))
