@@ -18,7 +18,7 @@ from omegaconf import OmegaConf
 
 from src.errors import ConfigError
 from src.report.claims import load_claims
-from src.report.ledger import arm_values, build_ledger, matching, run_budget
+from src.report.ledger import arm_values, build_ledger, ledger_line, matching, run_budget
 from src.report.signed_rank import min_items
 from src.report.verdicts import (
     DIRECTION_ONLY,
@@ -672,6 +672,9 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
         "nerf_views": UNDERPOWERED,  # 6 views of one training per model
         "needs_scenes": NOT_RUN,
     }
+    md = tmp_path / "reports" / "ledger.md"
+    counts = "8 reproduced, 1 direction only, 2 underpowered, 3 not run"  # the statuses above
+    assert ledger_line(summary) == f"ledger: {counts} -> {md}"  # what the stage prints
     ledger = pd.read_csv(summary["paths"]["csv"]).set_index("claim")
     kpcn = ledger.loc["kpcn_beats_dpcn"]
     assert kpcn["profile"] == "cpu" and kpcn["runs"] == 12  # the newest run per model and seed
