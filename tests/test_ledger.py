@@ -826,7 +826,8 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
     ), reason
     page = paths["html"].read_text()
     assert "Committed snapshot" in page and "this store&#x27;s ledger has no status yet" in page
-    assert "90% intervals" in paths["md"].read_text() and "95% intervals" not in paths["md"].read_text()
+    account = paths["md"].read_text()
+    assert "signed-rank tests and 90% intervals over replicates" in account and "95% intervals" not in account
     cfg.report = {"site": False}
     page = build_ledger(cfg)["paths"]["html"].read_text()
     assert "Committed snapshot" not in page and "no claim has runs yet" in page
