@@ -63,3 +63,30 @@ def test_the_table_asks_every_arm_for_the_worst_final_value_and_the_shortest_tim
     assert fast[at_column] == pytest.approx(0.2)
     assert slow[at_column] == pytest.approx(np.mean([1.0 - 0.5 * 40 / 50, 1.0 - 0.3 * 40 / 50]))
     assert fast["train s"] == 40.0 and slow["runs"] == 2
+
+
+def test_each_arms_band_is_its_seeds_median_min_and_max_where_every_seed_has_a_value():
+    from src.report.quality_time import arm_bands
+
+    curves = {
+        "b0": (np.array([0.0, 30.0]), np.array([2.0, 1.0])),  # one seed: its own curve
+        "a0": (np.array([0.0, 20.0, 40.0]), np.array([1.0, 0.4, 0.2])),
+        "a1": (np.array([0.0, 10.0, 40.0, 50.0]), np.array([0.8, 0.5, 0.35, 0.1])),
+        "a2": (np.array([0.0, 40.0, 45.0]), np.array([0.9, 0.3, 0.3])),
+    }
+    arm_of = {"b0": "slow", "a0": "fast", "a1": "fast", "a2": "fast"}
+    bands = arm_bands(curves, arm_of)
+    assert list(bands) == ["slow", "fast"]  # the order runs first appear in
+    grid, median, low, high, seeds = bands["fast"]
+    assert seeds == 3 and grid.tolist() == [0.0, 10.0, 20.0, 40.0]  # a0 ends at 40 s: nothing past it
+    # each seed at 0, 10, 20, 40 s, linear between its own points
+    a0 = [1.0, 0.7, 0.4, 0.2]
+    a1 = [0.8, 0.5, 0.5 - 0.15 * 10 / 30, 0.35]
+    a2 = [0.9, 0.9 - 0.6 * 10 / 40, 0.9 - 0.6 * 20 / 40, 0.3]
+    stack = np.array([a0, a1, a2])
+    np.testing.assert_allclose(median, np.median(stack, axis=0))
+    np.testing.assert_allclose(low, stack.min(axis=0))
+    np.testing.assert_allclose(high, stack.max(axis=0))
+    grid, median, low, high, seeds = bands["slow"]
+    assert seeds == 1 and grid.tolist() == [0.0, 30.0]
+    assert median.tolist() == low.tolist() == high.tolist() == [2.0, 1.0]

@@ -167,18 +167,30 @@ def time_table(
     return table
 
 
+def arm_bands(
+    curves: dict, arm_of: dict
+) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]]:
+    """Per arm (in the order its first run appears): (clock, median, minimum, maximum, seeds) of its
+    runs' curves on the union of their clock points up to the earliest last point (where every seed has a
+    value), each curve linear between its own points."""
+    bands = {}
+    for arm in dict.fromkeys(arm_of.values()):
+        members = [curves[r] for r, a in arm_of.items() if a == arm]
+        grid = np.unique(np.concatenate([s for s, _ in members]))
+        grid = grid[grid <= min(s[-1] for s, _ in members)]
+        stack = np.array([np.interp(grid, s, v) for s, v in members])
+        bands[arm] = (grid, np.median(stack, axis=0), stack.min(axis=0), stack.max(axis=0), len(members))
+    return bands
+
+
 def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, arm in enumerate(dict.fromkeys(arm_of.values())):
-        members = [curves[r] for r, a in arm_of.items() if a == arm]
-        grid = np.unique(np.concatenate([s for s, _ in members]))
-        grid = grid[grid <= min(s[-1] for s, _ in members)]  # where every seed has a value
-        stack = np.array([np.interp(grid, s, v) for s, v in members])
+    for i, (arm, (grid, median, low, high, seeds)) in enumerate(arm_bands(curves, arm_of).items()):
         color = colors[i % len(colors)]
-        ax.plot(grid, np.median(stack, axis=0), color=color, label=f"{arm} ({len(members)} seeds)")
-        if len(members) > 1:
-            ax.fill_between(grid, stack.min(axis=0), stack.max(axis=0), color=color, alpha=0.2, linewidth=0)
+        ax.plot(grid, median, color=color, label=f"{arm} ({seeds} seeds)")
+        if seeds > 1:
+            ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
     ax.set_xlabel(f"seconds ({clock_key})")
     ax.set_ylabel(label)
     ax.set_title("median over seeds; band: their min to max", fontsize="small")
