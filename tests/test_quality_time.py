@@ -90,3 +90,57 @@ def test_each_arms_band_is_its_seeds_median_min_and_max_where_every_seed_has_a_v
     grid, median, low, high, seeds = bands["slow"]
     assert seeds == 1 and grid.tolist() == [0.0, 30.0]
     assert median.tolist() == low.tolist() == high.tolist() == [2.0, 1.0]
+
+
+def test_the_figure_draws_each_arms_median_and_band_from_the_logged_curves_in_its_report_colour(
+    tmp_path, monkeypatch
+):
+    """Runs logged to a real MLflow store: each arm's line is its seeds' median on the common clock, its
+    band spans their min and max, and its colour is the one `row_colors` gives that arm in the report's
+    other plots; the table comes with it."""
+    import mlflow
+    import pandas as pd
+    from matplotlib.collections import PolyCollection
+
+    from src.report import quality_time
+    from src.report.figures import row_colors
+
+    uri = f"sqlite:///{tmp_path}/m.db"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    client = mlflow.MlflowClient(uri)
+    experiment = client.create_experiment("qt", (tmp_path / "art").as_uri())
+    logged = {  # arm -> per seed (seconds, PSNR) at steps 0, 1, 2
+        "kpcn": [([0.0, 10.0, 20.0], [20.0, 24.0, 26.0]), ([0.0, 10.0, 20.0], [21.0, 25.0, 28.0])],
+        "dpcn": [([0.0, 5.0, 30.0], [19.0, 22.0, 25.0]), ([0.0, 10.0, 30.0], [18.0, 20.0, 27.0])],
+    }
+    rows = []
+    for arm, seeds in logged.items():
+        for seconds, psnr in seeds:
+            run = client.create_run(experiment).info.run_id
+            for step, (s, v) in enumerate(zip(seconds, psnr, strict=True)):
+                client.log_metric(run, "train_time_s", s, step=step)
+                client.log_metric(run, "val_psnr", v, step=step)
+            rows.append({"run_id": run, "params.model.name": arm, "metrics.val_psnr": psnr[-1],
+                         "metrics.train_time_s": seconds[-1]})  # fmt: skip
+    drawn = {}
+
+    def keep(fig, path):
+        drawn["fig"] = fig
+        return path
+
+    monkeypatch.setattr(quality_time, "save_figure", keep)
+    figure, table = quality_time.quality_against_time(pd.DataFrame(rows), tmp_path / "qt.png")
+    assert figure == tmp_path / "qt.png" and list(table.index) == ["kpcn", "dpcn"]
+    ax = drawn["fig"].axes[0]
+    lines = {line.get_label().split(" (")[0]: line for line in ax.get_lines()}
+    colors = row_colors(["kpcn", "dpcn"])
+    assert lines["kpcn"].get_color() == colors["kpcn"] and lines["dpcn"].get_color() == colors["dpcn"]
+    assert lines["kpcn"].get_xdata().tolist() == [0.0, 10.0, 20.0]
+    assert lines["kpcn"].get_ydata().tolist() == [20.5, 24.5, 27.0]
+    # dpcn on 0, 5, 10, 30 s: seed 0 at 10 s is 22 + 3 * 5 / 25, seed 1 at 5 s is 19
+    assert lines["dpcn"].get_xdata().tolist() == [0.0, 5.0, 10.0, 30.0]
+    np.testing.assert_allclose(lines["dpcn"].get_ydata(), [18.5, 20.5, (22.6 + 20.0) / 2, 26.0])
+    bands = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    assert len(bands) == 2
+    kpcn_band = bands[0].get_paths()[0].vertices
+    assert kpcn_band[:, 1].min() == 20.0 and kpcn_band[:, 1].max() == 28.0

@@ -36,7 +36,7 @@ import pandas as pd  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
 from src.report.collect import DEFAULT_AXES  # noqa: E402
-from src.report.figures import save_figure  # noqa: E402
+from src.report.figures import row_colors, save_figure  # noqa: E402
 from src.report.tables import MetricSpec, aggregate, axis_keys  # noqa: E402
 
 log = logging.getLogger("nrbench.report")
@@ -185,9 +185,10 @@ def arm_bands(
 
 def _figure(curves: dict, arm_of: dict, label: str, clock_key: str, out_png: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, (arm, (grid, median, low, high, seeds)) in enumerate(arm_bands(curves, arm_of).items()):
-        color = colors[i % len(colors)]
+    bands = arm_bands(curves, arm_of)
+    colors = row_colors(list(bands))  # an arm's colour in the report's other plots
+    for arm, (grid, median, low, high, seeds) in bands.items():
+        color = colors[arm]
         ax.plot(grid, median, color=color, label=f"{arm} ({seeds} seeds)")
         if seeds > 1:
             ax.fill_between(grid, low, high, color=color, alpha=0.2, linewidth=0)
