@@ -828,6 +828,10 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
     assert "Committed snapshot" in page and "this store&#x27;s ledger has no status yet" in page
     account = paths["md"].read_text()
     assert "signed-rank tests and 90% intervals over replicates" in account and "95% intervals" not in account
+    assert not (tmp_path / "reports" / "index.html").exists()  # report.site false: no site refresh
+    cfg.report = {"site": True, "committed_ledger": str(committed)}
+    build_ledger(cfg)
+    assert "Committed snapshot" in (tmp_path / "reports" / "index.html").read_text()  # the site shows it too
     cfg.report = {"site": False}
     page = build_ledger(cfg)["paths"]["html"].read_text()
     assert "Committed snapshot" not in page and "no claim has runs yet" in page
