@@ -837,6 +837,37 @@ def test_a_ledger_with_no_status_shows_the_committed_snapshot_and_states_its_lev
     assert "Committed snapshot" not in page and "no claim has runs yet" in page
 
 
+@pytest.mark.parametrize(
+    ("commit", "shown"),
+    [
+        ("0123456789abcdef0123", "0123456789ab"),
+        ("0123456789abcdef+dirty", "0123456789ab+dirty"),
+        (None, "unknown"),
+    ],
+)
+def test_each_history_line_names_its_time_commit_and_store(
+    ledger_store, tmp_path, monkeypatch, commit, shown
+):
+    """The history's stamp of a write: the UTC time to the second, the commit cut to 12 digits as the rows
+    show it (its +dirty kept; "unknown" outside a checkout), and the fingerprint of the runs the ledger
+    counted (the page's run_ids)."""
+    import re
+
+    import src.provenance
+    from src.report.ledger_history import store_fingerprint
+
+    monkeypatch.setattr(src.provenance, "git_commit", lambda *a, **k: commit)
+    cfg = _ledger_cfg(ledger_store, tmp_path, "claims:" + CLAIM.format(id="one").replace("denoisers", STUDY))
+    cfg.report = {"site": False}
+    paths = build_ledger(cfg)["paths"]
+    history = pd.read_csv(tmp_path / "reports" / "ledger_history.csv", dtype=str)
+    assert all(re.fullmatch(r"\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2} UTC", w) for w in history["written"])
+    assert set(history["commit"]) == {shown}
+    counted = pd.read_csv(paths["csv"])["run_ids"].dropna()
+    ids = [i for text in counted if text != "-" for i in text.split()]
+    assert len(ids) == 12 and set(history["store"]) == {store_fingerprint(ids)}  # 6 seeds x 2 models
+
+
 # --- mutation testing: src/report/ledger.py ------------------------------------------------------------
 # The partial report_claims run (277 of ledger.py's 1393 mutants reached, 62 survived) was gone through
 # one by one. Closed by the tests above: the family adjustment's re-judged status and level
