@@ -106,7 +106,6 @@ def test_the_figure_draws_each_arms_median_and_band_from_the_logged_curves_in_it
     from src.report.figures import row_colors
 
     uri = f"sqlite:///{tmp_path}/m.db"
-    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
     client = mlflow.MlflowClient(uri)
     experiment = client.create_experiment("qt", (tmp_path / "art").as_uri())
     logged = {  # arm -> per seed (seconds, PSNR) at steps 0, 1, 2
@@ -129,6 +128,8 @@ def test_the_figure_draws_each_arms_median_and_band_from_the_logged_curves_in_it
         return path
 
     monkeypatch.setattr(quality_time, "save_figure", keep)
+    # this store, whatever tracking URI an earlier test set in the process
+    monkeypatch.setattr(quality_time, "MlflowClient", lambda: mlflow.MlflowClient(uri))
     figure, table = quality_time.quality_against_time(pd.DataFrame(rows), tmp_path / "qt.png")
     assert figure == tmp_path / "qt.png" and list(table.index) == ["kpcn", "dpcn"]
     ax = drawn["fig"].axes[0]
