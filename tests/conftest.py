@@ -8,6 +8,24 @@ from hydra import compose, initialize_config_dir
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
+# The test files that run whole studies, longest first (minutes on a 2-core CPU). `scripts/test.sh` runs the
+# suite on two xdist workers, each taking whole files in collection order (`--dist loadfile`): a long file
+# collected last (alphabetical order puts test_sweeps.py near the end) would leave one worker alone for its
+# last minutes, so these are collected first. Serial runs only see another file order.
+LONGEST_FILES = (
+    "test_sweeps.py",
+    "test_cluster.py",
+    "test_run.py",
+    "test_denoise_train.py",
+    "test_dvc_stages.py",
+    "test_ladder.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(LONGEST_FILES)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
 
 @pytest.fixture(scope="session")
 def mitsuba_variant():
