@@ -912,11 +912,15 @@ def test_a_claim_whose_arm_has_no_scores_names_that_arm(ledger_store, tmp_path, 
 #   the other weakened zip(strict=True): one status per claim by construction.
 # - failed_runs 30 (the key's separator, the same on both sides), 34 (an empty frame's key set holds
 #   column names, which match no key); _replicates 12, 22 (an empty frame selects as empty).
-# - _replicates 43 (b's learned flag computed where a second metric gives None): not yet analysed.
+# - _replicates 43 (b's `model.learned` dropped when no second metric scores b) and _not_run 10 (the
+#   separator between two other profiles) are killed by tests/test_ledger_probes.py (an arm said
+#   deterministic though its scores vary; a claim with runs at two other profiles), _record 88 (the
+#   snapshot path returned) by tests/test_ledger_history.py; each checked by hand.
 # - _record 3: datetime.now() without UTC is the same clock on a UTC machine (CI's and this one's);
 #   _record 53: None is OmegaConf.select's own default; _record 1, 27, 39-41, 48, 54-59 (the history's
 #   path, the snapshot) are killed by tests/test_ledger_history.py and duration_text 1-10 by
 #   tests/test_shown_ledger.py, both now in the group's files (pyproject.toml) for its next run.
 # - _record 60-87 (the snapshot's header and files): 26 killed by tests/test_ledger_history.py (each
 #   checked with MUTANT_UNDER_TEST); 74, 75: the returned paths' key, which no caller reads.
-# - _not_run 10, settings_from 8, _record 88 (found at the run's end): not yet analysed.
+# - settings_from 8: `OmegaConf.select(cfg, "ledger.equivalent_commits")` without `default=None` also
+#   gives None for a missing key, as settings_from 46 and 56 above.

@@ -71,3 +71,6 @@ def test_each_write_appends_and_the_snapshot_is_written_from_the_store(ledger_st
     assert rows.loc["kpcn_beats_dpcn_by_3db", "status"] == "reproduced"  # the latest write
     assert (snapshot / "items" / "kpcn_beats_dpcn.csv").is_file()
     assert (snapshot / "ledger.md").read_text().startswith("# Reproduction ledger")
+    # the paths the stage reports: the snapshot's ledger, and the history beside the page
+    assert second["paths"]["snapshot"] == snapshot / "ledger.csv"
+    assert second["paths"]["history"] == tmp_path / "reports" / "ledger_history.csv"

@@ -65,6 +65,14 @@ def probe_store(tmp_path_factory):
         # the same numbers without the config saying so: seen from the identical scores
         study("unmarked", "filter_a", seed, _images(base + TEN))
         study("unmarked", "filter_b", seed, _images(base))
+        # filter_b said deterministic by its config though its last digits vary per seed (threads)
+        study("jittered", "filter_a", seed, _images(base + TEN), **{"model.learned": "False"})
+        study("jittered", "filter_b", seed, _images(base + 0.001 * seed), **{"model.learned": "False"})
+        # runs at two profiles besides cpu's (a claim at paper finds neither meaningful)
+        for profile in ("cpu", "smoke"):
+            tags = {**CPU, "nrbench.profile": profile}
+            study("elsewhere", "filter_a", seed, _images(base + TEN), tags)
+            study("elsewhere", "filter_b", seed, _images(base), tags)
     # An expression better by 1 dB where defined, undefined on 4 of 10 images (NaN scores).
     failing = np.where(np.arange(10) < 6, base + 1.0, np.nan)
     undefined = np.where(np.arange(10) < 6, 0.0, 1.0)
@@ -177,6 +185,33 @@ def test_deterministic_arms_count_each_image_once(probe_store, tmp_path):
         )
         assert row.verdict.status == NOT_DISTINGUISHABLE  # pooled over 3 x 10 it read "reproduced"
         assert "deterministic arms: each image once, though scored under 3 seed(s)" in row.verdict.numbers
+
+
+def test_an_arm_said_deterministic_counts_each_image_once_though_its_scores_vary(probe_store, tmp_path):
+    """Either arm's `model.learned` decides, not only the first's: filter_b's scores differ per seed in
+    the third decimal, and its config says it is deterministic, so the images are the replicates."""
+    row = evaluate_claim(
+        _claim("jittered", "{model.name: filter_a}", "{model.name: filter_b}"), _settings(tmp_path)
+    )
+    assert row.replicates.deterministic == (True, True)
+    assert row.replicates.unit == "images" and row.verdict.items == 10
+    # the scores alone would read filter_b as learned: replicated by its 3 seeds
+    a = pd.concat([_images(30 + np.arange(10.0) + TEN).assign(**{"params.seed": s}) for s in range(3)])
+    b = pd.concat([_images(30 + np.arange(10.0) + 0.001 * s).assign(**{"params.seed": s}) for s in range(3)])
+    seen = replicate_differences(a.assign(value=a["psnr"]), b.assign(value=b["psnr"]), "image", True, False)
+    assert seen.deterministic == (True, False) and seen.unit == "seeds"
+
+
+def test_a_claim_not_run_at_its_profile_names_every_other_profile_with_runs(probe_store, tmp_path):
+    claim = replace(
+        _claim("elsewhere", "{model.name: filter_a}", "{model.name: filter_b}"), profiles=("paper",)
+    )
+    settings = replace(_settings(tmp_path), all_profiles=("paper", "cpu", "smoke"))
+    row = evaluate_claim(claim, settings)
+    assert row.verdict.status == NOT_RUN
+    assert row.verdict.numbers.startswith(
+        "no runs at paper; runs at cpu, smoke only, where it is not meaningful; to run (cheapest first): "
+    ), row.verdict.numbers
 
 
 def test_a_learned_arm_is_replicated_by_its_seeds_and_three_are_underpowered(probe_store, tmp_path):
