@@ -19,7 +19,7 @@ from omegaconf import OmegaConf
 from src.errors import ConfigError
 from src.report.claims import load_claims
 from src.report.ledger import arm_values, build_ledger, ledger_line, matching, run_budget
-from src.report.signed_rank import min_items
+from src.report.signed_rank import min_items, signed_rank
 from src.report.verdicts import (
     DIRECTION_ONLY,
     NOT_DISTINGUISHABLE,
@@ -27,6 +27,7 @@ from src.report.verdicts import (
     NOT_RUN,
     REPRODUCED,
     UNDERPOWERED,
+    Verdict,
     agreement_verdict,
     better_verdict,
     comparable_verdict,
@@ -131,6 +132,14 @@ def test_comparable_uses_the_signed_rank_interval_of_the_shift():
 def test_comparable_from_two_replicates_is_underpowered_not_a_zero_width_interval():
     verdict = _comparable([0.1, 0.1], 0.5)
     assert verdict.status == UNDERPOWERED and "needs 6 or more" in verdict.numbers
+    # an underpowered verdict still carries its replicates and estimate; the interval is unbounded at 95%
+    assert (verdict.items, verdict.estimate, verdict.low, verdict.high) == (2, 0.1, -math.inf, math.inf)
+    assert math.isnan(verdict.p_value)  # a comparable claim has no test of a zero shift
+    behind = _not_worse([-0.2, 0.1, -0.1], 1.0)
+    # Hodges-Lehmann: the median of the Walsh averages -0.2, -0.15, -0.1, -0.05, 0, 0.1
+    assert behind.status == UNDERPOWERED and behind.items == 3
+    assert behind.estimate == pytest.approx(-0.075)
+    assert behind.p_value == signed_rank([-0.2, 0.1, -0.1]).p_value
 
 
 def _not_worse(advantage, tolerance, log=False):
@@ -165,7 +174,14 @@ def test_agreement_needs_every_published_case():
     assert one_of_three.status == UNDERPOWERED
     # A case outside decides even when another did not run.
     assert agreement_verdict([("x", _items([5.0]), 1.0), ("y", None, 1.0)], 0.2).status == NOT_REPRODUCED
-    assert agreement_verdict([("x", None, 1.0)], 0.2).status == NOT_RUN
+    assert agreement_verdict([("x", None, 1.0)], 0.2) == Verdict(
+        NOT_RUN, "none of the 1 published case(s) has runs"
+    )
+    # each case's line: its mean, the published value, its replicates, and "(outside)" only when outside
+    assert off.numbers == (
+        "2 of 3 case(s) within ±0.2: nerf, lego 31.6 vs 31.6 over 2; mipnerf, lego 33.1 vs 33 over 2; "
+        "refnerf, lego 30 vs 33 over 1 (outside)"
+    )
     # The tolerance is inclusive: 0.5 away with a tolerance of 0.5 is within (values exact in binary).
     assert agreement_verdict([("x", _items([1.25, 1.75]), 1.0)], 0.5).status == REPRODUCED
     assert agreement_verdict([("x", _items([1.25, 1.875]), 1.0)], 0.5).status == NOT_REPRODUCED

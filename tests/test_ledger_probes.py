@@ -127,6 +127,10 @@ def probe_store(tmp_path_factory):
         found = _images(base + 0.5 + 0.2 * seed).assign(baseline_psnr=base)
         search = {"task.name": "filter_search", "model.learned": "False"}
         study("search", "gp_filter", seed, found, **search)
+        # the same search undefined on two held-out images (its baseline is defined on all ten)
+        undefined = np.where(np.arange(10) < 2, 1.0, 0.0)
+        failing = found.assign(psnr=np.where(undefined > 0, np.nan, found["psnr"]), undefined=undefined)
+        study("search_failing", "gp_filter", seed, failing, **search)
         # Two NeRF-like models whose own recipes differ (precrop warm-up, and steps: a budget key).
         for model, precrop, steps in (("nerf", 100, 12), ("mipnerf", 0, 10)):
             recipe = {"task.train.precrop_iters": precrop, "task.train.max_steps": steps}
@@ -358,6 +362,17 @@ def test_a_search_is_replicated_by_its_seeds_though_its_model_is_not_trained(pro
     row = evaluate_claim(claim, _settings(tmp_path))
     assert row.replicates.unit == "seeds" and row.replicates.deterministic == (False, True)
     assert row.verdict.items == 6 and row.verdict.status == REPRODUCED
+
+
+def test_a_baseline_scored_beside_a_search_does_not_share_its_undefined_outputs(probe_store, tmp_path):
+    claim = _claim(
+        "search_failing",
+        "{model.name: gp_filter}",
+        "{model.name: gp_filter}",
+        extra=", b_metric: baseline_psnr",
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.replicates.undefined == (12, 0)  # the search's 2 images x 6 seeds; none of the baseline's
 
 
 def test_a_models_own_recipe_belongs_to_its_arm_and_its_budget_keys_are_shown(probe_store, tmp_path):

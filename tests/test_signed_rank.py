@@ -124,3 +124,12 @@ def test_replicates_for_power_is_the_normal_count_over_the_efficiency():
     assert replicates_for_power(1.0, 0.5, 0.05) == math.ceil((z * 2) ** 2 / (3 / math.pi))
     assert replicates_for_power(0.01, 10.0, 0.05) == 6  # never below the test's floor
     assert replicates_for_power(0.0, 1.0, 0.05) is None and replicates_for_power(1.0, 0.0, 0.05) is None
+
+
+def test_significant_is_p_at_most_alpha_as_the_interval_excluding_zero():
+    """All five of one sign: p = 2 / 2^5 = 0.0625 exactly. At alpha = p the 93.75 % interval just
+    excludes 0 and the test is significant; a hair below, neither."""
+    at = signed_rank([1.0, 2.0, 3.0, 4.0, 5.0], alpha=0.0625)
+    assert at.p_value == 0.0625 and at.significant(0.0625) and at.low == 1.0
+    below = signed_rank([1.0, 2.0, 3.0, 4.0, 5.0], alpha=0.0624)
+    assert not below.significant(0.0624) and below.low == -math.inf
