@@ -178,10 +178,13 @@ def test_agreement_needs_every_published_case():
         NOT_RUN, "none of the 1 published case(s) has runs"
     )
     # each case's line: its mean, the published value, its replicates, and "(outside)" only when outside
-    assert off.numbers == (
+    assert off == Verdict(
+        NOT_REPRODUCED,
         "2 of 3 case(s) within ±0.2: nerf, lego 31.6 vs 31.6 over 2; mipnerf, lego 33.1 vs 33 over 2; "
-        "refnerf, lego 30 vs 33 over 1 (outside)"
+        "refnerf, lego 30 vs 33 over 1 (outside)",
+        3,  # the cases that ran
     )
+    assert agreement_verdict(cases, 0.2).items == 2 and partly.items == 2 and one_of_three.items == 1
     # The tolerance is inclusive: 0.5 away with a tolerance of 0.5 is within (values exact in binary).
     assert agreement_verdict([("x", _items([1.25, 1.75]), 1.0)], 0.5).status == REPRODUCED
     assert agreement_verdict([("x", _items([1.25, 1.875]), 1.0)], 0.5).status == NOT_REPRODUCED
