@@ -142,6 +142,34 @@ def test_comparable_from_two_replicates_is_underpowered_not_a_zero_width_interva
     assert behind.p_value == signed_rank([-0.2, 0.1, -0.1]).p_value
 
 
+def test_comparable_states_the_shift_its_interval_replicates_and_tolerance():
+    six = [0.1, -0.1, 0.05, -0.05, 0.02, -0.02]  # min_items(0.05) = 6: the fewest that can bound a shift
+    decided = comparable_verdict(_items(six), ("x", "y"), False, 0.2, 0.05, "seeds", " (4 images each)")
+    assert (decided.status, decided.items, decided.estimate, decided.low, decided.high) == (
+        REPRODUCED,
+        6,
+        0.0,
+        -0.1,
+        0.1,
+    )
+    assert decided.numbers == (
+        "x - y = +0 (Hodges-Lehmann), 95% interval [-0.1, +0.1] over 6 seeds (4 images each), tolerance ±0.2"
+    )
+    # a log claim's shift is a log ratio, printed in log units (not as a factor); the default unit: items
+    logged = comparable_verdict(_items(six), ("x", "y"), True, 0.2, 0.05)
+    assert (
+        logged.numbers
+        == "log(x / y) = +0 (Hodges-Lehmann), 95% interval [-0.1, +0.1] over 6 items, tolerance ±0.2"
+    )
+    five = comparable_verdict(_items(six[:5]), ("x", "y"), False, 0.2, 0.05, "seeds")
+    assert five.status == UNDERPOWERED and five.numbers == (
+        "x - y = +0 (Hodges-Lehmann), no 95% interval with 5 over 5 seeds, tolerance ±0.2; "
+        "5 seeds cannot bound the shift at 95%: needs 6 or more"
+    )
+    one = comparable_verdict(_items([0.1]), ("x", "y"), False, 0.2, 0.05, "seeds")
+    assert (one.status, one.items) == (UNDERPOWERED, 1)  # one replicate is a replicate, not "not run"
+
+
 def _not_worse(advantage, tolerance, log=False):
     return not_worse_verdict(_items(advantage), NAMES, log, tolerance, 0.05, "seeds")
 
@@ -184,7 +212,16 @@ def test_agreement_needs_every_published_case():
         "refnerf, lego 30 vs 33 over 1 (outside)",
         3,  # the cases that ran
     )
-    assert agreement_verdict(cases, 0.2).items == 2 and partly.items == 2 and one_of_three.items == 1
+    assert agreement_verdict(cases, 0.2) == Verdict(
+        REPRODUCED,
+        "2 of 2 case(s) within ±0.2: nerf, lego 31.6 vs 31.6 over 2; mipnerf, lego 33.1 vs 33 over 2",
+        2,
+    )
+    assert partly.items == 2 and one_of_three.items == 1
+    assert (
+        one_of_three.numbers
+        == "1 of 1 case(s) within ±0.2: nerf, lego 31.6 vs 31.6 over 2; 2 of 3 not run: b, c"
+    )
     # The tolerance is inclusive: 0.5 away with a tolerance of 0.5 is within (values exact in binary).
     assert agreement_verdict([("x", _items([1.25, 1.75]), 1.0)], 0.5).status == REPRODUCED
     assert agreement_verdict([("x", _items([1.25, 1.875]), 1.0)], 0.5).status == NOT_REPRODUCED
