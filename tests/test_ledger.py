@@ -127,6 +127,19 @@ def test_comparable_uses_the_signed_rank_interval_of_the_shift():
     far = _comparable([1.0 + x for x in d], 0.5)
     assert far.status == NOT_REPRODUCED
     assert _comparable([-1.0 - x for x in d], 0.5).status == NOT_REPRODUCED  # the other tail
+    # Wholly outside means beyond the tolerance: an interval that ends on it is not decided, on either side.
+    near = [-1.0 - x for x in d]
+    ahead = [1.0 + x for x in d]
+    assert _comparable(ahead, far.low).status == NOT_DISTINGUISHABLE
+    assert _comparable(ahead, far.low - 1e-6).status == NOT_REPRODUCED
+    high = _comparable(near, 0.5).high
+    assert _comparable(near, -high).status == NOT_DISTINGUISHABLE
+    assert _comparable(near, -high - 1e-6).status == NOT_REPRODUCED
+    # an interval across -tolerance whose upper end lies inside it: not decided
+    across = _comparable([x - 0.15 for x in d], 0.2)
+    assert across.low < -0.2 < across.high < 0.2 and across.status == NOT_DISTINGUISHABLE
+    for each in (verdict, far, across):  # each status keeps its line, replicates and estimate
+        assert each.numbers.startswith("a - b = ") and each.items == 8 and math.isfinite(each.estimate)
 
 
 def test_comparable_from_two_replicates_is_underpowered_not_a_zero_width_interval():
@@ -189,6 +202,23 @@ def test_not_worse_bounds_the_lower_end_of_the_interval_by_the_margin():
     assert _not_worse(behind[:5], 1.0).status == UNDERPOWERED
     assert _not_worse([], 1.0).status == NOT_RUN
     assert "margin: at most 2x behind" in _not_worse(behind, math.log(2), log=True).numbers
+
+
+def test_not_worse_states_the_advantage_its_interval_replicates_and_margin():
+    six = [0.1, -0.1, 0.05, -0.05, 0.02, -0.02]  # the fewest replicates that can bound a shift at 95%
+    decided = not_worse_verdict(_items(six), ("x", "y"), False, 0.2, 0.05, "seeds", " (4 images each)")
+    assert (decided.status, decided.items) == (REPRODUCED, 6)
+    assert decided.numbers == (
+        "x ahead of y by +0 (Hodges-Lehmann), 95% interval [-0.1, +0.1] over 6 seeds (4 images each); "
+        "margin: at most 0.2 behind"
+    )
+    logged = not_worse_verdict(_items(six), ("x", "y"), True, math.log(2), 0.05)  # default unit: items
+    assert logged.numbers == (
+        "x ahead of y by 1x (Hodges-Lehmann), 95% interval [0.9048x, 1.105x] over 6 items; "  # e^-0.1, e^0.1
+        "margin: at most 2x behind"
+    )
+    one = not_worse_verdict(_items([0.1]), ("x", "y"), False, 0.2, 0.05, "seeds")
+    assert (one.status, one.items) == (UNDERPOWERED, 1)  # one replicate is a replicate, not "not run"
 
 
 def test_agreement_needs_every_published_case():
