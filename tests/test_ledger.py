@@ -19,7 +19,7 @@ from omegaconf import OmegaConf
 from src.errors import ConfigError
 from src.report.claims import load_claims
 from src.report.ledger import arm_values, build_ledger, ledger_line, matching, run_budget
-from src.report.signed_rank import min_items, signed_rank
+from src.report.signed_rank import min_items, replicates_for_power, signed_rank
 from src.report.verdicts import (
     DIRECTION_ONLY,
     NOT_DISTINGUISHABLE,
@@ -88,6 +88,23 @@ def test_fewer_replicates_than_the_test_needs_are_underpowered_with_what_it_woul
     three = _better([1.0, 1.5, 0.5])
     assert "smallest two-sided p with 3 is 0.25" in three.numbers and "about" in three.numbers
     assert _better([1.0, 1.5, 0.5, 1.2, 0.8, 1.1]).status == REPRODUCED  # six: decidable
+
+
+def test_an_underpowered_claim_says_how_many_replicates_its_published_size_would_need():
+    import numpy as np
+
+    three = [1.0, 1.5, 0.5]  # sd 0.5, median 1
+    n = replicates_for_power(0.5, 0.25, 0.05)
+    need = f"(about {n} to detect the published size with 80 % power at the spread seen, sd 0.5)"
+    assert need in _better(three, size=0.25).numbers
+    m = replicates_for_power(0.5, 1.0, 0.05)  # no published size: the effect seen, the median
+    assert f"(about {m} to detect the effect seen with 80 % power" in _better(three).numbers and m != n
+    # a log claim's size is a factor: 10x is log 10 to detect; a factor of at most 1 is no size to detect
+    logs = np.log([1.05, 200.0, 0.5])  # a wide spread: detecting log 10 (not 10) needs more than 6
+    k = replicates_for_power(float(np.std(logs, ddof=1)), math.log(10.0), 0.05)
+    assert k > replicates_for_power(float(np.std(logs, ddof=1)), 10.0, 0.05)
+    assert f"(about {k} to detect the published size" in _better(logs, size=10.0, log=True).numbers
+    assert "to detect the effect seen" in _better(logs, size=0.5, log=True).numbers
 
 
 def test_an_adjusted_p_decides_significance_and_both_are_printed():
@@ -199,7 +216,13 @@ def test_not_worse_bounds_the_lower_end_of_the_interval_by_the_margin():
     assert _not_worse([1.0 + x for x in behind], 1e-9).status == REPRODUCED
     failed = _not_worse([-math.inf] * 8, 0.5)
     assert failed.status == NOT_REPRODUCED
-    assert _not_worse(behind[:5], 1.0).status == UNDERPOWERED
+    short = _not_worse(behind[:5], 1.0)
+    assert short.status == UNDERPOWERED and short.numbers.endswith(
+        "margin: at most 1 behind; 5 seeds cannot bound the shift at 95%: needs 6 or more"
+    )
+    # each decided status keeps its line and replicates
+    for each in (_not_worse(behind, -lo), _not_worse(behind, -hi), _not_worse(behind, -hi - 1e-6)):
+        assert each.numbers.startswith("a ahead of b by -0.2 (Hodges-Lehmann)") and each.items == 8
     assert _not_worse([], 1.0).status == NOT_RUN
     assert "margin: at most 2x behind" in _not_worse(behind, math.log(2), log=True).numbers
 
