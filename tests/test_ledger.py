@@ -99,12 +99,18 @@ def test_an_underpowered_claim_says_how_many_replicates_its_published_size_would
     assert need in _better(three, size=0.25).numbers
     m = replicates_for_power(0.5, 1.0, 0.05)  # no published size: the effect seen, the median
     assert f"(about {m} to detect the effect seen with 80 % power" in _better(three).numbers and m != n
+    two = _better([1.0, 1.5])  # two replicates have a spread: the count is said
+    assert (
+        f"(about {replicates_for_power(math.sqrt(0.125), 1.25, 0.05)} to detect the effect seen"
+        in two.numbers
+    )
     # a log claim's size is a factor: 10x is log 10 to detect; a factor of at most 1 is no size to detect
     logs = np.log([1.05, 200.0, 0.5])  # a wide spread: detecting log 10 (not 10) needs more than 6
     k = replicates_for_power(float(np.std(logs, ddof=1)), math.log(10.0), 0.05)
     assert k > replicates_for_power(float(np.std(logs, ddof=1)), 10.0, 0.05)
     assert f"(about {k} to detect the published size" in _better(logs, size=10.0, log=True).numbers
     assert "to detect the effect seen" in _better(logs, size=0.5, log=True).numbers
+    assert "to detect the published size" in _better(logs, size=1.5, log=True).numbers  # 1.5x is one
 
 
 def test_an_adjusted_p_decides_significance_and_both_are_printed():

@@ -15,7 +15,7 @@ import pytest
 from mlflow.tracking import MlflowClient
 
 from src.report.claims import parse_claim
-from src.report.ledger import LedgerSettings, build_ledger, evaluate_claim, item_scores
+from src.report.ledger import LedgerSettings, arm_learned, build_ledger, evaluate_claim, item_scores
 from src.report.matched_arms import off_profile_key, profile_keys
 from src.report.replication import NESTED, REPLICATE, RUN_FAILED_COLUMN, arm_table, replicate_differences
 from src.report.signed_rank import signed_rank
@@ -204,6 +204,28 @@ def test_an_arm_said_deterministic_counts_each_image_once_though_its_scores_vary
     b = pd.concat([_images(30 + np.arange(10.0) + 0.001 * s).assign(**{"params.seed": s}) for s in range(3)])
     seen = replicate_differences(a.assign(value=a["psnr"]), b.assign(value=b["psnr"]), "image", True, False)
     assert seen.deterministic == (True, False) and seen.unit == "seeds"
+
+
+@pytest.mark.parametrize(
+    "runs, learned",
+    [
+        ({"params.model.learned": ["True", " true "]}, True),  # the config's spelling, any case or padding
+        ({"params.model.learned": ["FALSE", "False"]}, False),
+        ({"params.model.learned": ["True", "False"]}, None),  # the runs disagree: the scores decide
+        ({"params.model.learned": ["maybe", "maybe"]}, None),
+        ({"params.model.learned": [None, None]}, None),
+        ({"params.model.learned": ["True", None]}, True),  # a run that did not log it: the others say
+        ({"params.seed": ["0", "1"]}, None),  # not logged
+        (
+            {"params.task.name": ["filter_search"] * 2, "params.model.learned": ["False"] * 2},
+            True,
+        ),  # a search
+        ({"params.task.name": ["filter_search", "denoise"], "params.model.learned": ["False"] * 2}, False),
+    ],
+)
+def test_an_arms_learned_flag_is_what_all_its_runs_log(runs, learned):
+    assert arm_learned(pd.DataFrame(runs)) is learned
+    assert arm_learned(pd.DataFrame(runs).iloc[0:0]) is None  # no runs say nothing
 
 
 def test_a_claim_not_run_at_its_profile_names_every_other_profile_with_runs(probe_store, tmp_path):

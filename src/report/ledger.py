@@ -260,7 +260,7 @@ def _label(arm: Mapping[str, str]) -> str:
     )
 
 
-def _learned(part: pd.DataFrame) -> bool | None:
+def arm_learned(part: pd.DataFrame) -> bool | None:
     """Whether an arm's output depends on its training seed: its `model.learned`, or a search task's run
     (the filter search's `gp_filter` is not trained, but the expression it finds is the seed's). None
     when the runs do not say, or disagree: the scores then decide (`replication.is_deterministic`)."""
@@ -294,7 +294,7 @@ def _replicates(claim: Claim, scores: pd.DataFrame, prefix: str) -> tuple[Replic
         return f"no {claim.metric} scores for arm {names[0] if a.empty else names[1]}"
     # A baseline scored beside the method (b_metric) is not the run's model: whether it is deterministic
     # shows in its scores.
-    learned = (_learned(a), _learned(b)) if rule.b_metric is None else (_learned(a), None)
+    learned = (arm_learned(a), arm_learned(b)) if rule.b_metric is None else (arm_learned(a), None)
     return replicate_differences(a, b, claim.per, claim.higher, claim.log, learned), names
 
 
