@@ -32,6 +32,7 @@ from src.report.verdicts import (
     better_verdict,
     comparable_verdict,
     not_worse_verdict,
+    published_shift,
 )
 from tests.conftest import ROOT, one_line_cli_error, one_line_error
 
@@ -111,6 +112,15 @@ def test_an_underpowered_claim_says_how_many_replicates_its_published_size_would
     assert f"(about {k} to detect the published size" in _better(logs, size=10.0, log=True).numbers
     assert "to detect the effect seen" in _better(logs, size=0.5, log=True).numbers
     assert "to detect the published size" in _better(logs, size=1.5, log=True).numbers  # 1.5x is one
+
+
+def test_the_published_shift_is_a_size_or_the_log_of_a_factor_above_one():
+    assert published_shift(0.5, False) == 0.5 and published_shift(-2.0, False) == -2.0
+    assert published_shift(10.0, True) == pytest.approx(math.log(10.0))
+    assert published_shift(1.5, True) == pytest.approx(math.log(1.5))
+    assert [
+        published_shift(size, log) for size, log in ((0.0, False), (0.0, True), (1.0, True), (0.5, True))
+    ] == [None] * 4
 
 
 def test_an_adjusted_p_decides_significance_and_both_are_printed():

@@ -80,6 +80,14 @@ def _interval(result, log: bool) -> str:
     return f"{result.level:.0%} interval [{effect_text(result.low, log)}, {effect_text(result.high, log)}]"
 
 
+def published_shift(size: float, log: bool) -> float | None:
+    """A claim's published size on the compared scale: a plain size as it is, a log claim's factor (> 1)
+    as its natural log; None where there is none (0, or a factor of at most 1)."""
+    if not size or (log and size <= 1):
+        return None
+    return math.log(size) if log else size
+
+
 def _needs(
     advantage: pd.Series, alpha: float, unit: str, size: float, log: bool
 ) -> str:  # what an underpowered design would need
@@ -89,7 +97,7 @@ def _needs(
         f"effect of any size can be shown; needs {floor} or more {unit}"
     )
     finite = advantage[np.isfinite(advantage)]
-    target = (math.log(size) if log else size) if size and (size > 1 or not log) else None
+    target = published_shift(size, log)
     effect = target if target else (float(finite.median()) if len(finite) else math.nan)
     sd = float(finite.std(ddof=1)) if len(finite) > 1 else math.nan
     needed = replicates_for_power(sd, effect, alpha)
@@ -130,7 +138,7 @@ def better_verdict(
         return NO_REPLICATE
     n, result, verdict = _tested(advantage, alpha)
     p = result.p_value if p_adjusted is None else p_adjusted
-    threshold = (math.log(size) if log else size) if size and (size > 1 or not log) else None
+    threshold = published_shift(size, log)
     numbers = (
         f"{names[0]} better than {names[1]} by {effect_text(result.estimate, log)} (Hodges-Lehmann), "
         f"{_interval(result, log)} over {n} {unit}{nesting} ({result.positive} favour {names[0]}, "
