@@ -642,6 +642,16 @@ def test_a_failed_run_counts_only_on_a_seed_the_other_arm_has_and_a_baseline_has
     assert (both.unit, len(both.difference), both.undefined) == ("images", 3, (1, 0))
 
 
+def test_each_failed_run_counts_though_an_earlier_one_had_no_counterpart():
+    """a's runs of seeds 1 and 4 failed; b has no seed 1 (left out) but has seed 4 (a's loss there)."""
+    scored = _arm({s: 31 + 0.1 * s + np.arange(3.0) for s in (0, 2, 3)})
+    a = pd.concat([scored, _lost_run(1), _lost_run(4)], ignore_index=True)
+    b = _float_spp(_arm({s: 30 + np.arange(3.0) + 0.01 * s for s in (0, 2, 3, 4)}))  # learned
+    reps = replicate_differences(a, b, "image", True, False)
+    assert len(reps.difference) == 4 and reps.difference.iloc[-1] == -np.inf
+    assert np.isfinite(reps.difference.iloc[:3]).all() and reps.undefined == (2, 0)
+
+
 def test_an_undefined_held_out_output_fails_the_runs_eval_scores_not_its_search_or_time():
     """A searched expression undefined on one held-out image (eval_undefined > 0): its held-out relMSE is
     its worst outcome, but its search fitness and its running time were measured all the same."""
