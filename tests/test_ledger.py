@@ -70,6 +70,7 @@ def test_better_separates_reproduced_direction_only_reversed_and_inside_the_spre
     verdict = _better(gain)
     assert verdict.items == 8 and "by +1 (Hodges-Lehmann)" in verdict.numbers
     assert "over 8 seeds (8 favour a, 0 b)" in verdict.numbers
+    assert "over 8 items (8 favour a, 0 b)" in better_verdict(_items(gain), NAMES, False, 0.0, 0.05).numbers
     # n = 8: P(T+ <= 3) = 5/256 <= 0.025 < P(T+ <= 4), so the ends are the 4th smallest and largest of the
     # Walsh averages: 0.7, 0.75, 0.8, 0.8 ... and 1.3, 1.25, 1.2, 1.2.
     assert verdict.low == pytest.approx(0.8) and verdict.high == pytest.approx(1.2)
@@ -821,6 +822,10 @@ def test_the_ledger_computes_each_status_from_the_runs(ledger_store, tmp_path):
     assert f"measured_on: {card}" in (tmp_path / "reports" / "ledger.md").read_text()
     assert ledger.loc["pipeline_fallback", "measured_on"].endswith("(2 runs); FLOPs and memory not logged")
     assert ledger.loc["unet_10x", "seed_budget"] == "its own budget"
+    # a comparable claim on a log scale states its shift as a log ratio
+    assert ledger.loc["unet_vs_oidn", "numbers"].startswith("log(unet_kpcn / oidn) = "), ledger.loc[
+        "unet_vs_oidn"
+    ]
     items = pd.read_csv(tmp_path / "reports" / kpcn["items_csv"])
     assert len(items) == 6 and np.allclose(items["a_minus_b"], 1.0)
     index = pd.read_csv(tmp_path / "reports" / "items" / "index.csv").set_index("claim")
