@@ -228,6 +228,19 @@ def test_an_arms_learned_flag_is_what_all_its_runs_log(runs, learned):
     assert arm_learned(pd.DataFrame(runs).iloc[0:0]) is None  # no runs say nothing
 
 
+def test_a_comparable_claim_over_seeds_states_the_images_nested_in_each(probe_store, tmp_path):
+    extra = ", tolerance: 2, tolerance_source: ours"
+    claim = _claim(
+        "whitening", '{model.whiten: "true"}', '{model.whiten: "false"}', kind="comparable", extra=extra
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.verdict.status == REPRODUCED  # whitening is 1 dB ahead on every seed: within 2 dB
+    assert row.verdict.numbers == (
+        "whiten=true - whiten=false = +1 (Hodges-Lehmann), 95% interval [+1, +1] over 6 seeds "
+        "(10 item(s) nested in each), tolerance ±2"
+    )
+
+
 def test_a_claim_not_run_at_its_profile_names_every_other_profile_with_runs(probe_store, tmp_path):
     claim = replace(
         _claim("elsewhere", "{model.name: filter_a}", "{model.name: filter_b}"), profiles=("paper",)
