@@ -4,6 +4,7 @@ three times, failed outputs dropped, arms trained at different budgets or commit
 word, a run whose budget was overridden counted at its profile. Each test also checks the other side of
 its rule (the matched, declared or deterministic case that must still be decided)."""
 
+import math
 import textwrap
 from dataclasses import replace
 from pathlib import Path
@@ -239,6 +240,24 @@ def test_a_comparable_claim_over_seeds_states_the_images_nested_in_each(probe_st
         "whiten=true - whiten=false = +1 (Hodges-Lehmann), 95% interval [+1, +1] over 6 seeds "
         "(10 item(s) nested in each), tolerance ±2"
     )
+
+
+def test_a_not_worse_claim_over_seeds_states_the_images_nested_in_each_and_a_log_margin_as_a_factor(
+    probe_store, tmp_path
+):
+    extra = ", tolerance: 0.5, tolerance_source: ours"
+    claim = _claim(
+        "whitening", '{model.whiten: "false"}', '{model.whiten: "true"}', kind="not_worse", extra=extra
+    )
+    row = evaluate_claim(claim, _settings(tmp_path))
+    assert row.verdict.status == NOT_REPRODUCED  # 1 dB behind on every seed: more than the 0.5 margin
+    assert row.verdict.numbers == (
+        "whiten=false ahead of whiten=true by -1 (Hodges-Lehmann), 95% interval [-1, -1] over 6 seeds "
+        "(10 item(s) nested in each); margin: at most 0.5 behind"
+    )
+    logged = replace(claim, log=True, rule=replace(claim.rule, tolerance=math.log(2)))
+    numbers = evaluate_claim(logged, _settings(tmp_path)).verdict.numbers
+    assert "x (Hodges-Lehmann), 95% interval [" in numbers and numbers.endswith("; margin: at most 2x behind")
 
 
 def test_a_claim_not_run_at_its_profile_names_every_other_profile_with_runs(probe_store, tmp_path):
