@@ -138,6 +138,7 @@ def test_better_on_a_log_scale_compares_factors_with_the_published_size():
     kpcn = np.array([1.0, 1.2, 0.9, 1.1, 1.05, 0.95, 1.0])  # seconds per round
     fast = _better(np.log(kpcn / (kpcn / 12.0)), size=10.0, log=True)
     assert fast.status == REPRODUCED and "by 12x" in fast.numbers
+    assert "95% interval [12x, 12x] over 7 seeds" in fast.numbers  # the interval in factors too
     slower = _better(np.log(kpcn / (kpcn / 5.0)), size=10.0, log=True)
     assert slower.status == DIRECTION_ONLY and "by 5x" in slower.numbers
     assert _better(np.log([5.0, 6.0, 4.0, 5.5, 4.5, 5.0]), size=0.5, log=True).status == REPRODUCED
