@@ -1055,3 +1055,13 @@ def test_a_claim_whose_arm_has_no_scores_names_that_arm(ledger_store, tmp_path, 
 #   checked with MUTANT_UNDER_TEST); 74, 75: the returned paths' key, which no caller reads.
 # - settings_from 8: `OmegaConf.select(cfg, "ledger.equivalent_commits")` without `default=None` also
 #   gives None for a missing key, as settings_from 46 and 56 above.
+# A third run (2026-11-29, tests at 400aae7) took the rules' mutants among the 974 not reached
+# (_judge, _confound, _failed, _too_few_draws, _nesting, _learned, _at_budget, adjust_families, _scored_by:
+# 334) and was stopped at 138: 106 killed, 32 survived. Killed by the tests above and in
+# tests/test_ledger_probes.py, each applied by hand: _scored_by 8 (a baseline beside a search shares no
+# undefined output), _learned 14-16, 20-29, 31, 32 (now `arm_learned`, tested directly), _judge 8, 11, 12,
+# 18, 19 (a comparable claim's log line, rounds and nesting), 29, 32, 33, 39, 40 (a not-worse claim's).
+# Left, equivalent:
+# - _scored_by 3 (`iloc[1:0]`: empty as `iloc[0:0]`), 6 (`failed=None` reads as False in `astype(bool)`).
+# - _learned 9 (the empty default Series without `dtype=str`: an empty set either way).
+# - adjust_families 25, 28, 29: the weakened `zip(strict=True)` above.
