@@ -137,8 +137,8 @@ def test_significant_is_p_at_most_alpha_as_the_interval_excluding_zero():
 
 # --- mutation testing: the ledger group (signed_rank.py, verdicts.py, replication.py) --------------------
 # Its first recorded run (2026-11-29, tests at 941c376, `MUTATION_JOBS=1`, `nice 10`, beside another run)
-# was stopped after about 95 minutes at 392 of 1006 mutants: 295 killed, 97 survived. The survivors were mostly
-# verdict lines never read whole and rules never tried at their boundary; tests added since (here, in
+# was stopped after about 95 minutes at 392 of 1006 mutants: 295 killed, 97 survived. The survivors were
+# mostly verdict lines never read whole and rules never tried at their boundary; tests added since (here, in
 # tests/test_ledger.py and tests/test_ledger_probes.py) kill 82 of them, each applied by hand: p equal to
 # the level (significant_1), the comparable and not-worse lines (units, nesting, log ratios and factors,
 # defaults), the comparable rule at and across either tolerance, one replicate underpowered rather than
