@@ -8,10 +8,11 @@ from hydra import compose, initialize_config_dir
 
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 
-# The test files that run whole studies, longest first (minutes on a 2-core CPU). `scripts/test.sh` runs the
-# suite on two xdist workers, each taking whole files in collection order (`--dist loadfile`): a long file
-# collected last (alphabetical order puts test_sweeps.py near the end) would leave one worker alone for its
-# last minutes, so these are collected first. Serial runs only see another file order.
+# The test files that run whole studies, longest first (20 s to 2.5 min each on a 2-core CPU).
+# `scripts/test.sh` runs the suite on two xdist workers, each taking whole files in collection order
+# (`--dist loadfile`): a long file collected last (alphabetical order puts test_sweeps.py near the end)
+# would leave one worker alone for its last minutes, so these are collected first. Serial runs only see
+# another file order.
 LONGEST_FILES = (
     "test_sweeps.py",
     "test_cluster.py",

@@ -93,8 +93,6 @@ def test_fewer_replicates_than_the_test_needs_are_underpowered_with_what_it_woul
 
 
 def test_an_underpowered_claim_says_how_many_replicates_its_published_size_would_need():
-    import numpy as np
-
     three = [1.0, 1.5, 0.5]  # sd 0.5, median 1
     n = replicates_for_power(0.5, 0.25, 0.05)
     need = f"(about {n} to detect the published size with 80 % power at the spread seen, sd 0.5)"
@@ -133,8 +131,6 @@ def test_an_adjusted_p_decides_significance_and_both_are_printed():
 
 
 def test_better_on_a_log_scale_compares_factors_with_the_published_size():
-    import numpy as np
-
     kpcn = np.array([1.0, 1.2, 0.9, 1.1, 1.05, 0.95, 1.0])  # seconds per round
     fast = _better(np.log(kpcn / (kpcn / 12.0)), size=10.0, log=True)
     assert fast.status == REPRODUCED and "by 12x" in fast.numbers
@@ -159,17 +155,16 @@ def test_comparable_uses_the_signed_rank_interval_of_the_shift():
     lo, hi = verdict.low, verdict.high
     assert _comparable(d, max(-lo, hi) - 1e-6).status == NOT_DISTINGUISHABLE
     assert _comparable(d, max(-lo, hi)).status == REPRODUCED  # the boundary is inside
-    far = _comparable([1.0 + x for x in d], 0.5)
+    ahead, behind = [1.0 + x for x in d], [-1.0 - x for x in d]
+    far = _comparable(ahead, 0.5)
     assert far.status == NOT_REPRODUCED
-    assert _comparable([-1.0 - x for x in d], 0.5).status == NOT_REPRODUCED  # the other tail
+    assert _comparable(behind, 0.5).status == NOT_REPRODUCED  # the other tail
     # Wholly outside means beyond the tolerance: an interval that ends on it is not decided, on either side.
-    near = [-1.0 - x for x in d]
-    ahead = [1.0 + x for x in d]
     assert _comparable(ahead, far.low).status == NOT_DISTINGUISHABLE
     assert _comparable(ahead, far.low - 1e-6).status == NOT_REPRODUCED
-    high = _comparable(near, 0.5).high
-    assert _comparable(near, -high).status == NOT_DISTINGUISHABLE
-    assert _comparable(near, -high - 1e-6).status == NOT_REPRODUCED
+    high = _comparable(behind, 0.5).high
+    assert _comparable(behind, -high).status == NOT_DISTINGUISHABLE
+    assert _comparable(behind, -high - 1e-6).status == NOT_REPRODUCED
     # an interval across -tolerance whose upper end lies inside it: not decided
     across = _comparable([x - 0.15 for x in d], 0.2)
     assert across.low < -0.2 < across.high < 0.2 and across.status == NOT_DISTINGUISHABLE
