@@ -89,6 +89,9 @@ def test_fewer_replicates_than_the_test_needs_are_underpowered_with_what_it_woul
         assert "needs 6 or more seeds" in verdict.numbers
     three = _better([1.0, 1.5, 0.5])
     assert "smallest two-sided p with 3 is 0.25" in three.numbers and "about" in three.numbers
+    # the account of the test, then what it would need; the verdict keeps the test's numbers
+    assert "signed-rank p = 0.25; 3 seeds: the smallest" in three.numbers
+    assert (three.items, three.p_value, three.estimate) == (3, 0.25, 1.0)
     assert _better([1.0, 1.5, 0.5, 1.2, 0.8, 1.1]).status == REPRODUCED  # six: decidable
 
 
@@ -111,6 +114,8 @@ def test_an_underpowered_claim_says_how_many_replicates_its_published_size_would
     assert f"(about {k} to detect the published size" in _better(logs, size=10.0, log=True).numbers
     assert "to detect the effect seen" in _better(logs, size=0.5, log=True).numbers
     assert "to detect the published size" in _better(logs, size=1.5, log=True).numbers  # 1.5x is one
+    # ...and is printed as the factor it was published as, not as its log
+    assert "; published size 10x;" in _better(logs, size=10.0, log=True).numbers
 
 
 def test_the_published_shift_is_a_size_or_the_log_of_a_factor_above_one():

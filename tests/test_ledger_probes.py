@@ -99,10 +99,17 @@ def probe_store(tmp_path_factory):
         study("commits", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.git_commit": "bbbb222"})
         study("data", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.data_fingerprint": "d1"})
         study("data", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.data_fingerprint": "d2"})
-        # A cpu-tagged study whose budget was overridden on the command line, and one that swept an arm key.
+        # A cpu-tagged study whose budget was overridden on the command line (each arm moved another key),
+        # and one that swept an arm key.
         overridden = f"model=kpcn seed={seed} +sweep=shrunk profile=cpu task.train.epochs=1"
         study("shrunk", "kpcn", seed, _images(base + 1 + shift), hydra_job=overridden)
-        study("shrunk", "dpcn", seed, _images(base + shift), hydra_job=overridden.replace("kpcn", "dpcn"))
+        study(
+            "shrunk",
+            "dpcn",
+            seed,
+            _images(base + shift),
+            hydra_job=f"model=dpcn seed={seed} +sweep=shrunk profile=cpu task.train.max_steps=5",
+        )
         for whiten in ("true", "false"):
             job = f"model.whiten={whiten} seed={seed} +sweep=whitening profile=cpu"
             scores = _images(base + shift + (1.0 if whiten == "true" else 0.0))
@@ -359,7 +366,7 @@ def test_a_run_whose_budget_was_overridden_does_not_count_at_its_profile(probe_s
     row = evaluate_claim(_claim("shrunk", "{model.name: kpcn}", "{model.name: dpcn}"), _settings(tmp_path))
     assert row.verdict.status == NOT_RUN
     assert (
-        "12 run(s) not counted, off the profile's budget (task.train.epochs overridden)"
+        "12 run(s) not counted, off the profile's budget (task.train.epochs, task.train.max_steps overridden)"
         in row.verdict.numbers
     )
     # A study that sweeps a key as its arm is at the profile's budget.
