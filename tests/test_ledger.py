@@ -133,6 +133,10 @@ def test_an_adjusted_p_decides_significance_and_both_are_printed():
     adjusted = _better(gain, p_adjusted=0.09)
     assert adjusted.status == NOT_DISTINGUISHABLE and "adjusted p = 0.09" in adjusted.numbers
     assert "signed-rank p = 0.031" in adjusted.numbers
+    # p <= alpha is significant, raw or adjusted: six of one sign give p = 2 / 64 exactly
+    assert _better(gain, alpha=2 / 64).status == REPRODUCED
+    assert _better(gain, p_adjusted=0.05).status == REPRODUCED
+    assert _better(gain, p_adjusted=0.0500001).status == NOT_DISTINGUISHABLE
 
 
 def test_better_on_a_log_scale_compares_factors_with_the_published_size():

@@ -130,6 +130,17 @@ def probe_store(tmp_path_factory):
                 scores,
                 {**CPU, "nrbench.lpips_variant": "vgg16-random(seed=0)+lin-uniform"},
             )
+        # ...and with the trained weights, but off the profile's budget (r)
+        scores = _images(base).assign(lpips=0.25 + 0.01 * seed)
+        job = f"model=r seed={seed} +sweep=lpips profile=cpu task.train.epochs=1"
+        study(
+            "lpips",
+            "r",
+            seed,
+            scores,
+            {**CPU, "nrbench.lpips_variant": "vgg16(w.pth)+lin(l.pth)"},
+            hydra_job=job,
+        )
         # A filter search (gp_filter is "not learned", but the expression found is the seed's) with its
         # constant-sigma baseline scored beside it on the same images.
         found = _images(base + 0.5 + 0.2 * seed).assign(baseline_psnr=base)
@@ -386,6 +397,18 @@ def test_an_lpips_claim_reads_only_runs_with_the_trained_weights(probe_store, tm
     )
     assert random.verdict.status == NOT_RUN
     assert "12 run(s) not counted: LPIPS without the trained weights" in random.verdict.numbers
+    # Runs dropped for both reasons: one note each.
+    both = evaluate_claim(
+        _claim("lpips", "{model.name: p}", "{model.name: r}", metric="lpips"), _settings(tmp_path)
+    )
+    assert (
+        both.verdict.status == NOT_RUN
+        and (
+            "6 run(s) not counted: LPIPS without the trained weights; "
+            "6 run(s) not counted, off the profile's budget (task.train.epochs overridden)"
+        )
+        in both.verdict.numbers
+    )
     # Another metric of the same runs does not care about the LPIPS weights.
     psnr = evaluate_claim(_claim("lpips", "{model.name: p}", "{model.name: q}"), _settings(tmp_path))
     assert psnr.verdict.status == NOT_DISTINGUISHABLE and psnr.replicates.unit == "images"
