@@ -65,7 +65,10 @@ def test_better_separates_reproduced_direction_only_reversed_and_inside_the_spre
     assert _better(gain, size=1.1).status == REPRODUCED
     short = _better(gain, size=2.0)  # the source claims 2: the interval [0.8, 1.2] lies below it
     assert short.status == DIRECTION_ONLY and "published size +2" in short.numbers
-    assert _better([-g for g in gain]).status == NOT_REPRODUCED
+    # an interval that ends on the published size is consistent with it
+    assert _better(gain, size=_better(gain).high).status == REPRODUCED
+    reversed_ = _better([-g for g in gain])
+    assert reversed_.status == NOT_REPRODUCED and reversed_.numbers.startswith("a better than b by -1 ")
     assert _better([0.5, -0.4, 0.3, -0.6, 0.2, -0.1, 0.4, -0.3]).status == NOT_DISTINGUISHABLE
     verdict = _better(gain)
     assert verdict.items == 8 and "by +1 (Hodges-Lehmann)" in verdict.numbers
