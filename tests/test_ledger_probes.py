@@ -862,3 +862,28 @@ def test_the_ledger_settings_read_every_ledger_key_away_from_its_default():
     bare = settings_from(OmegaConf.create({"ledger": {"alpha": 0.05}}), conf / "claims.yaml")
     assert bare.equivalent_commits == () and bare.budget_shown == ()
     assert bare.profile_order == ("smoke", "cpu", "paper", "thesis", "bako")  # the default order
+
+
+def test_an_agreement_claim_matches_each_case_among_its_own_runs_only(probe_store, tmp_path):
+    """Each published case is checked against its own value, so its runs must match among themselves
+    but not with another case's: kpcn's and dpcn's runs of the `commits` study were made at two commits
+    (a better claim between them is confounded, above), and still agree with their published numbers."""
+    import yaml
+
+    published = "[{arm: {model.name: kpcn}, value: 35.75}, {arm: {model.name: dpcn}, value: 34.75}]"
+    text = textwrap.dedent(
+        f"""
+        id: probe_agreement
+        category: finding
+        source: {{document: Davletaliyev 2016, section: "4", quote: q}}
+        statement: kpcn and dpcn reach the published numbers.
+        profiles: [cpu]
+        runs: {{study: commits, experiment: nrbench-denoise}}
+        metric: psnr
+        per: image
+        higher: true
+        rule: {{kind: agreement, tolerance: 0.1, tolerance_source: ours, published: {published}}}
+        """
+    )
+    row = evaluate_claim(parse_claim(yaml.safe_load(text), 0), _settings(tmp_path))
+    assert row.verdict.status == REPRODUCED, row.verdict.numbers
