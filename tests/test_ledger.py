@@ -31,6 +31,7 @@ from src.report.verdicts import (
     agreement_verdict,
     better_verdict,
     comparable_verdict,
+    effect_text,
     not_worse_verdict,
     published_shift,
 )
@@ -129,6 +130,15 @@ def test_the_published_shift_is_a_size_or_the_log_of_a_factor_above_one():
     assert [
         published_shift(size, log) for size, log in ((0.0, False), (0.0, True), (1.0, True), (0.5, True))
     ] == [None] * 4
+
+
+def test_an_effect_is_printed_as_a_signed_number_or_a_factor_and_a_failure_as_its_limit():
+    assert effect_text(0.5, False) == "+0.5" and effect_text(-1.23456, False) == "-1.235"
+    assert effect_text(-1.23456, False, digits=2) == "-1.2"
+    assert effect_text(math.log(12.0), True) == "12x" and effect_text(math.log(0.25), True) == "0.25x"
+    # a log difference of +-inf (one arm's output failed on every replicate) is an infinite or zero factor
+    assert effect_text(math.inf, True) == "inf" and effect_text(-math.inf, True) == "0x"
+    assert effect_text(math.inf, False) == "+inf"
 
 
 def test_an_adjusted_p_decides_significance_and_both_are_printed():

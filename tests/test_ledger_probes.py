@@ -98,6 +98,9 @@ def probe_store(tmp_path_factory):
         study("commits", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": "aaaa111"})
         study("commits", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.git_commit": "bbbb222"})
         study("data", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.data_fingerprint": "d1"})
+        # one model's seeds split over two commits
+        commit = "aaaa111" if seed < 3 else "bbbb222"
+        study("commits_split", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": commit})
         study("data", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.data_fingerprint": "d2"})
         # A cpu-tagged study whose budget was overridden on the command line (each arm moved another key),
         # and one that swept an arm key.
@@ -887,3 +890,12 @@ def test_an_agreement_claim_matches_each_case_among_its_own_runs_only(probe_stor
     )
     row = evaluate_claim(parse_claim(yaml.safe_load(text), 0), _settings(tmp_path))
     assert row.verdict.status == REPRODUCED, row.verdict.numbers
+    # a case whose own runs were made at two commits is confounded, and named
+    split = text.replace("study: commits,", "study: commits_split,")
+    split = split.replace(published, "[{arm: {model.name: kpcn}, value: 35.75}]")
+    mixed = evaluate_claim(parse_claim(yaml.safe_load(split), 0), _settings(tmp_path))
+    assert mixed.verdict.status == CONFOUNDED
+    assert (
+        mixed.verdict.numbers
+        == "the compared runs are not matched: kpcn: code commit differs (aaaa111, bbbb222)"
+    )
