@@ -497,7 +497,16 @@ def test_a_random_baseline_must_hold_the_draws_the_claim_asks_for(probe_store, t
         claim = _claim("selection", a, b, extra=f", b_distinct: {{dataset.volume_features: {needed}}}")
         row = evaluate_claim(claim, _settings(tmp_path))
         assert row.verdict.status == status, (needed, row.verdict.numbers)
-    assert "holds 6 distinct dataset.volume_features over 6 run(s); the claim needs 7" in row.verdict.numbers
+    assert row.verdict.numbers.endswith(
+        "arm order=random holds 6 distinct dataset.volume_features over 6 run(s); the claim needs 7 or more "
+        "(rule.b_distinct): one draw stands for no distribution of draws"
+    ), row.verdict.numbers
+    # every key is checked, and a key the runs never logged holds no draw
+    two = ", b_distinct: {dataset.volume_features: 6, dataset.never_logged: 2}"
+    row = evaluate_claim(_claim("selection", a, b, extra=two), _settings(tmp_path))
+    assert (
+        row.verdict.status == UNDERPOWERED and "holds 0 distinct dataset.never_logged" in row.verdict.numbers
+    )
     one_draw = _claim("selection", b, a, extra=", b_distinct: {dataset.volume_features: 2}")
     row = evaluate_claim(one_draw, _settings(tmp_path))
     assert row.verdict.status == UNDERPOWERED and "holds 1 distinct" in row.verdict.numbers
