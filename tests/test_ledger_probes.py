@@ -908,3 +908,5 @@ def test_an_agreement_claim_matches_each_case_among_its_own_runs_only(probe_stor
         mixed.verdict.numbers
         == "the compared runs are not matched: kpcn: code commit differs (aaaa111, bbbb222)"
     )
+    same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
+    assert evaluate_claim(parse_claim(yaml.safe_load(split), 0), same_code).verdict.status == REPRODUCED
