@@ -910,3 +910,19 @@ def test_an_agreement_claim_matches_each_case_among_its_own_runs_only(probe_stor
     )
     same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
     assert evaluate_claim(parse_claim(yaml.safe_load(split), 0), same_code).verdict.status == REPRODUCED
+
+
+def test_a_second_metric_of_the_same_runs_is_matched_with_the_equivalent_commits(probe_store, tmp_path):
+    """A claim pairing two metrics of one arm's runs (`b_metric`) checks those runs as one set: kpcn's
+    seeds of `commits_split` were made at two commits, which `ledger.equivalent_commits` may declare the
+    same code."""
+    claim = _claim(
+        "commits_split", "{model.name: kpcn}", "{model.name: kpcn}", extra=", b_metric: relmse_ratio"
+    )
+    split = evaluate_claim(claim, _settings(tmp_path))
+    assert (
+        split.verdict.status == CONFOUNDED
+        and "code commit differs (aaaa111, bbbb222)" in split.verdict.numbers
+    )
+    same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
+    assert evaluate_claim(claim, same_code).verdict.status == REPRODUCED
