@@ -926,3 +926,19 @@ def test_a_second_metric_of_the_same_runs_is_matched_with_the_equivalent_commits
     )
     same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
     assert evaluate_claim(claim, same_code).verdict.status == REPRODUCED
+
+
+def test_a_run_that_logged_no_undefined_share_is_defined():
+    """Runs of older code logged no `eval_undefined`: beside runs that did, theirs is empty, and counts
+    as defined (a run with an undefined share > 0 fails, whether or not its score was logged)."""
+    claim = replace(_claim("any", "{model.name: a}", "{model.name: b}", metric="eval_psnr"), per="run")
+    runs = pd.DataFrame(
+        {
+            "params.model.name": ["a", "a", "a", "b"],
+            "metrics.eval_psnr": [30.0, 31.0, np.nan, 29.0],
+            "metrics.eval_undefined": [0.0, np.nan, 0.5, 0.0],
+        }
+    )
+    scores, prefix = item_scores(claim, runs)
+    assert prefix == "params." and list(scores["failed"]) == [False, False, True, False]
+    assert list(scores["value"].fillna(-1.0)) == [30.0, 31.0, -1.0, 29.0]
