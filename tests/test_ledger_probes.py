@@ -98,6 +98,11 @@ def probe_store(tmp_path_factory):
         study("commits", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": "aaaa111"})
         study("commits", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.git_commit": "bbbb222"})
         study("data", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.data_fingerprint": "d1"})
+        # kpcn trained for 2 epochs, dpcn for 1, each set on the command line (as a study sets its arms)
+        for model, epochs, gain in (("kpcn", 2, 1.0), ("dpcn", 1, 0.0)):
+            job = f"model={model} seed={seed} +sweep=epochs_cli profile=cpu task.train.epochs={epochs}"
+            scores = _images(base + gain + shift)
+            study("epochs_cli", model, seed, scores, hydra_job=job, **{"task.train.epochs": epochs})
         # one model's seeds split over two commits
         commit = "aaaa111" if seed < 3 else "bbbb222"
         study("commits_split", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": commit})
@@ -124,14 +129,18 @@ def probe_store(tmp_path_factory):
         ):
             scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
             study("lpips", model, seed, scores, {**CPU, "nrbench.lpips_variant": variant})
-        for model, offset in (("p", 0.0), ("q", 0.1)):
-            scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
+        # (a per-image column named as the runs' metric, eval_lpips, is LPIPS too); s: also off budget
+        for model, offset in (("p", 0.0), ("q", 0.1), ("s", 0.2)):
+            value = 0.2 + offset + 0.01 * seed
+            scores = _images(base).assign(lpips=value, eval_lpips=value)
+            off = " task.train.epochs=1" if model == "s" else ""
             study(
                 "lpips",
                 model,
                 seed,
                 scores,
                 {**CPU, "nrbench.lpips_variant": "vgg16-random(seed=0)+lin-uniform"},
+                hydra_job=f"model={model} seed={seed} +sweep=lpips profile=cpu{off}",
             )
         # ...and with the trained weights, but off the profile's budget (r)
         scores = _images(base).assign(lpips=0.25 + 0.01 * seed)
@@ -383,6 +392,19 @@ def test_a_run_whose_budget_was_overridden_does_not_count_at_its_profile(probe_s
         "12 run(s) not counted, off the profile's budget (task.train.epochs, task.train.max_steps overridden)"
         in row.verdict.numbers
     )
+    # A budget key the claim compares (its arm) or declares (rule.ratio) may be set on the command line.
+    a, b = "{model.name: kpcn}", "{model.name: dpcn}"
+    declared = evaluate_claim(
+        _claim("epochs_cli", a, b, extra=", ratio: {task.train.epochs: 0.5}"), _settings(tmp_path)
+    )
+    assert declared.verdict.status == REPRODUCED and declared.not_counted == ""
+    undeclared = evaluate_claim(_claim("epochs_cli", a, b), _settings(tmp_path))
+    assert undeclared.verdict.status == NOT_RUN and "off the profile's budget" in undeclared.verdict.numbers
+    by_epochs = evaluate_claim(
+        _claim("epochs_cli", "{task.train.epochs: '2'}", "{task.train.epochs: '1'}"), _settings(tmp_path)
+    )
+    assert by_epochs.not_counted == "" and by_epochs.verdict.status == CONFOUNDED  # model.name differs too
+    assert "model.name differs" in by_epochs.verdict.numbers
     # A study that sweeps a key as its arm is at the profile's budget.
     whiten = evaluate_claim(
         _claim("whitening", "{model.whiten: 'true'}", "{model.whiten: 'false'}"), _settings(tmp_path)
@@ -400,6 +422,19 @@ def test_an_lpips_claim_reads_only_runs_with_the_trained_weights(probe_store, tm
     )
     assert random.verdict.status == NOT_RUN
     assert "12 run(s) not counted: LPIPS without the trained weights" in random.verdict.numbers
+    # the runs' own metric name (eval_lpips) is LPIPS too
+    named = evaluate_claim(
+        _claim("lpips", "{model.name: p}", "{model.name: q}", metric="eval_lpips"), _settings(tmp_path)
+    )
+    assert named.verdict.status == NOT_RUN
+    assert "at cpu: 12 run(s) not counted: LPIPS without the trained weights; to run" in named.verdict.numbers
+    # a run dropped for its weights is not counted again as off the budget
+    untrained = evaluate_claim(
+        _claim("lpips", "{model.name: p}", "{model.name: s}", metric="lpips"), _settings(tmp_path)
+    )
+    assert untrained.verdict.status == NOT_RUN
+    assert "12 run(s) not counted: LPIPS without the trained weights" in untrained.verdict.numbers
+    assert "off the profile's budget" not in untrained.verdict.numbers
     # Runs dropped for both reasons: one note each.
     both = evaluate_claim(
         _claim("lpips", "{model.name: p}", "{model.name: r}", metric="lpips"), _settings(tmp_path)
