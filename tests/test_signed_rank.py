@@ -86,6 +86,7 @@ def test_too_few_items_give_no_interval_and_their_smallest_p():
     for alpha in (0.05, 0.01, 0.2):
         n = min_items(alpha)
         assert smallest_p(n) <= alpha < smallest_p(n - 1)
+    assert smallest_p(1) == smallest_p(0) == 1.0  # a probability: never above 1, even with no items
 
 
 def test_a_failure_is_the_worst_rank_not_a_dropped_item():
