@@ -1089,3 +1089,18 @@ def test_a_claim_whose_arm_has_no_scores_names_that_arm(ledger_store, tmp_path, 
 # - _scored_by 3 (`iloc[1:0]`: empty as `iloc[0:0]`), 6 (`failed=None` reads as False in `astype(bool)`).
 # - _learned 9 (the empty default Series without `dtype=str`: an empty set either way).
 # - adjust_families 25, 28, 29: the weakened `zip(strict=True)` above.
+# A fourth run (2026-11-29, tests at 7d774f3) took the 196 rules' mutants the third did not reach and was
+# stopped at 144: 121 killed, 23 survived. Killed by tests added since, each applied by hand: _at_budget
+# 48, 57 (two moved keys; both notes), _confound 24-26, 28, 29, 44, 45 (an agreement case's runs matched
+# among themselves, and a case's own confound named), 38 (equivalent commits there), 48, 57 (a claim on
+# two metrics of one arm's runs, at two commits). Left, equivalent:
+# - _at_budget 16 (`regex=True` is str.contains' default), 23 (`keep = ~untrained`: keep is all True there).
+# - _confound 16, 18, 21 (the default model name None, absent or "XXXX": no model is named so, like "");
+#   30, 49 (None for the second frame: pd.concat drops None, as it adds nothing for an empty frame);
+#   43, 58 (`iloc[1:0]`: empty, as `iloc[0:0]`); 59 (`iloc[0:1]`: a run already among those checked).
+# - _confound 46 (`is_bench and b_metric` for `or`): a bench claim keeps one run (its newest), and a
+#   `b_metric` claim's arms are the same runs in every claim of conf/claims.yaml, so both branches check
+#   the same runs; they would differ only for a `b_metric` claim declaring `rule.ratio`, which none does.
+# Not reached by it: _failed's 36, _too_few_draws' 7 and 9 of _confound's; the plausible ones among them
+# were applied by hand instead and are killed (an unlogged undefined share, the too-few-draws line whole,
+# an unlogged b_distinct key, the bench branch without the equivalent commits).

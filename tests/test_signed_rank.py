@@ -136,6 +136,19 @@ def test_significant_is_p_at_most_alpha_as_the_interval_excluding_zero():
     assert not below.significant(0.0624) and below.low == -math.inf
 
 
+def test_p_at_most_alpha_puts_zero_outside_the_interval_with_ties_zeros_and_failures():
+    """The test and the interval come from one count of Walsh averages, so they agree on every design:
+    random small integer differences (ties and zeros) with an occasional failure (+-inf), three levels."""
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        d = rng.integers(-3, 4, rng.integers(6, 12)).astype(float)
+        if rng.random() < 0.1:
+            d[0] = rng.choice([-math.inf, math.inf])
+        for alpha in (0.05, 0.1, 0.2):
+            r = signed_rank(d, alpha)
+            assert (r.p_value <= alpha) == (r.high < 0 or r.low > 0), (d, alpha)
+
+
 # --- mutation testing: the ledger group (signed_rank.py, verdicts.py, replication.py) --------------------
 # Its first recorded run (2026-11-29, tests at 941c376, `MUTATION_JOBS=1`, `nice 10`, beside another run)
 # was stopped after about 95 minutes at 392 of 1006 mutants: 295 killed, 97 survived. The survivors were
@@ -154,3 +167,18 @@ def test_significant_is_p_at_most_alpha_as_the_interval_excluding_zero():
 #   (`_interval(result, None)`: None is as false as False).
 # - replication _broadcast 7, 8 (`iloc[1:0]` or `iloc[0:1]` of a frame without replicates: empty either
 #   way), _with_lost_runs 31-33 (the index is already named "replicate" by the groupby; `.loc` keeps it).
+# A second run (2026-11-29, tests at 7d774f3) took the 614 not reached, with `better_verdict`'s mutants
+# anew (renumbered by the `published_shift` refactor) and `published_shift`'s, and was stopped at 153 of
+# its 1002: 131 killed, 22 survived (every verdicts.py mutant has now been run in one of the two runs;
+# signed_rank 7 more; replication.py's 390 and 116 of signed_rank.py's not reached). Killed by tests added
+# since, each applied by hand: better_verdict 40 (a log size printed as its factor), 49, 52 (an
+# underpowered verdict's fields and separator), 63 (p equal to the level), 72 (a reversed claim's line),
+# 78 (an interval ending on the size), 85, 86 (the direction-only suffix); effect_text 3, 6-9, 12, 13 (an
+# infinite log difference); _interval 1 (one infinite end); _tested 5 (the level reaching the interval);
+# smallest_p 5 (at most 1). Left, equivalent:
+# - better_verdict 69 (`result.high <= 0`): p <= alpha puts 0 outside the interval (signed_rank counts the
+#   Walsh averages <= 0 and >= 0 against the interval's own rank k; the test above of ties, zeros and
+#   failures), and an adjusted p is never below the raw one; so a significant interval never ends on 0.
+# - effect_text 10, 11 (`value >= 0` or `value > 1` for a non-finite value's sign): it is +-inf or NaN,
+#   which compare alike there.
+# - _tested 6 (`to_numpy(None)`): the differences are floats already, and signed_rank casts them.
