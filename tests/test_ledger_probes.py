@@ -98,6 +98,7 @@ def probe_store(tmp_path_factory):
         study("commits", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": "aaaa111"})
         study("commits", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.git_commit": "bbbb222"})
         study("data", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.data_fingerprint": "d1"})
+        study("data", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.data_fingerprint": "d2"})
         # kpcn trained for 2 epochs, dpcn for 1, each set on the command line (as a study sets its arms)
         for model, epochs, gain in (("kpcn", 2, 1.0), ("dpcn", 1, 0.0)):
             job = f"model={model} seed={seed} +sweep=epochs_cli profile=cpu task.train.epochs={epochs}"
@@ -106,7 +107,6 @@ def probe_store(tmp_path_factory):
         # one model's seeds split over two commits
         commit = "aaaa111" if seed < 3 else "bbbb222"
         study("commits_split", "kpcn", seed, _images(base + 1 + shift), {**CPU, "nrbench.git_commit": commit})
-        study("data", "dpcn", seed, _images(base + shift), {**CPU, "nrbench.data_fingerprint": "d2"})
         # A cpu-tagged study whose budget was overridden on the command line (each arm moved another key),
         # and one that swept an arm key.
         overridden = f"model=kpcn seed={seed} +sweep=shrunk profile=cpu task.train.epochs=1"
@@ -122,14 +122,14 @@ def probe_store(tmp_path_factory):
             job = f"model.whiten={whiten} seed={seed} +sweep=whitening profile=cpu"
             scores = _images(base + shift + (1.0 if whiten == "true" else 0.0))
             study("whitening", "kpcn", seed, scores, hydra_job=job, **{"model.whiten": whiten})
-        # LPIPS scored with the trained weights (x, y) and with the random trunk (p, q).
+        # LPIPS scored with the trained weights (x, y) and with the random trunk (p, q; s also off the
+        # profile's budget), in a column `lpips` and one named as the runs' own metric, `eval_lpips`.
         for model, variant, offset in (
             ("x", "vgg16(w.pth)+lin(l.pth)", 0.0),
             ("y", "vgg16(w.pth)+lin(l.pth)", 0.1),
         ):
             scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
             study("lpips", model, seed, scores, {**CPU, "nrbench.lpips_variant": variant})
-        # (a per-image column named as the runs' metric, eval_lpips, is LPIPS too); s: also off budget
         for model, offset in (("p", 0.0), ("q", 0.1), ("s", 0.2)):
             value = 0.2 + offset + 0.01 * seed
             scores = _images(base).assign(lpips=value, eval_lpips=value)
