@@ -79,7 +79,8 @@ def test_better_separates_reproduced_direction_only_reversed_and_inside_the_spre
     # n = 8: P(T+ <= 3) = 5/256 <= 0.025 < P(T+ <= 4), so the ends are the 4th smallest and largest of the
     # Walsh averages: 0.7, 0.75, 0.8, 0.8 ... and 1.3, 1.25, 1.2, 1.2.
     assert verdict.low == pytest.approx(0.8) and verdict.high == pytest.approx(1.2)
-    # at another level the interval is that level's: P(T+ <= 8) = 25/256 <= 0.1 < P(T+ <= 9), the 9th ends
+    # at another level the interval is that level's: P(T+ <= 8) = 25/256 <= 0.1 < P(T+ <= 9), so its ends
+    # are the 9th smallest and largest Walsh averages
     wider_alpha = _better(gain, alpha=0.2)
     assert "80% interval [+0.9, +1.1] over 8 seeds" in wider_alpha.numbers
     # an interval with one infinite end (a's output failed on one seed) is still printed
