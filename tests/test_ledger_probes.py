@@ -122,37 +122,21 @@ def probe_store(tmp_path_factory):
             job = f"model.whiten={whiten} seed={seed} +sweep=whitening profile=cpu"
             scores = _images(base + shift + (1.0 if whiten == "true" else 0.0))
             study("whitening", "kpcn", seed, scores, hydra_job=job, **{"model.whiten": whiten})
-        # LPIPS scored with the trained weights (x, y) and with the random trunk (p, q; s also off the
-        # profile's budget), in a column `lpips` and one named as the runs' own metric, `eval_lpips`.
-        for model, variant, offset in (
-            ("x", "vgg16(w.pth)+lin(l.pth)", 0.0),
-            ("y", "vgg16(w.pth)+lin(l.pth)", 0.1),
+        # LPIPS scored with the trained weights (x, y; r off the profile's budget) and with the random trunk
+        # (p, q; s off the budget too), in a column `lpips` and one named as the runs' metric, `eval_lpips`.
+        trained, untrained = "vgg16(w.pth)+lin(l.pth)", "vgg16-random(seed=0)+lin-uniform"
+        for model, variant, offset, off in (
+            ("x", trained, 0.0, ""),
+            ("y", trained, 0.1, ""),
+            ("p", untrained, 0.0, ""),
+            ("q", untrained, 0.1, ""),
+            ("s", untrained, 0.2, " task.train.epochs=1"),
+            ("r", trained, 0.05, " task.train.epochs=1"),
         ):
-            scores = _images(base).assign(lpips=0.2 + offset + 0.01 * seed)
-            study("lpips", model, seed, scores, {**CPU, "nrbench.lpips_variant": variant})
-        for model, offset in (("p", 0.0), ("q", 0.1), ("s", 0.2)):
             value = 0.2 + offset + 0.01 * seed
             scores = _images(base).assign(lpips=value, eval_lpips=value)
-            off = " task.train.epochs=1" if model == "s" else ""
-            study(
-                "lpips",
-                model,
-                seed,
-                scores,
-                {**CPU, "nrbench.lpips_variant": "vgg16-random(seed=0)+lin-uniform"},
-                hydra_job=f"model={model} seed={seed} +sweep=lpips profile=cpu{off}",
-            )
-        # ...and with the trained weights, but off the profile's budget (r)
-        scores = _images(base).assign(lpips=0.25 + 0.01 * seed)
-        job = f"model=r seed={seed} +sweep=lpips profile=cpu task.train.epochs=1"
-        study(
-            "lpips",
-            "r",
-            seed,
-            scores,
-            {**CPU, "nrbench.lpips_variant": "vgg16(w.pth)+lin(l.pth)"},
-            hydra_job=job,
-        )
+            job = f"model={model} seed={seed} +sweep=lpips profile=cpu{off}"
+            study("lpips", model, seed, scores, {**CPU, "nrbench.lpips_variant": variant}, hydra_job=job)
         # A filter search (gp_filter is "not learned", but the expression found is the seed's) with its
         # constant-sigma baseline scored beside it on the same images.
         found = _images(base + 0.5 + 0.2 * seed).assign(baseline_psnr=base)
@@ -182,6 +166,11 @@ def probe_store(tmp_path_factory):
 
 
 def _claim(study, a, b, metric="psnr", kind="better", extra="", higher=True):
+    return _rule_claim(study, f"{{kind: {kind}, a: {a}, b: {b}{extra}}}", metric, higher)
+
+
+def _rule_claim(study, rule, metric="psnr", higher=True):
+    """A per-image claim on `study`'s runs at cpu with the `rule` given as YAML flow text."""
     text = textwrap.dedent(
         f"""
         id: probe_{study}
@@ -193,7 +182,7 @@ def _claim(study, a, b, metric="psnr", kind="better", extra="", higher=True):
         metric: {metric}
         per: image
         higher: {str(higher).lower()}
-        rule: {{kind: {kind}, a: {a}, b: {b}{extra}}}
+        rule: {rule}
         """
     )
     import yaml
@@ -915,36 +904,24 @@ def test_an_agreement_claim_matches_each_case_among_its_own_runs_only(probe_stor
     """Each published case is checked against its own value, so its runs must match among themselves
     but not with another case's: kpcn's and dpcn's runs of the `commits` study were made at two commits
     (a better claim between them is confounded, above), and still agree with their published numbers."""
-    import yaml
 
-    published = "[{arm: {model.name: kpcn}, value: 35.75}, {arm: {model.name: dpcn}, value: 34.75}]"
-    text = textwrap.dedent(
-        f"""
-        id: probe_agreement
-        category: finding
-        source: {{document: Davletaliyev 2016, section: "4", quote: q}}
-        statement: kpcn and dpcn reach the published numbers.
-        profiles: [cpu]
-        runs: {{study: commits, experiment: nrbench-denoise}}
-        metric: psnr
-        per: image
-        higher: true
-        rule: {{kind: agreement, tolerance: 0.1, tolerance_source: ours, published: {published}}}
-        """
-    )
-    row = evaluate_claim(parse_claim(yaml.safe_load(text), 0), _settings(tmp_path))
+    def agreement(study, cases):
+        rule = f"{{kind: agreement, tolerance: 0.1, tolerance_source: ours, published: [{cases}]}}"
+        return _rule_claim(study, rule)
+
+    kpcn, dpcn = "{arm: {model.name: kpcn}, value: 35.75}", "{arm: {model.name: dpcn}, value: 34.75}"
+    row = evaluate_claim(agreement("commits", f"{kpcn}, {dpcn}"), _settings(tmp_path))
     assert row.verdict.status == REPRODUCED, row.verdict.numbers
     # a case whose own runs were made at two commits is confounded, and named
-    split = text.replace("study: commits,", "study: commits_split,")
-    split = split.replace(published, "[{arm: {model.name: kpcn}, value: 35.75}]")
-    mixed = evaluate_claim(parse_claim(yaml.safe_load(split), 0), _settings(tmp_path))
+    split = agreement("commits_split", kpcn)
+    mixed = evaluate_claim(split, _settings(tmp_path))
     assert mixed.verdict.status == CONFOUNDED
     assert (
         mixed.verdict.numbers
         == "the compared runs are not matched: kpcn: code commit differs (aaaa111, bbbb222)"
     )
     same_code = _settings(tmp_path, equivalent_commits=(("aaaa111", "bbbb222"),))
-    assert evaluate_claim(parse_claim(yaml.safe_load(split), 0), same_code).verdict.status == REPRODUCED
+    assert evaluate_claim(split, same_code).verdict.status == REPRODUCED
 
 
 def test_a_second_metric_of_the_same_runs_is_matched_with_the_equivalent_commits(probe_store, tmp_path):
